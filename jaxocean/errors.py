@@ -1,0 +1,53 @@
+"""Errors raised at jaxocean's public boundary, in two tiers.
+
+* Structural problems (wrong shapes, dtypes, unknown names) raise ``ValueError`` at trace
+  time, naming the offending value.
+* Value problems (negative amplitude, omega <= 0, NaN input, camera under the sea) raise
+  :class:`InvalidValueError` (a ``ValueError``) before any work is done -- when the inputs
+  are concrete. Under ``jit`` the values are tracers and cannot be inspected; validate the
+  inputs once outside the compiled function (every public entry point does when called
+  eagerly).
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+
+__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite"]
+
+
+class InvalidValueError(ValueError):
+    """A value outside the physical or numerical domain of a public function."""
+
+
+def is_concrete(*xs) -> bool:
+    """True when no leaf of ``xs`` is a tracer (values can be inspected)."""
+    return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(xs))
+
+
+def check_values(ok, message: str, value=None) -> None:
+    """Raise ``InvalidValueError(message)`` where ``ok`` is concrete and not all true.
+
+    ``value`` (array-like) is summarised in the message: the first offending entries.
+    """
+    if not is_concrete(ok, value):
+        return
+    ok = np.asarray(ok)
+    if ok.all():
+        return
+    if value is not None:
+        bad = np.broadcast_to(np.asarray(value), ok.shape)[~ok]
+        index = np.argwhere(~ok)[0].tolist() if ok.ndim else []
+        message = f"{message}; got {bad[:4].tolist()} (first at index {index}, {bad.size} offending)"
+    raise InvalidValueError(message)
+
+
+def check_finite(x, name: str) -> None:
+    """Raise if a concrete array contains NaN or inf."""
+    if not is_concrete(x):
+        return
+    arr = np.asarray(x)
+    if not np.all(np.isfinite(arr)):
+        n = int(np.size(arr) - np.isfinite(arr).sum())
+        raise InvalidValueError(f"{name} contains {n} NaN/inf value(s) of {arr.size}")

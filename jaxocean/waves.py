@@ -1,0 +1,129 @@
+"""Wave trains: the ``Waves`` pytree, deep-water dispersion and steepness.
+
+Protocol
+--------
+``Waves(amplitude, omega, theta, phase)`` is a registered pytree (a NamedTuple) whose four
+leaves share one shape ``(..., N)``: a trailing wave axis, optional leading batch axes that
+come from ``vmap`` or stacking.
+
+* ``amplitude`` h  [m]      >= 0
+* ``omega``     w  [rad/s]  > 0
+* ``theta``     direction of travel [rad], from +x counter-clockwise
+* ``phase``     phi [rad]; the paper's waves have phi = 0
+
+Deep-water dispersion: k = w^2 / g, wave vector k (cos theta, sin theta), wavelength
+2 pi / k, steepness k h (<= 1 for a trochoid without loops).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean.errors import check_values, is_concrete
+
+__all__ = [
+    "GRAVITY",
+    "Waves",
+    "make_waves",
+    "wavenumber",
+    "wave_vector",
+    "wavelength",
+    "period",
+    "steepness",
+    "total_steepness",
+    "validate",
+    "n_waves",
+]
+
+GRAVITY = 9.81  # m/s^2
+
+
+class Waves(NamedTuple):
+    """Component wave trains with a trailing wave axis ``(..., N)``."""
+
+    amplitude: jnp.ndarray
+    omega: jnp.ndarray
+    theta: jnp.ndarray
+    phase: jnp.ndarray
+
+
+def make_waves(amplitude, omega, theta, phase=None, dtype=None) -> Waves:
+    """Build ``Waves`` from array-likes, broadcasting ``phase`` (default 0) and validating."""
+    amplitude = jnp.asarray(amplitude, dtype)
+    dtype = amplitude.dtype if dtype is None else dtype
+    omega = jnp.asarray(omega, dtype)
+    theta = jnp.asarray(theta, dtype)
+    phase = jnp.zeros_like(omega) if phase is None else jnp.asarray(phase, dtype)
+    waves = Waves(amplitude, omega, theta, phase)
+    validate(waves)
+    return waves
+
+
+def n_waves(waves: Waves) -> int:
+    return waves.omega.shape[-1]
+
+
+def validate(waves: Waves, *, max_steepness: float | None = 1.0) -> Waves:
+    """Check structure (always) and values (when concrete). Returns ``waves`` unchanged.
+
+    Structure: four leaves of one shape with at least one axis, floating dtype -> ``ValueError``.
+    Values: h >= 0, w > 0, everything finite, k h <= ``max_steepness`` (None skips it) ->
+    :class:`jaxocean.errors.InvalidValueError`.
+    """
+    if not isinstance(waves, Waves):
+        raise ValueError(f"expected a jaxocean.Waves, got {type(waves).__name__}")
+    shapes = {name: jnp.shape(leaf) for name, leaf in zip(Waves._fields, waves)}
+    if len(set(shapes.values())) != 1:
+        raise ValueError(f"Waves leaves must share one shape (..., N); got {shapes}")
+    if len(shapes["omega"]) == 0:
+        raise ValueError("Waves leaves need a trailing wave axis (N,); got scalars")
+    for name, leaf in zip(Waves._fields, waves):
+        if not jnp.issubdtype(jnp.result_type(leaf), jnp.floating):
+            raise ValueError(f"Waves.{name} must be floating point; got {jnp.result_type(leaf)}")
+    if not is_concrete(waves):
+        return waves
+    for name, leaf in zip(Waves._fields, waves):
+        check_values(np.isfinite(leaf), f"Waves.{name} must be finite", leaf)
+    check_values(np.asarray(waves.amplitude) >= 0, "Waves.amplitude must be >= 0 m", waves.amplitude)
+    check_values(np.asarray(waves.omega) > 0, "Waves.omega must be > 0 rad/s", waves.omega)
+    if max_steepness is not None:
+        kh = np.asarray(steepness(waves))
+        # a relative tolerance so that waves clamped to k h = 1 in float32 still pass
+        check_values(kh <= max_steepness * (1 + 1e-5),
+                     f"wave steepness k*h must be <= {max_steepness} (no looping trochoid crests)", kh)
+    return waves
+
+
+def wavenumber(waves_or_omega):
+    """Deep-water wavenumber k = w^2 / g [rad/m]."""
+    omega = waves_or_omega.omega if isinstance(waves_or_omega, Waves) else waves_or_omega
+    return omega * omega / GRAVITY
+
+
+def wave_vector(waves: Waves):
+    """Wave vectors ``(..., N, 2)`` = k (cos theta, sin theta) [rad/m]."""
+    k = wavenumber(waves)
+    return jnp.stack([k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)], axis=-1)
+
+
+def wavelength(waves_or_omega):
+    """Wavelength 2 pi / k [m]."""
+    return 2 * jnp.pi / wavenumber(waves_or_omega)
+
+
+def period(waves_or_omega):
+    omega = waves_or_omega.omega if isinstance(waves_or_omega, Waves) else waves_or_omega
+    return 2 * jnp.pi / omega
+
+
+def steepness(waves: Waves):
+    """Per-wave steepness k h (dimensionless), shape ``(..., N)``."""
+    return wavenumber(waves) * waves.amplitude
+
+
+def total_steepness(waves: Waves):
+    """Sum of k h over the wave axis: a trochoid sea can fold where this exceeds 1."""
+    return jnp.sum(steepness(waves), axis=-1)

@@ -1,0 +1,34 @@
+"""Strict test configuration.
+
+* Warnings are errors (pyproject's ``filterwarnings``); only jaxopt's own deprecation
+  warning is filtered.
+* ``key`` gives a fresh PRNG key per test; ``x64`` switches 64-bit floats on for one test
+  (gradient checks run there).
+* hypothesis: a small deterministic profile so `make test` stays fast and reproducible.
+"""
+
+import os
+
+import jax
+import pytest
+from hypothesis import HealthCheck, settings
+
+settings.register_profile(
+    "ci",
+    max_examples=int(os.environ.get("HYPOTHESIS_MAX_EXAMPLES", "25")),
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture],
+)
+settings.load_profile("ci")
+
+
+@pytest.fixture
+def key():
+    return jax.random.key(0)
+
+
+@pytest.fixture
+def x64():
+    with jax.enable_x64(True):
+        yield
