@@ -41,6 +41,7 @@ __all__ = [
     "surface_point",
     "slope_variance",
     "on_grid",
+    "on_rows",
     "GridSurface",
     "phase",
     "normal_from_sums",
@@ -169,12 +170,59 @@ class GridSurface(NamedTuple):
         return jnp.sum(self.slope_variance, axis=-1)
 
 
+def _channel_coeffs(waves: Waves, weights):
+    """Coefficients of the eight wave sums, weighted per level: (cos (..., 4, N), sin (..., 4, N)).
+
+    cos channels: A_xx, A_xy, A_yy, d_z; sin channels: B_x, B_y, d_x, d_y. Weight arrays
+    ``(..., N)`` give per-row (or per-grid) coefficients with the same leading axes.
+    """
+    disp_sin, disp_cos = _displacement_coeffs(waves)
+    norm_sin, norm_cos = _normal_coeffs(waves)
+    w_disp, w_norm = _level(weights, "displacement"), _level(weights, "normal")
+    if w_disp is not None:
+        disp_sin, disp_cos = disp_sin * w_disp[..., None], disp_cos * w_disp[..., None]
+    if w_norm is not None:
+        norm_sin, norm_cos = norm_sin * w_norm[..., None], norm_cos * w_norm[..., None]
+    lead = jnp.broadcast_shapes(norm_cos.shape[:-1], disp_cos.shape[:-1])  # (..., N)
+
+    def join(a, b):
+        return jnp.concatenate([jnp.broadcast_to(a, lead + a.shape[-1:]), jnp.broadcast_to(b, lead + b.shape[-1:])], -1)
+
+    cos_coeffs, sin_coeffs = join(norm_cos, disp_cos), join(norm_sin, disp_sin)
+    return jnp.swapaxes(cos_coeffs, -1, -2), jnp.swapaxes(sin_coeffs, -1, -2)
+
+
+def _separable_lhs(cos_coeffs, sin_coeffs, cos_a, sin_a):
+    """Left factor ``(..., 8, 2N)`` of the separable product for phases psi = a + b.
+
+    [C cos a, -C sin a] @ [cos b; sin b] = sum C cos psi and [C sin a, C cos a] @ [cos b; sin b]
+    = sum C sin psi, so one right factor [cos b; sin b] ``(2N, ...)`` serves all channels.
+    ``cos_a``/``sin_a`` are ``(..., N)``; coefficients broadcast against them.
+    """
+    ca, sa = cos_a[..., None, :], sin_a[..., None, :]
+    lhs_cos = jnp.concatenate([cos_coeffs * ca, -cos_coeffs * sa], -1)
+    lhs_sin = jnp.concatenate([sin_coeffs * sa, sin_coeffs * ca], -1)
+    return jnp.concatenate([lhs_cos, lhs_sin], axis=-2)
+
+
+def _surface_from_sums(sums):
+    """Displacement and normal ``(..., 3)`` from the channel-major sums ``(8, ...)``."""
+    a_xx, a_xy, a_yy, d_z, b_x, b_y, d_x, d_y = sums
+    return jnp.stack([d_x, d_y, d_z], axis=-1), normal_from_sums(a_xx, a_xy, a_yy, b_x, b_y)
+
+
+def _check_weight_shape(waves: Waves, weights, shape, fn: str):
+    for level in ("displacement", "normal"):
+        w = _level(weights, level)
+        if w is not None and jnp.shape(w) != shape:
+            raise ValueError(f"{fn} needs {level} weights of shape {shape}; got {jnp.shape(w)}")
+
+
 def on_grid(waves: Waves, x, y, times, weights=None) -> GridSurface:
     """Displacement, normal and slope variance on the grid ``y (H,) x x (W,)`` at ``times (T,)``.
 
     Separable rank-N product: with a = w t + phi - k_y y (per t, row, wave) and b = -k_x x
-    (per column, wave), cos(a + b) = cos a cos b - sin a sin b and sin(a + b) = sin a cos b +
-    cos a sin b, so all eight wave sums are ONE matrix product of ``(T*H*8, 2N)`` by
+    (per column, wave), all eight wave sums are ONE matrix product of ``(T*H*8, 2N)`` by
     ``(2N, W)`` -- no per-pixel sin/cos. ``weights`` must be per-wave ``(N,)`` (a regular
     grid has one footprint).
     """
@@ -183,38 +231,59 @@ def on_grid(waves: Waves, x, y, times, weights=None) -> GridSurface:
     if x.ndim != 1 or y.ndim != 1 or times.ndim != 1:
         raise ValueError(f"x, y, times must be 1-D; got shapes {x.shape}, {y.shape}, {times.shape}")
     n = waves.omega.shape[-1]
-    w_disp, w_norm = _level(weights, "displacement"), _level(weights, "normal")
-    for name, w in (("displacement", w_disp), ("normal", w_norm)):
-        if w is not None and jnp.shape(w) != (n,):
-            raise ValueError(f"on_grid needs per-wave {name} weights of shape ({n},); got {jnp.shape(w)}")
+    _check_weight_shape(waves, weights, (n,), "on_grid (per-wave)")
 
     k = wavenumber(waves)
     kx, ky = k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)
     a = (waves.omega * times[:, None] + waves.phase)[:, None, :] - y[None, :, None] * ky  # (T, H, N)
     b = -x[:, None] * kx  # (W, N)
-    cos_a, sin_a = jnp.cos(a), jnp.sin(a)
     rhs = jnp.concatenate([jnp.cos(b), jnp.sin(b)], axis=-1).T  # (2N, W)
-
-    disp_sin, disp_cos = _displacement_coeffs(waves)
-    norm_sin, norm_cos = _normal_coeffs(waves)
-    if w_disp is not None:
-        disp_sin, disp_cos = disp_sin * w_disp[:, None], disp_cos * w_disp[:, None]
-    if w_norm is not None:
-        norm_sin, norm_cos = norm_sin * w_norm[:, None], norm_cos * w_norm[:, None]
-    cos_coeffs = jnp.concatenate([norm_cos, disp_cos], axis=-1).T  # (4, N): sums of cos psi
-    sin_coeffs = jnp.concatenate([norm_sin, disp_sin], axis=-1).T  # (4, N): sums of sin psi
-    # [C cos a, -C sin a] @ [cos b; sin b] = sum C cos psi;  [C sin a, C cos a] @ ... = sum C sin psi
-    lhs_cos = jnp.concatenate([cos_coeffs * cos_a[:, :, None, :], -cos_coeffs * sin_a[:, :, None, :]], -1)
-    lhs_sin = jnp.concatenate([sin_coeffs * sin_a[:, :, None, :], sin_coeffs * cos_a[:, :, None, :]], -1)
-    lhs = jnp.concatenate([lhs_cos, lhs_sin], axis=2)  # (T, H, 8, 2N)
+    lhs = _separable_lhs(*_channel_coeffs(waves, weights), jnp.cos(a), jnp.sin(a))  # (T, H, 8, 2N)
     # keep the matmul's natural (T, H, 8, W) layout: a channel-major output costs a transpose
     # that was measured 5x slower than the product itself
     sums = jnp.einsum("thcm,mw->thcw", lhs, rhs)
-    a_xx, a_xy, a_yy, d_z, b_x, b_y, d_x, d_y = (sums[:, :, c] for c in range(8))
-
-    disp = jnp.stack([d_x, d_y, d_z], axis=-1)
-    nrm = normal_from_sums(a_xx, a_xy, a_yy, b_x, b_y)
+    disp, nrm = _surface_from_sums(sums[:, :, c] for c in range(8))
     sx2, sy2 = slope_variance(waves, _level(weights, "roughness") if weights is not None
                               else jnp.zeros_like(waves.amplitude))
     slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2]), disp.shape[:-1] + (2,))
+    return GridSurface(displacement=disp, normal=nrm, slope_variance=slope_var)
+
+
+def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None) -> GridSurface:
+    """The surface at points that are evenly spaced along each row: X = origin[r] + j * step[r].
+
+    ``origin``, ``step``: ``(R, 2)`` [m]; ``n_cols`` static; ``t`` scalar. Per-row weights
+    ``(R, N)`` (a :class:`WaveWeights` with per-row arrays). Returns a ``GridSurface`` with
+    ``(R, n_cols, ...)`` arrays (no time axis).
+
+    This is the geometry of a pinhole camera without roll looking at the sea plane: along an
+    image row the hit points are affine in the column and the footprint is constant. The
+    phase is psi = alpha_r + j beta_r; splitting j = B a + b (B ~ sqrt(n_cols)) gives
+    e^{i psi} = e^{i(alpha + B a beta)} e^{i b beta}, so per row the eight wave sums are a
+    product of ``(8 A, 2N)`` by ``(2N, B)`` and only R (A + B) N sines are evaluated.
+    """
+    _check(waves)
+    origin, step = jnp.asarray(origin), jnp.asarray(step)
+    if origin.ndim != 2 or origin.shape[-1] != 2 or step.shape != origin.shape:
+        raise ValueError(f"origin and step must both be (R, 2); got {origin.shape} and {step.shape}")
+    rows, n = origin.shape[0], waves.omega.shape[-1]
+    _check_weight_shape(waves, weights, (rows, n), "on_rows (per-row)")
+    block = max(1, int(round(n_cols ** 0.5)))
+    n_blocks = -(-n_cols // block)
+
+    kvec = jnp.stack([wavenumber(waves) * jnp.cos(waves.theta), wavenumber(waves) * jnp.sin(waves.theta)])
+    alpha = waves.omega * t + waves.phase - jnp.dot(origin, kvec)  # (R, N)
+    beta = -jnp.dot(step, kvec)  # (R, N)
+    coarse = alpha[:, None, :] + (block * jnp.arange(n_blocks, dtype=beta.dtype))[None, :, None] * beta[:, None, :]
+    fine = jnp.arange(block, dtype=beta.dtype)[None, :, None] * beta[:, None, :]  # (R, B, N)
+    cos_coeffs, sin_coeffs = _channel_coeffs(waves, weights)  # (R, 4, N) or (4, N)
+    if cos_coeffs.ndim == 3:
+        cos_coeffs, sin_coeffs = cos_coeffs[:, None], sin_coeffs[:, None]  # broadcast over blocks
+    lhs = _separable_lhs(cos_coeffs, sin_coeffs, jnp.cos(coarse), jnp.sin(coarse))  # (R, A, 8, 2N)
+    rhs = jnp.concatenate([jnp.cos(fine), jnp.sin(fine)], axis=-1)  # (R, B, 2N)
+    sums = jnp.einsum("racm,rbm->racb", lhs, rhs)  # (R, A, 8, B)
+    disp, nrm = _surface_from_sums(sums[:, :, c].reshape(rows, n_blocks * block)[:, :n_cols] for c in range(8))
+    sx2, sy2 = slope_variance(waves, _level(weights, "roughness") if weights is not None
+                              else jnp.zeros_like(waves.amplitude))
+    slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[..., None, :], disp.shape[:-1] + (2,))
     return GridSurface(displacement=disp, normal=nrm, slope_variance=slope_var)

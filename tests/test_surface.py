@@ -137,6 +137,28 @@ def test_on_grid_equals_per_point_path(dtype, atol):
         assert float(sx2 + sy2) > 0  # some waves really went to roughness
 
 
+@pytest.mark.parametrize("n_cols", [23, 16, 1])
+def test_on_rows_equals_per_point_path_with_per_row_weights(n_cols):
+    waves = random_waves(3, 30)
+    rng = np.random.default_rng(0)
+    rows = 7
+    origin = rng.uniform(-5, 5, (rows, 2)).astype(np.float32)
+    step = rng.uniform(-0.3, 0.3, (rows, 2)).astype(np.float32)
+    weights = hierarchy.weights(waves, jnp.asarray(rng.uniform(1, 6, rows), jnp.float32))
+    got = surface.on_rows(waves, origin, step, n_cols, 0.7, weights)
+    xy = origin[:, None, :] + np.arange(n_cols)[None, :, None] * step[:, None, :]
+    per_pixel = jax.tree.map(lambda a: jnp.broadcast_to(a[:, None, :], (rows, n_cols, a.shape[-1])), weights)
+    assert got.normal.shape == (rows, n_cols, 3)
+    np.testing.assert_allclose(got.displacement, surface.displacement(waves, xy, 0.7, per_pixel), atol=1e-5)
+    np.testing.assert_allclose(got.normal, surface.normal(waves, xy, 0.7, per_pixel), atol=1e-5)
+    sx2, sy2 = surface.slope_variance(waves, per_pixel)
+    np.testing.assert_allclose(got.slope_variance[..., 0], sx2, rtol=1e-5)
+    np.testing.assert_allclose(got.slope_variance[..., 1], sy2, rtol=1e-5)
+    assert float(jnp.max(sx2 + sy2)) > 0  # the footprints really split the sea
+    with pytest.raises(ValueError, match=r"origin and step must both be \(R, 2\)"):
+        surface.on_rows(waves, origin, step[:3], n_cols, 0.0)
+
+
 def test_vmap_over_batches_of_seas():
     batch = jax.tree.map(lambda *a: jnp.stack(a), *[random_waves(s, 6) for s in range(3)])
     x = jnp.linspace(0, 5, 8)
@@ -157,7 +179,7 @@ def test_structural_errors_name_the_problem():
     batch = jax.tree.map(lambda a: jnp.stack([a, a]), waves)
     with pytest.raises(ValueError, match="use jax.vmap"):
         surface.displacement(batch, jnp.zeros((5, 2)), 0.0)
-    with pytest.raises(ValueError, match=r"per-wave \w+ weights of shape \(4,\)"):
+    with pytest.raises(ValueError, match=r"on_grid \(per-wave\) needs \w+ weights of shape \(4,\)"):
         surface.on_grid(waves, jnp.zeros(3), jnp.zeros(3), jnp.zeros(1), jnp.ones((3, 4)))
     with pytest.raises(InvalidValueError, match="omega must be > 0"):
         surface.normal(waves._replace(omega=-waves.omega), jnp.zeros((1, 2)), 0.0)

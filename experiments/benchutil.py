@@ -1,0 +1,71 @@
+"""Shared timing, memory and reporting helpers for the benchmarks in ``experiments/``.
+
+Protocol: ``time_jitted(fn, *args)`` compiles ``fn`` once (timed separately), then reports
+the median wall time of ``repeats`` calls with ``jax.block_until_ready``; peak memory is
+XLA's own accounting of the compiled program (arguments + outputs + temporaries), which is
+deterministic on the CPU backend. ``save(name, rows, meta)`` writes
+``experiments/results/NAME.json``; charts go beside it as PNG.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results"
+
+
+def time_jitted(fn, *args, repeats: int = 5, min_time: float = 0.0):
+    """Return ``dict(compile_s, median_s, min_s, repeats, peak_bytes)`` for ``jax.jit(fn)(*args)``."""
+    jitted = jax.jit(fn)
+    t0 = time.perf_counter()
+    compiled = jitted.lower(*args).compile()
+    compile_s = time.perf_counter() - t0
+    jax.block_until_ready(compiled(*args))  # first run: allocation, page faults
+    times = []
+    while len(times) < repeats or sum(times) < min_time:
+        t0 = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - t0)
+    mem = compiled.memory_analysis()
+    peak = None
+    if mem is not None:
+        peak = int(mem.argument_size_in_bytes + mem.output_size_in_bytes + mem.temp_size_in_bytes
+                   - getattr(mem, "alias_size_in_bytes", 0))
+    return dict(compile_s=compile_s, median_s=float(np.median(times)), min_s=float(np.min(times)),
+                repeats=len(times), peak_bytes=peak)
+
+
+def machine_info() -> dict:
+    return dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
+                jax=jax.__version__, backend=jax.default_backend(),
+                devices=[str(d) for d in jax.devices()])
+
+
+def save(name: str, rows, meta: dict | None = None) -> Path:
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    path = RESULTS / f"{name}.json"
+    payload = dict(meta=dict(machine=machine_info(), **(meta or {})), rows=rows)
+    tmp = path.with_suffix(".json.tmp")
+    tmp.write_text(json.dumps(payload, indent=1))
+    tmp.replace(path)
+    return path
+
+
+def print_table(rows, columns) -> None:
+    widths = [max(len(c), *(len(_fmt(r.get(c))) for r in rows)) for c in columns]
+    print("  ".join(c.rjust(w) for c, w in zip(columns, widths)))
+    for r in rows:
+        print("  ".join(_fmt(r.get(c)).rjust(w) for c, w in zip(columns, widths)))
+
+
+def _fmt(v) -> str:
+    if isinstance(v, float):
+        return f"{v:.4g}"
+    return str(v)
