@@ -1,0 +1,78 @@
+"""Pictures a person looks at: display conversions and contact sheets (matplotlib, PNG).
+
+Protocol: functions take linear images / geometry as arrays (numpy or jax) and write PNG
+files atomically; nothing here is differentiable or used inside a model.
+
+* ``normal_to_rgb(normal (H,W,3)) -> uint8 (H,W,3)``: the usual (n + 1) / 2 encoding.
+* ``roughness_to_rgb(roughness (H,W), vmax=None) -> uint8 (H,W,3)``: log10 colour map.
+* ``contact_sheet(path, rows, col_titles=None, row_titles=None, title=None)``: a grid of
+  images (each uint8 or float in [0, 1]) saved as one PNG.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["normal_to_rgb", "roughness_to_rgb", "display", "contact_sheet"]
+
+
+def normal_to_rgb(normal, mask=None):
+    n = np.asarray(normal, np.float32)
+    rgb = np.clip((n + 1.0) * 0.5, 0.0, 1.0)
+    if mask is not None:
+        rgb = np.where(np.asarray(mask)[..., None], rgb, 0.0)
+    return (rgb * 255 + 0.5).astype(np.uint8)
+
+
+def roughness_to_rgb(roughness, mask=None, vmin=1e-5, vmax=1e-1):
+    import matplotlib
+
+    r = np.log10(np.clip(np.asarray(roughness, np.float64), vmin, vmax))
+    s = (r - np.log10(vmin)) / (np.log10(vmax) - np.log10(vmin))
+    rgb = matplotlib.colormaps["magma"](s)[..., :3]
+    if mask is not None:
+        rgb = np.where(np.asarray(mask)[..., None], rgb, 0.0)
+    return (rgb * 255 + 0.5).astype(np.uint8)
+
+
+def display(linear_image, exposure=1.0, mode="bruneton"):
+    """Tone-mapped uint8 image from linear radiance."""
+    from jaxocean.shading import tonemap
+
+    return (np.asarray(tonemap(np.asarray(linear_image, np.float32), exposure, mode)) * 255 + 0.5).astype(np.uint8)
+
+
+def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_inches=2.6):
+    """Save a grid of images (``rows``: list of lists of (H,W,3) arrays) as one PNG."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n_rows, n_cols = len(rows), max(len(r) for r in rows)
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(cell_inches * n_cols, cell_inches * 0.8 * n_rows + 0.4),
+                             squeeze=False)
+    for i, row in enumerate(rows):
+        for j in range(n_cols):
+            ax = axes[i][j]
+            ax.axis("off")
+            if j < len(row) and row[j] is not None:
+                ax.imshow(row[j])
+            if i == 0 and col_titles and j < len(col_titles):
+                ax.set_title(col_titles[j], fontsize=9)
+            if j == 0 and row_titles and i < len(row_titles):
+                ax.text(-0.04, 0.5, row_titles[i], transform=ax.transAxes, ha="right", va="center", fontsize=8,
+                        rotation=90)
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}.png")
+    fig.savefig(tmp, dpi=100)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
