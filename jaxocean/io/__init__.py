@@ -1,0 +1,82 @@
+"""File formats: OpenEXR frames, ``scene.json``, images and video (DESIGN section 5).
+
+A rendered or observed sequence is a directory::
+
+    scene.json           waves, camera, lighting, spectrum, frame times, seed, version
+    frame_00000.exr      R G B linear radiance [+ normal.X/Y/Z, roughness, mask]
+    frame_00001.exr
+    ...
+
+* :mod:`jaxocean.io.exr`     -- :func:`write_frame` / :func:`read_frame`, the channel
+  protocol, and :func:`atomic_write`, through which every writer here goes.
+* :mod:`jaxocean.io.scene`   -- :func:`scene_to_dict` / :func:`scene_from_dict`,
+  :func:`write_scene` / :func:`read_scene`.
+* :mod:`jaxocean.io.images`  -- :func:`load_image` / :func:`load_video` (display-referred
+  pixels back to linear radiance) and :func:`save_png` previews.
+
+Writes are atomic: a file under its final name is always complete, so an interrupted job
+resumes by skipping the files that exist. Reading errors name the file
+(:class:`FileFormatError`, :class:`MissingFileError`). This is host-side code: readers
+return NumPy arrays (frames, images) or JAX pytrees (scenes); nothing here is jitted.
+"""
+
+from jaxocean.io import exr, images, scene
+from jaxocean.io.exr import (
+    COMPRESSIONS,
+    GEOMETRY_CHANNELS,
+    META_PREFIX,
+    NORMAL_CHANNELS,
+    RGB_CHANNELS,
+    FileFormatError,
+    Frame,
+    FrameError,
+    MissingFileError,
+    atomic_write,
+    read_frame,
+    write_frame,
+)
+from jaxocean.io.images import VIDEO_SUFFIXES, load_image, load_video, save_png
+from jaxocean.io.scene import (
+    SCENE_FILENAME,
+    Scene,
+    SceneError,
+    SceneFileError,
+    read_scene,
+    scene_from_dict,
+    scene_to_dict,
+    write_scene,
+)
+
+__all__ = [
+    "exr",
+    "images",
+    "scene",
+    # frames
+    "RGB_CHANNELS",
+    "NORMAL_CHANNELS",
+    "GEOMETRY_CHANNELS",
+    "META_PREFIX",
+    "COMPRESSIONS",
+    "Frame",
+    "write_frame",
+    "read_frame",
+    "atomic_write",
+    # errors
+    "FileFormatError",
+    "MissingFileError",
+    "FrameError",
+    "SceneError",
+    "SceneFileError",
+    # scenes
+    "SCENE_FILENAME",
+    "Scene",
+    "scene_to_dict",
+    "scene_from_dict",
+    "write_scene",
+    "read_scene",
+    # images and video
+    "VIDEO_SUFFIXES",
+    "load_image",
+    "load_video",
+    "save_png",
+]

@@ -1,0 +1,405 @@
+"""OpenEXR frames: one file per frame, linear radiance plus per-pixel geometry.
+
+Protocol
+--------
+Each frame is one single-part, scanline OpenEXR file of ``H x W`` pixels, row 0 at the top
+(the camera's image convention). Its channels:
+
+=====================================  =============================================  ==========
+channel                                meaning                                         units
+=====================================  =============================================  ==========
+``R``, ``G``, ``B``                    linear radiance: no tone map, no gamma          scene-linear
+``normal.X``, ``normal.Y``,            unit macro-surface normal, world frame (z up)   --
+``normal.Z``
+``roughness``                          sub-pixel slope variance sigma^2                dimensionless
+``mask``                               1 where the pixel sees the sea, 0 for sky        0 / 1
+=====================================  =============================================  ==========
+
+``R G B`` are always there; the five geometry channels are written together or not at all
+(a file with some of them is reported as incomplete). Channels outside this list are ignored
+on reading, so files from other tools load as long as they carry ``R G B``.
+
+Pixel type and compression. All channels of a file share one pixel type: half (float16) by
+default, float32 with ``half=False``. Half floats keep 11 significant bits (relative error
+<= 2^-11 ~ 4.9e-4) for magnitudes in [6.1e-5, 65504]; below 6.1e-5 they are subnormal with
+an absolute step of 6e-8 (roughness near its 2e-5 floor keeps ~3e-3 relative precision), and
+values above 65504 would become inf, so :func:`write_frame` refuses them (write such frames
+with ``half=False``). Float32 frames read back bit-exact. ZIP compression (lossless) is the
+default; any OpenEXR compression can be named (``"none"``, ``"piz"``, ``"zstd"``, ...;
+``"pxr24"``, ``"b44"``, ``"dwaa"`` ... are lossy).
+
+Metadata. ``meta`` is a small flat dict (scene id, frame index, time, ...) stored as header
+attributes named ``"jaxocean.<key>"``: a ``str`` as a string attribute, an ``int`` as a
+32-bit int attribute, a ``float`` as a one-element double vector -- OpenEXR's scalar
+``float`` attribute has 32 bits and would turn a frame time of 0.1 into 0.10000000149.
+Every value round-trips exactly.
+
+Atomicity and resuming. A frame is written to a hidden temporary file in the destination
+directory (``.{name}.tmp-{pid}``), flushed to disk, then renamed over the final name
+(:func:`atomic_write`). A file under a frame's final name is therefore always complete, even
+if the process dies mid-write: a generator that is restarted can skip every frame whose file
+exists. A killed process may leave its temporary file behind; it is never read and may be
+deleted. Everything is validated (shapes, finite values, half range, metadata) before the
+first byte is written.
+
+Errors. Reading reports the file by name: :class:`MissingFileError` (also a
+``FileNotFoundError``) for a missing file, :class:`FrameError` for a corrupt or truncated
+file, a missing ``R``/``G``/``B`` channel, an incomplete geometry channel set, mismatched
+channel sizes or an unexpected resolution. All are ``ValueError`` subclasses via
+:class:`jaxocean.errors.InvalidValueError`.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import Any, Callable, NamedTuple
+
+import numpy as np
+import OpenEXR
+
+from jaxocean.errors import InvalidValueError, check_finite
+
+__all__ = [
+    "RGB_CHANNELS",
+    "NORMAL_CHANNELS",
+    "GEOMETRY_CHANNELS",
+    "META_PREFIX",
+    "COMPRESSIONS",
+    "FileFormatError",
+    "MissingFileError",
+    "FrameError",
+    "Frame",
+    "atomic_write",
+    "write_frame",
+    "read_frame",
+]
+
+RGB_CHANNELS = ("R", "G", "B")
+NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
+GEOMETRY_CHANNELS = NORMAL_CHANNELS + ("roughness", "mask")
+META_PREFIX = "jaxocean."
+"""Header attributes of the ``meta`` dict are named ``META_PREFIX + key``."""
+
+# "zip" -> OpenEXR.ZIP_COMPRESSION, ... ("none" for NO_COMPRESSION): every compression this
+# OpenEXR build knows.
+_COMPRESSION_BY_NAME = {
+    ("none" if name == "NO_COMPRESSION" else name.removesuffix("_COMPRESSION").lower()): value
+    for name, value in OpenEXR.Compression.__members__.items()
+    if name.endswith("_COMPRESSION")
+}
+COMPRESSIONS = tuple(_COMPRESSION_BY_NAME)
+"""Names accepted by ``write_frame(compression=...)``."""
+
+_HALF_MAX = float(np.finfo(np.float16).max)  # 65504
+_INT32_RANGE = (-(2**31), 2**31 - 1)
+
+
+# --------------------------------------------------------------------------- errors
+
+
+class FileFormatError(InvalidValueError):
+    """A file that cannot be used as what it should be; the message names the file.
+
+    ``path`` is the offending file, ``problem`` what is wrong with it.
+    """
+
+    def __init__(self, path, problem: str):
+        self.path = os.fspath(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+    def __reduce__(self):
+        # Rebuild from (path, problem), not from the formatted message, so that the error
+        # survives pickling (multiprocessing data loaders send it between processes).
+        return type(self), (self.path, self.problem)
+
+
+class MissingFileError(FileFormatError, FileNotFoundError):
+    """The file does not exist (catchable as ``FileNotFoundError`` too)."""
+
+
+class FrameError(FileFormatError):
+    """An OpenEXR frame file that is corrupt, truncated or misses protocol channels."""
+
+
+def _require_file(path, what: str) -> Path:
+    """``Path(path)``, or :class:`MissingFileError` if it is not an existing file."""
+    path = Path(path)
+    if not path.is_file():
+        raise MissingFileError(path, f"no such {what}")
+    return path
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+def atomic_write(path, write: Callable[[Path], Any]) -> Path:
+    """Create or replace ``path`` atomically: ``write(temporary_path)`` then rename.
+
+    ``write`` receives the path of a temporary file in the destination directory
+    (``.{name}.tmp-{pid}``; same directory, so the final rename never crosses file systems)
+    and must create it. The file is flushed to disk, then ``os.replace``-d onto ``path``:
+    readers see either the old file or the complete new one, never a partial file. If
+    ``write`` raises, the temporary file is removed and ``path`` is left as it was. Missing
+    parent directories are created. Every writer of :mod:`jaxocean.io` goes through here.
+
+    Returns:
+        ``path`` as a :class:`pathlib.Path`.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        write(temporary)
+        _fsync(temporary)
+        os.replace(temporary, path)
+    except BaseException:
+        # BaseException: a KeyboardInterrupt mid-write must not leave the temporary behind.
+        temporary.unlink(missing_ok=True)
+        raise
+    _fsync_directory(path.parent)
+    return path
+
+
+def _fsync(path: Path) -> None:
+    """Flush a file's data to disk, so that the rename can never expose an empty file after
+    a power cut (the rename may reach the disk before the data otherwise)."""
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _fsync_directory(directory: Path) -> None:
+    """Persist the rename itself; best effort (not every platform can open a directory)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass
+    finally:
+        os.close(fd)
+
+
+# --------------------------------------------------------------------------- writing
+
+
+class Frame(NamedTuple):
+    """One frame read by :func:`read_frame`: NumPy arrays on the host.
+
+    * ``image``     ``(H, W, 3)`` float32 linear radiance (R, G, B).
+    * ``normal``    ``(H, W, 3)`` float32 unit normals, or None if the file has no geometry.
+    * ``roughness`` ``(H, W)`` float32 slope variance sigma^2, or None.
+    * ``mask``      ``(H, W)`` bool, True where the pixel sees the sea, or None.
+    * ``meta``      dict of the ``jaxocean.*`` header attributes, prefix removed.
+    """
+
+    image: np.ndarray
+    normal: np.ndarray | None
+    roughness: np.ndarray | None
+    mask: np.ndarray | None
+    meta: dict
+
+
+def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, compression: str = "zip") -> Path:
+    """Write one frame as an OpenEXR file, atomically (see the module docstring).
+
+    Args:
+        path: destination file (conventionally ``frame_00000.exr``); parent directories
+            are created.
+        image: ``(H, W, 3)`` linear radiance, NumPy or JAX, any real dtype.
+        geometry: optional per-pixel geometry: a :class:`jaxocean.render.Geometry`, or any
+            object or dict with ``normal (H, W, 3)``, ``roughness (H, W)`` and ``mask
+            (H, W)`` (bool, or numbers 0 / 1).
+        meta: optional flat dict ``{str: str | int | float}`` stored as header attributes
+            ``jaxocean.<key>``; ints must fit 32 bits, floats must be finite.
+        half: store half floats (default) or, with False, float32 (bit-exact round trip).
+        compression: one of :data:`COMPRESSIONS`; ``"zip"`` (lossless) by default.
+
+    Returns:
+        the written path.
+
+    Raises:
+        ValueError: wrong shapes, dtypes, compression name or metadata types.
+        InvalidValueError: NaN/inf values (naming the channel), |value| > 65504 with
+            ``half=True``, a mask that is not 0/1. Nothing is written in either case.
+    """
+    if compression not in _COMPRESSION_BY_NAME:
+        raise ValueError(f"unknown EXR compression {compression!r}; expected one of {COMPRESSIONS}")
+    pixel_type = np.float16 if half else np.float32
+    planes = _frame_planes(image, geometry)
+    if half:
+        for name, plane in planes.items():
+            _check_half_range(plane, name)
+    channels = {name: np.ascontiguousarray(plane, dtype=pixel_type) for name, plane in planes.items()}
+    header = {
+        "compression": _COMPRESSION_BY_NAME[compression],
+        "type": OpenEXR.scanlineimage,
+        **_meta_to_header(meta),
+    }
+
+    def write(temporary: Path) -> None:
+        # OpenEXR.File replaces the values of the dicts it is given: hand it copies.
+        OpenEXR.File(dict(header), dict(channels)).write(os.fspath(temporary))
+
+    return atomic_write(path, write)
+
+
+def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
+    """Validate the frame and split it into named, finite ``(H, W)`` planes (views of the inputs).
+
+    Each plane is cut from its source array and copied later by ``np.ascontiguousarray``:
+    the OpenEXR binding writes a strided view such as ``rgb[..., 0]`` silently wrong.
+    """
+    image = _real_array(image, "image")
+    if image.ndim != 3 or image.shape[-1] != 3 or 0 in image.shape:
+        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
+    resolution = image.shape[:2]
+    planes = {name: image[..., c] for c, name in enumerate(RGB_CHANNELS)}
+    if geometry is not None:
+        normal = _real_array(_geometry_field(geometry, "normal"), "normal")
+        roughness = _real_array(_geometry_field(geometry, "roughness"), "roughness")
+        mask = _mask_plane(_geometry_field(geometry, "mask"))
+        for name, array, shape in (
+            ("normal", normal, resolution + (3,)),
+            ("roughness", roughness, resolution),
+            ("mask", mask, resolution),
+        ):
+            if array.shape != shape:
+                raise ValueError(f"geometry.{name} must have shape {shape} to match the image; got {array.shape}")
+        planes.update({name: normal[..., c] for c, name in enumerate(NORMAL_CHANNELS)})
+        planes.update(roughness=roughness, mask=mask)
+    for name, plane in planes.items():
+        check_finite(plane, f"EXR channel {name!r}")
+    return planes
+
+
+def _real_array(x, name: str, kinds: str = "iuf") -> np.ndarray:
+    array = np.asarray(x)
+    if array.dtype.kind not in kinds:
+        raise ValueError(f"{name} must be real numbers; got dtype {array.dtype}")
+    return array
+
+
+def _geometry_field(geometry, name: str):
+    try:
+        return geometry[name] if isinstance(geometry, dict) else getattr(geometry, name)
+    except (KeyError, AttributeError):
+        raise ValueError(
+            f"geometry needs fields 'normal', 'roughness' and 'mask'; {type(geometry).__name__} has no {name!r}"
+        ) from None
+
+
+def _mask_plane(mask) -> np.ndarray:
+    mask = _real_array(mask, "mask", kinds="biuf")
+    if mask.dtype != bool:
+        # A soft or garbled mask is a bug upstream: refuse it rather than threshold it here.
+        check_finite(mask, "EXR channel 'mask'")
+        if not np.all((mask == 0) | (mask == 1)):
+            raise InvalidValueError("geometry.mask must be bool or 0/1")
+    return mask.astype(np.float32)
+
+
+def _check_half_range(plane: np.ndarray, name: str) -> None:
+    largest = float(np.max(np.abs(plane), initial=0.0))
+    if largest > _HALF_MAX:
+        raise InvalidValueError(
+            f"EXR channel {name!r} holds {largest:g}, beyond the half-float range "
+            f"(|x| <= {_HALF_MAX:g}); write this frame with half=False"
+        )
+
+
+def _meta_to_header(meta) -> dict:
+    """``{key: value}`` -> ``{"jaxocean.key": attribute}`` (see the module docstring)."""
+    header = {}
+    for key, value in (meta or {}).items():
+        if not isinstance(key, str) or not key:
+            raise ValueError(f"meta keys must be non-empty strings; got {key!r}")
+        if isinstance(value, np.generic):
+            value = value.item()
+        if isinstance(value, bool) or not isinstance(value, (str, int, float)):
+            raise ValueError(f"meta[{key!r}] must be a str, int or float; got {type(value).__name__}")
+        if isinstance(value, int) and not _INT32_RANGE[0] <= value <= _INT32_RANGE[1]:
+            # The binding would store an out-of-range int as 0 without a word.
+            raise ValueError(f"meta[{key!r}] = {value} does not fit the 32-bit EXR int attribute; store it as a str")
+        if isinstance(value, float):
+            if not np.isfinite(value):
+                raise InvalidValueError(f"meta[{key!r}] must be finite; got {value}")
+            value = np.array([value], dtype=np.float64)  # a double vector: exact, unlike "float"
+        header[META_PREFIX + key] = value
+    return header
+
+
+def _meta_from_header(header: dict) -> dict:
+    meta = {}
+    for name, value in header.items():
+        if not name.startswith(META_PREFIX):
+            continue
+        if isinstance(value, np.ndarray) and value.shape == (1,) and value.dtype.kind == "f":
+            value = float(value[0])
+        meta[name.removeprefix(META_PREFIX)] = value
+    return meta
+
+
+# --------------------------------------------------------------------------- reading
+
+
+def read_frame(path, *, expect_resolution=None) -> Frame:
+    """Read a frame written by :func:`write_frame` (or any OpenEXR file with ``R G B``).
+
+    Args:
+        path: the ``.exr`` file.
+        expect_resolution: optional ``(H, W)``; a frame of another size is an error.
+
+    Returns:
+        a :class:`Frame` of float32 NumPy arrays (the mask as bool: channel value > 0.5),
+        geometry fields None when the file has no geometry channels.
+
+    Raises:
+        MissingFileError: no such file.
+        FrameError: the file is corrupt or truncated, lacks a channel of ``R G B``, has
+            only part of the geometry channels, has channels of different sizes, or is not
+            ``expect_resolution``. The message names the file (and the channels).
+    """
+    path = _require_file(path, "EXR frame file")
+    try:
+        exr = OpenEXR.File(os.fspath(path), separate_channels=True)
+        header = exr.header()
+        # The binding reads pixel data lazily: truncation surfaces here, not at opening.
+        pixels = {name: channel.pixels for name, channel in exr.channels().items()}
+    except (RuntimeError, ValueError, OSError) as error:
+        raise FrameError(path, f"corrupt or truncated OpenEXR file ({error})") from error
+
+    missing_rgb = [name for name in RGB_CHANNELS if name not in pixels]
+    if missing_rgb:
+        raise FrameError(path, f"missing channel(s) {missing_rgb}; a frame needs {list(RGB_CHANNELS)}")
+    present_geometry = [name for name in GEOMETRY_CHANNELS if name in pixels]
+    if present_geometry and len(present_geometry) != len(GEOMETRY_CHANNELS):
+        missing = [name for name in GEOMETRY_CHANNELS if name not in pixels]
+        raise FrameError(path, f"incomplete geometry: has {present_geometry} but is missing channel(s) {missing}")
+
+    used = RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ())
+    shapes = {name: np.shape(pixels[name]) for name in used}
+    if len(set(shapes.values())) != 1:
+        raise FrameError(path, f"channels of different sizes (subsampled?): {shapes}")
+    resolution = shapes["R"]
+    if expect_resolution is not None and tuple(resolution) != tuple(expect_resolution):
+        raise FrameError(path, f"resolution {tuple(resolution)} (H, W), expected {tuple(expect_resolution)}")
+
+    def stack(names):
+        return np.stack([np.asarray(pixels[name], dtype=np.float32) for name in names], axis=-1)
+
+    if not present_geometry:
+        return Frame(stack(RGB_CHANNELS), None, None, None, _meta_from_header(header))
+    return Frame(
+        image=stack(RGB_CHANNELS),
+        normal=stack(NORMAL_CHANNELS),
+        roughness=np.asarray(pixels["roughness"], dtype=np.float32),
+        mask=np.asarray(pixels["mask"]) > 0.5,
+        meta=_meta_from_header(header),
+    )

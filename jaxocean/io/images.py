@@ -1,0 +1,163 @@
+"""Images and videos as linear radiance, and PNG previews.
+
+Observed ocean images come in two kinds:
+
+* **Display-referred** (PNG, JPEG, GIF, video): pixel values are what a screen shows, i.e.
+  linear radiance after exposure and a tone curve. :func:`load_image` and :func:`load_video`
+  bring them back to linear radiance in two steps:
+
+  1. integers to display values in [0, 1]: ``uint8 / 255``, ``uint16 / 65535`` (floats are
+     taken as display values already); a gray image is repeated over R, G, B and an alpha
+     channel is dropped;
+  2. ``radiance = jaxocean.shading.inverse_tonemap(display, exposure, mode=space)``:
+     ``space="srgb"`` (photographs and most video: the sRGB transfer curve),
+     ``"bruneton"`` (images made by :func:`save_png` or the paper's renderer) or
+     ``"linear"`` (display value = radiance x exposure). ``exposure`` is the one the image
+     was tone-mapped with. Saturated pixels (display 1) have no unique radiance and come
+     back at the lower bound of what they could be (see ``inverse_tonemap``).
+
+* **Scene-referred** (OpenEXR): the ``R G B`` channels already are linear radiance and are
+  returned as they are; ``space`` and ``exposure`` do not apply.
+
+Everything is returned as float32 NumPy arrays on the host, ``(H, W, 3)`` per image and
+``(T, H, W, 3)`` per video. Video needs an imageio plugin for its container (PyAV or
+imageio-ffmpeg for MP4, MOV, AVI, ...); GIF is read by Pillow, which imageio always has.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+from pathlib import Path
+
+import imageio.v3 as iio
+import numpy as np
+
+from jaxocean.errors import check_finite
+from jaxocean.io.exr import FileFormatError, _require_file, atomic_write, read_frame
+from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
+
+__all__ = ["VIDEO_SUFFIXES", "load_image", "load_video", "save_png"]
+
+VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
+"""Containers that imageio reads only through a video plugin (PyAV or imageio-ffmpeg)."""
+
+_EXR_SUFFIX = ".exr"
+
+# Formats Pillow decodes: naming the plugin makes a broken file fail there, with Pillow's
+# message, instead of imageio probing every other backend (some warn while they fail).
+_PILLOW_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".bmp", ".webp")
+
+
+def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
+    """Load one image as linear radiance ``(H, W, 3)`` float32 (see the module docstring).
+
+    Args:
+        path: a PNG, JPEG, ... file (display-referred) or an OpenEXR file (linear).
+        space: the tone curve the display-referred image was made with, one of
+            ``"srgb"`` (default), ``"bruneton"``, ``"linear"``.
+        exposure: the exposure it was made with, > 0.
+
+    Raises:
+        MissingFileError: no such file.
+        FileFormatError: a file imageio (or OpenEXR) cannot decode, naming it.
+        ValueError: unknown ``space``.
+    """
+    _check_space(space)
+    path = _require_file(path, "image file")
+    if path.suffix.lower() == _EXR_SUFFIX:
+        return read_frame(path).image
+    try:
+        pixels = iio.imread(path, plugin=_plugin(path))
+    except (OSError, ValueError) as error:
+        raise FileFormatError(path, f"cannot read the image ({error})") from error
+    return _to_linear(_rgb_display(pixels, path), space, exposure)
+
+
+def load_video(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
+    """Load every frame of a video (or animated GIF) as linear radiance ``(T, H, W, 3)`` float32.
+
+    Frames are decoded one by one (imageio's frame iterator) and converted as in
+    :func:`load_image`.
+
+    Raises:
+        MissingFileError: no such file.
+        ImportError: a video container (:data:`VIDEO_SUFFIXES`) and no imageio video plugin
+            installed; the message says what to install.
+        FileFormatError: undecodable file, no frames, or frames of different sizes.
+        ValueError: unknown ``space``.
+    """
+    _check_space(space)
+    path = _require_file(path, "video file")
+    if path.suffix.lower() in VIDEO_SUFFIXES and not _video_plugin_available():
+        raise ImportError(
+            f"reading the video {str(path)!r} needs an imageio video plugin, and neither PyAV nor "
+            f"imageio-ffmpeg is installed: pip install 'imageio[pyav]' (or 'imageio[ffmpeg]')"
+        )
+    try:
+        frames = [_rgb_display(frame, path) for frame in iio.imiter(path, plugin=_plugin(path))]
+    except (OSError, ValueError) as error:
+        raise FileFormatError(path, f"cannot read the video ({error})") from error
+    if not frames:
+        raise FileFormatError(path, "the video has no frames")
+    shapes = {frame.shape for frame in frames}
+    if len(shapes) != 1:
+        raise FileFormatError(path, f"frames of different sizes {sorted(shapes)}")
+    return _to_linear(np.stack(frames), space, exposure)
+
+
+def save_png(path, linear_image, exposure=1.0, mode: str = "bruneton") -> Path:
+    """Tone-map linear radiance ``(H, W, 3)`` and save it as an 8-bit PNG, atomically.
+
+    ``display = jaxocean.shading.tonemap(linear_image, exposure, mode)``, rounded to the
+    nearest of 256 levels. :func:`load_image` with ``space=mode`` and the same exposure
+    inverts it up to that quantisation (half a level, 1/510, in the display domain).
+
+    Returns:
+        the written path.
+    """
+    _check_space(mode)
+    image = np.asarray(linear_image)
+    if image.ndim != 3 or image.shape[-1] != 3 or 0 in image.shape or image.dtype.kind not in "iuf":
+        raise ValueError(f"save_png expects a real (H, W, 3) linear RGB image; got {image.dtype} {image.shape}")
+    check_finite(image, "linear_image")
+    display = np.asarray(tonemap(image, exposure, mode), dtype=np.float64)
+    levels = np.round(np.clip(display, 0.0, 1.0) * 255).astype(np.uint8)
+    # The temporary name does not end in .png, so the format is named explicitly.
+    return atomic_write(path, lambda temporary: iio.imwrite(temporary, levels, extension=".png"))
+
+
+def _check_space(space: str) -> None:
+    if space not in TONEMAP_MODES:
+        raise ValueError(f"unknown display space {space!r}; expected one of {TONEMAP_MODES}")
+
+
+def _plugin(path: Path) -> str | None:
+    """The imageio plugin for ``path``: Pillow for its formats, else imageio's choice."""
+    return "pillow" if path.suffix.lower() in _PILLOW_SUFFIXES else None
+
+
+def _video_plugin_available() -> bool:
+    return any(importlib.util.find_spec(module) is not None for module in ("av", "imageio_ffmpeg"))
+
+
+def _rgb_display(pixels: np.ndarray, path) -> np.ndarray:
+    """Decoded pixels ``(H, W)``, ``(H, W, 1|2|3|4)`` -> display values ``(H, W, 3)`` in [0, 1]."""
+    pixels = np.asarray(pixels)
+    if pixels.ndim == 2:
+        pixels = pixels[..., None]
+    if pixels.ndim != 3 or pixels.shape[-1] not in (1, 2, 3, 4):
+        raise FileFormatError(path, f"not an image of 1-4 channels: decoded shape {pixels.shape}")
+    # Gray (+ alpha) -> gray; RGB (+ alpha) -> RGB: the alpha channel is not radiance.
+    colour = pixels[..., :1] if pixels.shape[-1] <= 2 else pixels[..., :3]
+    if colour.dtype.kind in "ui":
+        display = colour / float(np.iinfo(colour.dtype).max)
+    elif colour.dtype.kind in "fb":
+        display = colour.astype(np.float64)
+    else:
+        raise FileFormatError(path, f"unsupported pixel type {colour.dtype}")
+    return np.broadcast_to(display, display.shape[:-1] + (3,))
+
+
+def _to_linear(display: np.ndarray, space: str, exposure) -> np.ndarray:
+    """Display values in [0, 1] -> linear radiance, float32 on the host."""
+    return np.asarray(inverse_tonemap(display, exposure, mode=space), dtype=np.float32)

@@ -1,0 +1,345 @@
+"""Scene metadata: ``scene.json`` beside the frames.
+
+Protocol
+--------
+A scene file is one JSON object::
+
+    {
+      "version":  "0.1.0",                       # jaxocean.__version__ of the writer
+      "waves":    {"amplitude": [...], "omega": [...], "theta": [...], "phase": [...]},
+      "camera":   {"height": 10.0, "pitch": 0.35, ..., "resolution": [H, W],
+                   "projection": "perspective"},
+      "lighting": {"sun_azimuth": ..., "sun_elevation": ..., "sun_color": [r, g, b], ...},
+      "spectrum": {"hs": ..., "tp": ..., "gamma": ..., "theta_mean": ..., "s_max": ...},
+      "times":    [t0, t1, ...],                 # frame times [s]
+      "seed":     0,                             # the integer the scene was drawn from
+      "extra":    {...}                          # free JSON data of the caller
+    }
+
+Every section but ``version`` may be ``null``. A pytree section holds exactly its type's
+fields (a missing or unknown key is an error; only fields with a default, such as
+``Spectrum.gamma``, may be left out), each a number or a nested list of numbers in the
+leaf's shape, so batched pytrees ``(B, ...)`` are stored too. The camera's static fields
+``resolution`` and ``projection`` are stored with it. Units are those of the pytrees:
+metres, seconds, radians, linear RGB.
+
+Precision: numbers are written with Python's shortest exact float64 repr, so every float32
+and float64 value survives the round trip bit for bit. Leaves are read back as JAX arrays of
+JAX's default float dtype (float32, float64 under ``jax_enable_x64``): float32 scenes are
+restored exactly, float64 scenes exactly under x64. Non-finite numbers are refused (strict
+JSON has none).
+
+Writes are atomic (:func:`jaxocean.io.exr.atomic_write`); reading errors name the file
+(:class:`SceneError`, :class:`jaxocean.io.exr.MissingFileError`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean.camera import Camera, validate_camera
+from jaxocean.errors import InvalidValueError, check_finite
+from jaxocean.io.exr import FileFormatError, _require_file, atomic_write
+from jaxocean.shading import Lighting, validate_lighting
+from jaxocean.spectrum import Spectrum, validate_spectrum
+from jaxocean.waves import Waves, validate
+
+__all__ = [
+    "SCENE_FILENAME",
+    "Scene",
+    "SceneError",
+    "SceneFileError",
+    "scene_to_dict",
+    "scene_from_dict",
+    "write_scene",
+    "read_scene",
+]
+
+SCENE_FILENAME = "scene.json"
+
+_SECTIONS = ("waves", "camera", "lighting", "spectrum", "times", "seed", "extra")
+_CAMERA_STATIC = tuple(f.name for f in dataclasses.fields(Camera) if f.metadata.get("static"))
+_CAMERA_LEAVES = tuple(f.name for f in dataclasses.fields(Camera) if not f.metadata.get("static"))
+
+# NamedTuple pytrees stored field by field, with their validators. Waves are checked for
+# structure and finiteness only: steepness is a modelling limit, and a scene that was
+# written must read back.
+_NAMEDTUPLE_SECTIONS = {
+    "waves": (Waves, lambda waves: validate(waves, max_steepness=None)),
+    "lighting": (Lighting, validate_lighting),
+    "spectrum": (Spectrum, validate_spectrum),
+}
+
+
+class Scene(NamedTuple):
+    """A scene read by :func:`scene_from_dict` / :func:`read_scene`.
+
+    ``waves``, ``camera``, ``lighting``, ``spectrum``: the pytrees (JAX arrays of the
+    default float dtype) or None; ``times``: ``(T,)`` frame times [s] or None; ``seed``: int
+    or None; ``version``: the jaxocean version that wrote it; ``extra``: the caller's JSON
+    data or None.
+    """
+
+    waves: Waves | None
+    camera: Camera | None
+    lighting: Lighting | None
+    spectrum: Spectrum | None
+    times: Any
+    seed: int | None
+    version: str
+    extra: dict | None
+
+
+class SceneError(InvalidValueError):
+    """A scene dict or ``scene.json`` that does not follow the protocol.
+
+    :func:`read_scene` raises the :class:`jaxocean.io.exr.FileFormatError` subclass
+    :class:`SceneFileError`, whose message names the file.
+    """
+
+
+class SceneFileError(FileFormatError, SceneError):
+    """A ``scene.json`` that cannot be read; the message names the file."""
+
+
+# --------------------------------------------------------------------------- to JSON
+
+
+def scene_to_dict(*, waves=None, camera=None, lighting=None, spectrum=None, times=None, seed=None,
+                  extra=None) -> dict:
+    """A JSON-safe dict of a scene (the module docstring gives the layout).
+
+    Every argument is optional. The pytrees are validated first (their own validators;
+    waves without the steepness limit) and must be finite; ``times`` is a 1-D array-like of
+    frame times [s]; ``seed`` an int; ``extra`` a dict that ``json.dumps`` can write.
+
+    Returns:
+        a dict of str, int, float, list and None only; ``version`` is this jaxocean's.
+    """
+    import jaxocean  # at call time: jaxocean/__init__ may import this module
+
+    scene = {"version": jaxocean.__version__}
+    for name, value in (("waves", waves), ("lighting", lighting), ("spectrum", spectrum)):
+        scene[name] = None if value is None else _namedtuple_to_json(value, name)
+    scene["camera"] = None if camera is None else _camera_to_json(camera)
+    scene["times"] = None if times is None else _times_to_json(times)
+    scene["seed"] = None if seed is None else _seed(seed)
+    scene["extra"] = None if extra is None else _extra(extra)
+    return scene
+
+
+def _namedtuple_to_json(value, section: str) -> dict:
+    cls, check = _NAMEDTUPLE_SECTIONS[section]
+    if not isinstance(value, cls):
+        raise ValueError(f"scene {section} must be a {cls.__name__}; got {type(value).__name__}")
+    check(value)
+    return {name: _leaf_to_json(leaf, f"{section}.{name}") for name, leaf in zip(cls._fields, value)}
+
+
+def _camera_to_json(camera: Camera) -> dict:
+    validate_camera(camera)
+    out = {name: _leaf_to_json(getattr(camera, name), f"camera.{name}") for name in _CAMERA_LEAVES}
+    out["resolution"] = list(camera.resolution)
+    out["projection"] = camera.projection
+    return out
+
+
+def _leaf_to_json(leaf, where: str):
+    """A real array -> a float or nested lists of floats, exactly (float64 repr)."""
+    array = np.asarray(leaf)
+    if array.dtype.kind not in "iuf":
+        raise ValueError(f"scene {where} must be real numbers; got dtype {array.dtype}")
+    check_finite(array, f"scene {where}")
+    return array.astype(np.float64).tolist()
+
+
+def _times_to_json(times) -> list:
+    if np.ndim(times) != 1:
+        raise ValueError(f"scene times must be a 1-D sequence of frame times; got shape {np.shape(times)}")
+    return _leaf_to_json(times, "times")
+
+
+def _seed(seed) -> int:
+    if isinstance(seed, np.integer):
+        seed = int(seed)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise ValueError(f"scene seed must be an int; got {seed!r}")
+    return seed
+
+
+def _extra(extra) -> dict:
+    if not isinstance(extra, dict):
+        raise ValueError(f"scene extra must be a dict; got {type(extra).__name__}")
+    try:
+        json.dumps(extra, allow_nan=False)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"scene extra must be JSON-serialisable with finite numbers: {error}") from None
+    return extra
+
+
+# --------------------------------------------------------------------------- from JSON
+
+
+def scene_from_dict(d: dict) -> Scene:
+    """Rebuild a :class:`Scene` from a dict in the layout of :func:`scene_to_dict`.
+
+    Raises:
+        SceneError: a missing ``version``, an unknown top-level key, a section with missing
+            or unknown keys, non-numeric leaves; the pytrees' own validation errors (NaN,
+            bad shapes, camera under the sea, ...) are reported as ``SceneError`` too,
+            naming the section.
+    """
+    if not isinstance(d, dict):
+        raise SceneError(f"a scene must be a JSON object; got {type(d).__name__}")
+    _check_keys(d, required=("version",), optional=_SECTIONS, where="scene")
+    if not isinstance(d["version"], str):
+        raise SceneError(f"scene version must be a string; got {d['version']!r}")
+    sections = {}
+    for name in _SECTIONS:
+        value = d.get(name)
+        if value is None:
+            sections[name] = None
+            continue
+        try:
+            sections[name] = _SECTION_READERS[name](value, name)
+        except SceneError:
+            raise
+        except ValueError as error:  # the pytrees' validators, with the section named
+            raise SceneError(f"scene {name}: {error}") from error
+    return Scene(version=d["version"], **sections)
+
+
+def _check_keys(d, *, required, optional, where: str) -> None:
+    if not isinstance(d, dict):
+        raise SceneError(f"{where} must be a JSON object; got {type(d).__name__}")
+    missing = [key for key in required if key not in d]
+    unknown = [key for key in d if key not in required and key not in optional]
+    if missing:
+        raise SceneError(f"{where} is missing key(s) {missing}")
+    if unknown:
+        raise SceneError(f"{where} has unknown key(s) {unknown}; expected {list(required) + list(optional)}")
+
+
+def _leaf_from_json(value, where: str):
+    expected = f"{where} must be a number or nested lists of numbers of one shape"
+    try:
+        # bool is a number to NumPy; in a scene it is a mistake.
+        array = np.asarray(value, dtype=object if isinstance(value, bool) else None)
+    except ValueError:  # ragged lists
+        raise SceneError(f"{expected}; got {value!r:.80}") from None
+    if array.dtype.kind not in "iuf":
+        raise SceneError(f"{expected}; got {value!r:.80}")
+    if not np.all(np.isfinite(array)):  # Python's json reads NaN and Infinity; strict JSON has none
+        raise SceneError(f"{where} must be finite; got {value!r:.80}")
+    # The default float dtype, requested explicitly so that integers become floats; float32
+    # without x64 (exact for float32 scenes), float64 with it.
+    return jnp.asarray(array, dtype=jnp.result_type(float))
+
+
+def _namedtuple_from_json(d, section: str):
+    cls, check = _NAMEDTUPLE_SECTIONS[section]
+    required = [name for name in cls._fields if name not in cls._field_defaults]
+    _check_keys(d, required=required, optional=cls._field_defaults, where=f"scene {section}")
+    leaves = {
+        name: _leaf_from_json(d[name] if name in d else cls._field_defaults[name], f"scene {section}.{name}")
+        for name in cls._fields
+    }
+    return check(cls(**leaves))
+
+
+def _camera_from_json(d, section: str) -> Camera:
+    _check_keys(d, required=_CAMERA_LEAVES + _CAMERA_STATIC, optional=(), where="scene camera")
+    leaves = {name: _leaf_from_json(d[name], f"scene camera.{name}") for name in _CAMERA_LEAVES}
+    resolution = d["resolution"]
+    # A list of ints becomes the static tuple in Camera.__post_init__; validate_camera
+    # rejects anything else.
+    camera = Camera(**leaves, resolution=resolution, projection=d["projection"])
+    return validate_camera(camera)
+
+
+def _times_from_json(value, section: str):
+    times = _leaf_from_json(value, "scene times")
+    if times.ndim != 1:
+        raise SceneError(f"scene times must be a list of numbers; got shape {times.shape}")
+    return times
+
+
+def _seed_from_json(value, section: str) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise SceneError(f"scene seed must be an integer; got {value!r}")
+    return value
+
+
+def _extra_from_json(value, section: str) -> dict:
+    try:
+        return _extra(value)
+    except ValueError as error:
+        raise SceneError(str(error)) from None
+
+
+_SECTION_READERS = {
+    "waves": _namedtuple_from_json,
+    "lighting": _namedtuple_from_json,
+    "spectrum": _namedtuple_from_json,
+    "camera": _camera_from_json,
+    "times": _times_from_json,
+    "seed": _seed_from_json,
+    "extra": _extra_from_json,
+}
+
+
+# --------------------------------------------------------------------------- files
+
+
+def _scene_path(dir_or_path) -> Path:
+    """``.../scene.json`` for a directory, the path itself for a ``*.json`` file."""
+    path = Path(dir_or_path)
+    return path if path.suffix.lower() == ".json" else path / SCENE_FILENAME
+
+
+def write_scene(dir_or_path, scene_dict) -> Path:
+    """Write ``scene.json`` atomically.
+
+    Args:
+        dir_or_path: a directory (``scene.json`` is written in it, created if needed) or a
+            path ending in ``.json``.
+        scene_dict: the output of :func:`scene_to_dict` (or a :class:`Scene`). It is checked
+            with :func:`scene_from_dict` first, so a file that cannot be read back is never
+            written.
+
+    Returns:
+        the written path.
+    """
+    if isinstance(scene_dict, Scene):
+        scene_dict = scene_to_dict(**{name: getattr(scene_dict, name) for name in _SECTIONS})
+    scene_from_dict(scene_dict)
+    text = json.dumps(scene_dict, indent=2, allow_nan=False) + "\n"
+    return atomic_write(_scene_path(dir_or_path), lambda temporary: temporary.write_text(text, encoding="utf-8"))
+
+
+def read_scene(path) -> Scene:
+    """Read a scene file (a directory means its ``scene.json``).
+
+    Raises:
+        MissingFileError: no such file.
+        SceneFileError: malformed JSON (with line and column) or a dict that
+            :func:`scene_from_dict` rejects; the message names the file.
+    """
+    path = _require_file(_scene_path(path), "scene file")
+    try:
+        d = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise SceneFileError(path, f"not UTF-8 text ({error})") from error
+    except json.JSONDecodeError as error:
+        where = f"line {error.lineno}, column {error.colno}"
+        raise SceneFileError(path, f"malformed JSON: {error.msg} at {where}") from error
+    try:
+        return scene_from_dict(d)
+    except SceneError as error:
+        raise SceneFileError(path, str(error)) from error
