@@ -55,7 +55,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import safe_normalize, smoothstep, tiny
+from jaxocean._math import dot_last, materialize, safe_normalize, smoothstep, tiny
 from jaxocean.errors import check_values, is_concrete
 
 __all__ = [
@@ -230,8 +230,7 @@ def sun_direction(lighting: Lighting):
 # --------------------------------------------------------------------------- geometry
 
 
-def _dot(a, b):
-    return jnp.sum(a * b, axis=-1)
+_dot = dot_last
 
 
 def _check_vectors(**vectors) -> None:
@@ -344,6 +343,8 @@ def ocean_brdf(normal, sigma2_x, sigma2_y, view, light):
     normal, view, light = jnp.asarray(normal), jnp.asarray(view), jnp.asarray(light)
     t_x, t_y = tangent_frame(normal)
     half = safe_normalize(light + view, fallback=normal)
+    # per-pixel frame computed once, not re-derived inside every consumer (see materialize)
+    t_x, t_y, half = materialize(*jnp.broadcast_arrays(t_x, t_y, half))
     h_n = jnp.maximum(_dot(half, normal), MIN_COSINE)
     zeta_x = _dot(half, t_x) / h_n
     zeta_y = _dot(half, t_y) / h_n
@@ -470,6 +471,7 @@ def shade_components(normal, sigma2_x, sigma2_y, view, lighting: Lighting, *, ho
     _check_horizon_gradient(horizon_gradient)
     normal = safe_normalize(jnp.asarray(normal))
     view = safe_normalize(jnp.asarray(view))
+    normal, view = materialize(*jnp.broadcast_arrays(normal, view))  # computed once (see materialize)
     sigma2_x, sigma2_y = _clamp_variances(sigma2_x, sigma2_y)
     sun = sun_radiance_factor(normal, sigma2_x, sigma2_y, view, sun_direction(lighting))
     fresnel = mean_fresnel(_dot(view, normal), projected_variance(view, normal, sigma2_x, sigma2_y))

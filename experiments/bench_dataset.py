@@ -1,0 +1,103 @@
+"""Dataset generation benchmark: a measured fraction of the paper-size dataset.
+
+The paper's dataset is 2,000 scenes x 10 frames. This script generates ``--scenes`` scenes
+(default 100) at 128^2 and a smaller set at 256^2 with ``jaxocean.io.dataset.simulate``,
+reports wall time, frames/s, bytes on disk and where the time goes (render vs EXR encode +
+write, the latter on writer threads overlapping the rendering), and extrapolates linearly to
+2,000 scenes. Target on the 2-core machine: 128^2 paper size in <= 10 min and <= 3 GB.
+It also measures the loader: frames/s from a cold (decode from disk) and a warm (decoded
+cache) read.
+
+Usage: ``python experiments/bench_dataset.py [--scenes 100] [--quick]``; writes
+``experiments/results/bench_dataset.{json,png}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import jax
+
+sys.path.insert(0, __file__.rsplit("/", 1)[0])
+import benchutil  # noqa: E402
+
+from jaxocean.io import dataset  # noqa: E402
+
+PAPER_SCENES, FRAMES = 2000, 10
+TARGET_S, TARGET_BYTES = 600.0, 3e9
+
+
+def generate(root: Path, scenes: int, res: int):
+    stats = dataset.simulate(root, scenes, FRAMES, (res, res), seed=0, progress=False)
+    per_scene_s = stats["wall_s"] / scenes
+    return dict(res=res, scenes=scenes, frames=scenes * FRAMES, wall_s=stats["wall_s"],
+                frames_per_s=stats["frames_per_s"], render_s=stats["render_s"], write_s_threads=stats["write_s"],
+                bytes=stats["bytes"], bytes_per_frame=stats["bytes"] / (scenes * FRAMES),
+                paper_size_s=per_scene_s * PAPER_SCENES, paper_size_bytes=stats["bytes"] / scenes * PAPER_SCENES)
+
+
+def loader(root: Path):
+    ds = dataset.Dataset(root)
+    out = {}
+    for label in ("cold", "warm"):
+        n, t0 = 0, time.perf_counter()
+        for batch in ds.batches(jax.random.key(0), "train", batch_size=8, sequence=1):
+            n += batch.image.shape[0]
+        out[f"{label}_frames_per_s"] = n / (time.perf_counter() - t0)
+    return out
+
+
+def chart(rows, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.8))
+    labels = [f"{r['res']}^2" for r in rows]
+    axes[0].bar(labels, [r["paper_size_s"] / 60 for r in rows], color="C0")
+    axes[0].axhline(TARGET_S / 60, color="C3", ls=":", label="target (128^2)")
+    axes[0].set_ylabel("minutes for 2,000 x 10 frames (extrapolated)")
+    axes[0].legend()
+    axes[1].bar(labels, [r["paper_size_bytes"] / 1e9 for r in rows], color="C2")
+    axes[1].axhline(TARGET_BYTES / 1e9, color="C3", ls=":")
+    axes[1].set_ylabel("GB on disk (extrapolated)")
+    fig.suptitle("jaxocean simulate: paper-size dataset cost on this machine")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=100)
+    ap.add_argument("--quick", action="store_true")
+    args = ap.parse_args(argv)
+    scenes = 20 if args.quick else args.scenes
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for res, n in ((128, scenes), (256, max(5, scenes // 5))):
+            root = Path(tmp) / f"ds{res}"
+            rows.append(generate(root, n, res))
+            if res == 128:
+                rows[-1].update(loader(root))
+            benchutil.print_table(rows[-1:], ["res", "scenes", "wall_s", "frames_per_s", "render_s", "write_s_threads",
+                                              "bytes_per_frame", "paper_size_s", "paper_size_bytes"])
+            shutil.rmtree(root)
+    r128 = rows[0]
+    summary = dict(paper_128_minutes=r128["paper_size_s"] / 60, paper_128_gb=r128["paper_size_bytes"] / 1e9,
+                   target_met=r128["paper_size_s"] <= TARGET_S and r128["paper_size_bytes"] <= TARGET_BYTES,
+                   loader_cold_fps=r128.get("cold_frames_per_s"), loader_warm_fps=r128.get("warm_frames_per_s"),
+                   note="measured on a fraction, extrapolated linearly to 2,000 scenes (compile time included "
+                        "in the fraction)")
+    print("\nsummary:", summary)
+    out = benchutil.save("bench_dataset", rows, dict(summary=summary))
+    chart(rows, out.with_suffix(".png"))
+    print("wrote", out)
+
+
+if __name__ == "__main__":
+    main()

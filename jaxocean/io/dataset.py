@@ -1,0 +1,425 @@
+"""Synthetic datasets: scene sampling, resumable generation, verification and loading.
+
+Protocol
+--------
+A dataset is a directory::
+
+    dataset.json                 generation settings (seed, counts, resolution, ranges, version)
+    scene_00000/scene.json       waves, spectrum, camera, lighting, frame times, seed
+    scene_00000/frame_00000.exr  R G B + normal.X/Y/Z, roughness, mask (see jaxocean.io.exr)
+    ...
+    splits.json                  {"train": [...], "val": [...], "test": [...]} scene indices
+    manifest.json                every file with its size and SHA-256
+
+* :func:`sample_scene(key, ranges, resolution, n_frames)` draws one scene from
+  :class:`SceneRanges` (documented defaults below). Scene ``i`` of a dataset uses
+  ``fold_in(key(seed), i)``, so scenes do not depend on the order they are made in.
+* :func:`simulate(out, n_scenes, n_frames, resolution, seed, ranges)` renders every
+  missing scene. A scene's ``scene.json`` is written last, atomically, after its frames: a
+  scene without it is incomplete and is made again from scratch on the next run (same key,
+  same files). Killing and rerunning the same command therefore finishes the dataset with
+  no partial or duplicate file, byte-identical to an uninterrupted run.
+* :func:`check(directory)` verifies every file against ``manifest.json`` and reads every
+  frame; it returns the list of problems (each naming its file).
+* :class:`Dataset` loads batches by split, shuffled by key, as arrays; consecutive frame
+  sequences for the temporal methods; a decoded-frame cache keeps training fed.
+
+Splits follow the paper: 200 test scenes out of 2,000 (10% in general), the rest split 9:1
+into train and validation, drawn from the seed.
+
+Geometry in datasets uses plane hits (no fixed-point refinement, ``RenderPlan.refine=0``):
+the image is rendered from exactly the geometry that is stored, which is what the
+geometry networks and the wave fits consume.
+"""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import json
+import math
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import render, shading, spectrum
+from jaxocean.errors import InvalidValueError
+from jaxocean.io.exr import FileFormatError, atomic_write, read_frame, write_frame
+from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
+
+__all__ = [
+    "SceneRanges",
+    "SceneSample",
+    "sample_scene",
+    "render_scene",
+    "simulate",
+    "split_scenes",
+    "check",
+    "Dataset",
+    "Batch",
+    "frame_name",
+    "scene_dir",
+]
+
+DATASET_FILENAME = "dataset.json"
+SPLITS_FILENAME = "splits.json"
+MANIFEST_FILENAME = "manifest.json"
+
+
+class SceneRanges(NamedTuple):
+    """Uniform ranges (lo, hi) the scenes are drawn from (SI units, radians).
+
+    Seas: JONSWAP with probability ``1 - pm_fraction``, otherwise Pierson-Moskowitz
+    (gamma = 1); Hs, Tp, gamma, Mitsuyasu s_max and mean direction as below; ``n_waves``
+    wave trains from :func:`jaxocean.spectrum.sample_waves`. Cameras: perspective, height,
+    pitch below the horizon, vertical field of view, yaw 0 (the mean wave direction is
+    random). Lighting: sun azimuth / elevation, and colours scaled around the defaults of
+    :mod:`jaxocean.shading` by factors in ``*_scale`` (sun) or per channel (sky, sea).
+    Frames: ``frame_dt`` seconds apart.
+    """
+
+    hs: tuple = (0.3, 2.5)
+    tp: tuple = (3.0, 8.0)
+    gamma: tuple = (1.0, 5.0)
+    pm_fraction: float = 0.3
+    s_max: tuple = (5.0, 25.0)
+    theta_mean: tuple = (-math.pi, math.pi)
+    n_waves: int = 60
+    camera_height: tuple = (5.0, 30.0)
+    pitch: tuple = (0.35, 1.2)
+    fov: tuple = (0.6, 1.0)
+    sun_azimuth: tuple = (-math.pi, math.pi)
+    sun_elevation: tuple = (0.15, 1.2)
+    sun_scale: tuple = (0.5, 1.5)
+    sky_color: tuple = ((0.2, 0.35, 0.6), (0.5, 0.7, 1.0))
+    sea_color: tuple = ((0.0, 0.02, 0.03), (0.03, 0.08, 0.1))
+    frame_dt: tuple = (0.1, 0.2)
+
+    def to_json(self) -> dict:
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self._asdict().items()}
+
+    @classmethod
+    def from_json(cls, d: dict) -> "SceneRanges":
+        unknown = set(d) - set(cls._fields)
+        if unknown:
+            raise ValueError(f"unknown scene range(s) {sorted(unknown)}; known: {list(cls._fields)}")
+        return cls(**{k: (tuple(tuple(x) if isinstance(x, list) else x for x in v) if isinstance(v, list) else v)
+                      for k, v in d.items()})
+
+
+class SceneSample(NamedTuple):
+    waves: object
+    spectrum: spectrum.Spectrum
+    camera: cam.Camera
+    lighting: shading.Lighting
+    times: jnp.ndarray
+
+
+def _uniform(key, lo_hi, shape=()):
+    lo, hi = (jnp.asarray(v, jnp.float32) for v in lo_hi)
+    return jax.random.uniform(key, shape or jnp.shape(lo), jnp.float32, lo, hi)
+
+
+def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128), n_frames: int = 10) -> SceneSample:
+    """Draw one scene (waves, spectrum, camera, lighting, frame times) from ``ranges``."""
+    keys = jax.random.split(key, 16)
+    is_pm = jax.random.uniform(keys[0]) < ranges.pm_fraction
+    spec = spectrum.Spectrum(
+        hs=_uniform(keys[1], ranges.hs), tp=_uniform(keys[2], ranges.tp),
+        gamma=jnp.where(is_pm, 1.0, _uniform(keys[3], ranges.gamma)).astype(jnp.float32),
+        theta_mean=_uniform(keys[4], ranges.theta_mean), s_max=_uniform(keys[5], ranges.s_max))
+    waves = spectrum.sample_waves(keys[6], spec, ranges.n_waves).waves
+    camera = cam.make_camera(height=float(_uniform(keys[7], ranges.camera_height)),
+                             pitch=float(_uniform(keys[8], ranges.pitch)), fov=float(_uniform(keys[9], ranges.fov)),
+                             resolution=tuple(resolution))
+    lighting = shading.make_lighting(
+        sun_azimuth=float(_uniform(keys[10], ranges.sun_azimuth)),
+        sun_elevation=float(_uniform(keys[11], ranges.sun_elevation)),
+        sun_color=tuple(np.asarray(shading.DEFAULT_SUN_COLOR) * float(_uniform(keys[12], ranges.sun_scale))),
+        sky_color=tuple(float(v) for v in _uniform(keys[13], ranges.sky_color)),
+        sea_color=tuple(float(v) for v in _uniform(keys[14], ranges.sea_color)))
+    times = jnp.arange(n_frames, dtype=jnp.float32) * _uniform(keys[15], ranges.frame_dt)
+    return SceneSample(waves, spec, camera, lighting, times)
+
+
+def render_scene(scene: SceneSample, plan=None):
+    """Images ``(T, H, W, 3)`` and ``Geometry`` with a leading frame axis, one compiled call.
+
+    ``plan=None`` evaluates every wave without refinement: one plan for every scene of a
+    dataset, so the whole dataset compiles once (a per-scene plan would recompile per scene).
+    """
+    if plan is None:
+        plan = render.RenderPlan(active=tuple(range(scene.waves.omega.shape[-1])), refine=0)
+    return _render_frames(scene.waves, scene.camera, scene.lighting, scene.times, plan)
+
+
+@functools.partial(jax.jit, static_argnames=("plan",))
+def _render_frames(waves, camera, lighting, times, plan):
+    def one(t):
+        geo = render.geometry(waves, camera, t, plan=plan)
+        img = render.shade(geo.normal, geo.roughness, camera, lighting, slope_variance=geo.slope_variance)
+        return img, geo
+
+    return jax.lax.map(one, times)
+
+
+def frame_name(index: int) -> str:
+    return f"frame_{index:05d}.exr"
+
+
+def scene_dir(root, index: int) -> Path:
+    return Path(root) / f"scene_{index:05d}"
+
+
+def split_scenes(n_scenes: int, seed: int, test_scenes: int | None = None) -> dict:
+    """Scene indices per split: 10% test (200 of 2,000), the rest train:val = 9:1."""
+    rng = np.random.default_rng(seed)  # host-side bookkeeping, not model randomness
+    order = rng.permutation(n_scenes)
+    n_test = round(n_scenes * 0.1) if test_scenes is None else test_scenes
+    rest = order[n_test:]
+    n_val = round(len(rest) * 0.1)
+    return {"train": sorted(int(i) for i in rest[n_val:]), "val": sorted(int(i) for i in rest[:n_val]),
+            "test": sorted(int(i) for i in order[:n_test])}
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def _settings(n_scenes, n_frames, resolution, seed, ranges, half):
+    import jaxocean
+
+    settings = {"scenes": int(n_scenes), "frames": int(n_frames), "resolution": [int(r) for r in resolution],
+                "seed": int(seed), "half": bool(half), "ranges": ranges.to_json(), "version": jaxocean.__version__}
+    return json.loads(json.dumps(settings))  # the form it takes on disk, for comparisons
+
+
+def _write_json(path: Path, payload) -> None:
+    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(payload, indent=1)))
+
+
+def _scene_complete(directory: Path, n_frames: int) -> bool:
+    return (directory / SCENE_FILENAME).exists() and all((directory / frame_name(f)).exists()
+                                                         for f in range(n_frames))
+
+
+def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed: int = 0,
+             ranges: SceneRanges = SceneRanges(), *, half: bool = True, progress: bool = True,
+             writers: int = 2) -> dict:
+    """Generate (or finish) a dataset in ``out``; returns timing statistics.
+
+    Raises ``InvalidValueError`` if ``out`` holds a dataset made with other settings.
+    """
+    if n_scenes < 1 or n_frames < 1:
+        raise InvalidValueError(f"need at least one scene and one frame; got scenes={n_scenes}, frames={n_frames}")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    settings = _settings(n_scenes, n_frames, resolution, seed, ranges, half)
+    settings_path = out / DATASET_FILENAME
+    if settings_path.exists():
+        existing = json.loads(settings_path.read_text())
+        if existing != settings:
+            changed = sorted(k for k in settings if existing.get(k) != settings[k])
+            raise InvalidValueError(f"{settings_path}: dataset was made with other settings ({', '.join(changed)}); "
+                                    "use a new --out directory or the same settings to resume")
+    else:
+        _write_json(settings_path, settings)
+
+    todo = [i for i in range(n_scenes) if not _scene_complete(scene_dir(out, i), n_frames)]
+    stats = dict(scenes=n_scenes, generated=len(todo), skipped=n_scenes - len(todo), render_s=0.0, write_s=0.0)
+    base = jax.random.key(seed)
+    pool = ThreadPoolExecutor(max_workers=max(1, writers))
+    pending = []
+    t_start = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=len(todo), unit="scene", desc="simulate", smoothing=0.05)
+    try:
+        for i in todo:
+            t0 = time.perf_counter()
+            scene = sample_scene(jax.random.fold_in(base, i), ranges, resolution, n_frames)
+            images, geo = jax.device_get(render_scene(scene))
+            stats["render_s"] += time.perf_counter() - t0
+            pending.append(pool.submit(_write_scene_files, out, i, seed, scene, images, geo, half))
+            # keep at most `writers` scenes in flight: bounded memory, errors surface early
+            while len(pending) > max(1, writers):
+                stats["write_s"] += pending.pop(0).result()
+            if bar is not None:
+                bar.update(1)
+        for f in pending:
+            stats["write_s"] += f.result()
+    finally:
+        pool.shutdown(wait=True)
+        if bar is not None:
+            bar.close()
+    stats["wall_s"] = time.perf_counter() - t_start
+    _write_json(out / SPLITS_FILENAME, split_scenes(n_scenes, seed))
+    _write_manifest(out, n_scenes, n_frames)
+    stats["frames_per_s"] = stats["generated"] * n_frames / max(stats["wall_s"], 1e-9)
+    stats["bytes"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+    return stats
+
+
+def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, images, geo, half: bool) -> float:
+    t0 = time.perf_counter()
+    directory = scene_dir(out, index)
+    (directory / SCENE_FILENAME).unlink(missing_ok=True)  # incomplete until written again, last
+    for f in range(images.shape[0]):
+        frame_geo = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f]}
+        write_frame(directory / frame_name(f), images[f], frame_geo,
+                    {"scene": index, "frame": f, "time": float(scene.times[f])}, half=half)
+    write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
+                                         spectrum=scene.spectrum, times=scene.times, seed=seed,
+                                         extra={"scene_index": index}))
+    return time.perf_counter() - t0
+
+
+def _write_manifest(out: Path, n_scenes: int, n_frames: int) -> None:
+    files = {}
+    for i in range(n_scenes):
+        d = scene_dir(out, i)
+        for name in [SCENE_FILENAME] + [frame_name(f) for f in range(n_frames)]:
+            p = d / name
+            files[str(p.relative_to(out))] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+    _write_json(out / MANIFEST_FILENAME, {"files": files})
+
+
+def check(directory, *, read_frames: bool = True, progress: bool = False) -> list[str]:
+    """Verify a dataset: every manifest file present with its size and hash, every frame
+    readable with the resolution and channels of ``dataset.json``, every scene.json valid.
+
+    Returns the problems found (empty when the dataset is sound), each naming its file.
+    """
+    directory = Path(directory)
+    problems = []
+    for name in (DATASET_FILENAME, MANIFEST_FILENAME, SPLITS_FILENAME):
+        if not (directory / name).exists():
+            problems.append(f"{directory / name}: missing")
+    if problems:
+        return problems
+    settings = json.loads((directory / DATASET_FILENAME).read_text())
+    files = json.loads((directory / MANIFEST_FILENAME).read_text())["files"]
+    resolution = tuple(settings["resolution"])
+    items = sorted(files.items())
+    if progress:
+        from tqdm.auto import tqdm
+        items = tqdm(items, unit="file", desc="check")
+    for rel, entry in items:
+        path = directory / rel
+        if not path.exists():
+            problems.append(f"{path}: missing")
+            continue
+        if path.stat().st_size != entry["bytes"]:
+            problems.append(f"{path}: size {path.stat().st_size} differs from the manifest's {entry['bytes']}")
+            continue
+        if _sha256(path) != entry["sha256"]:
+            problems.append(f"{path}: content differs from the manifest (SHA-256 mismatch)")
+            continue
+        try:
+            if path.name == SCENE_FILENAME:
+                read_scene(path)
+            elif read_frames:
+                frame = read_frame(path, expect_resolution=resolution)
+                if frame.normal is None:
+                    problems.append(f"{path}: no geometry channels")
+        except (FileFormatError, InvalidValueError, ValueError) as err:
+            problems.append(str(err) if str(path) in str(err) else f"{path}: {err}")
+    expected = {f"scene_{i:05d}/{n}" for i in range(settings["scenes"])
+                for n in [SCENE_FILENAME] + [frame_name(f) for f in range(settings["frames"])]}
+    for rel in sorted(expected - set(files)):
+        problems.append(f"{directory / rel}: not in the manifest")
+    return problems
+
+
+class Batch(NamedTuple):
+    """A training batch: ``image (B, S, H, W, 3)``, ``normal (B, S, H, W, 3)``,
+    ``roughness (B, S, H, W)``, ``mask (B, S, H, W)``, ``times (B, S)``, and the scenes'
+    ``waves``, ``camera``, ``lighting`` pytrees with a leading ``B`` axis (S = sequence length)."""
+
+    image: np.ndarray
+    normal: np.ndarray
+    roughness: np.ndarray
+    mask: np.ndarray
+    times: np.ndarray
+    waves: object
+    camera: object
+    lighting: object
+
+
+class Dataset:
+    """Reads a dataset directory for training.
+
+    ``Dataset(root).batches(key, split="train", batch_size=8, sequence=1)`` yields
+    :class:`Batch` items in a key-shuffled order of (scene, first frame) windows. Decoded
+    frames are kept in an in-memory cache up to ``cache_bytes`` (default 2 GiB), so epochs
+    after the first read from memory.
+    """
+
+    def __init__(self, root, cache_bytes: int = 2 << 30):
+        self.root = Path(root)
+        for name in (DATASET_FILENAME, SPLITS_FILENAME):
+            if not (self.root / name).exists():
+                raise FileFormatError(self.root / name, "missing: not a jaxocean dataset (run `jaxocean simulate`)")
+        self.settings = json.loads((self.root / DATASET_FILENAME).read_text())
+        self.splits = json.loads((self.root / SPLITS_FILENAME).read_text())
+        self.resolution = tuple(self.settings["resolution"])
+        self.n_frames = self.settings["frames"]
+        self._cache: dict = {}
+        self._cache_bytes = 0
+        self._cache_limit = cache_bytes
+        self._scenes: dict = {}
+
+    def scene(self, index: int):
+        if index not in self._scenes:
+            self._scenes[index] = read_scene(scene_dir(self.root, index))
+        return self._scenes[index]
+
+    def frame(self, scene_index: int, frame_index: int):
+        key = (scene_index, frame_index)
+        if key in self._cache:
+            return self._cache[key]
+        frame = read_frame(scene_dir(self.root, scene_index) / frame_name(frame_index),
+                           expect_resolution=self.resolution)
+        size = sum(a.nbytes for a in (frame.image, frame.normal, frame.roughness, frame.mask) if a is not None)
+        if self._cache_bytes + size <= self._cache_limit:
+            self._cache[key] = frame
+            self._cache_bytes += size
+        return frame
+
+    def windows(self, split: str, sequence: int = 1):
+        if split not in self.splits:
+            raise ValueError(f"unknown split {split!r}; have {sorted(self.splits)}")
+        if not 1 <= sequence <= self.n_frames:
+            raise ValueError(f"sequence must be in [1, {self.n_frames}]; got {sequence}")
+        return [(s, f) for s in self.splits[split] for f in range(self.n_frames - sequence + 1)]
+
+    def batches(self, key, split: str = "train", batch_size: int = 8, sequence: int = 1, drop_last: bool = True):
+        windows = self.windows(split, sequence)
+        order = np.asarray(jax.random.permutation(key, len(windows)))
+        stop = len(order) - (len(order) % batch_size if drop_last else 0)
+        for start in range(0, stop, batch_size):
+            chosen = [windows[i] for i in order[start:start + batch_size]]
+            yield self._batch(chosen, sequence)
+
+    def _batch(self, chosen, sequence):
+        frames = [[self.frame(s, f + k) for k in range(sequence)] for s, f in chosen]
+        scenes = [self.scene(s) for s, _ in chosen]
+
+        def stack(field):
+            return np.stack([np.stack([getattr(fr, field) for fr in seq]) for seq in frames])
+
+        def stack_tree(trees):
+            return jax.tree.map(lambda *leaves: np.stack([np.asarray(x) for x in leaves]), *trees)
+
+        times = np.stack([np.asarray(sc.times)[f:f + sequence] for sc, (_, f) in zip(scenes, chosen)])
+        return Batch(image=stack("image"), normal=stack("normal"), roughness=stack("roughness"), mask=stack("mask"),
+                     times=times, waves=stack_tree([sc.waves for sc in scenes]),
+                     camera=stack_tree([sc.camera for sc in scenes]),
+                     lighting=stack_tree([sc.lighting for sc in scenes]))

@@ -1,0 +1,113 @@
+import json
+from pathlib import Path
+
+import jax
+import numpy as np
+import pytest
+
+from jaxocean.errors import InvalidValueError
+from jaxocean.io import dataset
+
+SMALL = dict(n_scenes=3, n_frames=2, resolution=(12, 16), seed=7)
+RANGES = dataset.SceneRanges(n_waves=8)
+
+
+def _files(root: Path):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture(scope="module")
+def clean(tmp_path_factory):
+    root = tmp_path_factory.mktemp("clean")
+    stats = dataset.simulate(root, ranges=RANGES, progress=False, **SMALL)
+    return root, stats
+
+
+def test_simulate_check_load_cycle(clean):
+    root, stats = clean
+    assert stats["generated"] == 3 and stats["skipped"] == 0
+    assert dataset.check(root) == []
+    ds = dataset.Dataset(root)
+    split = ds.splits
+    assert sorted(split["train"] + split["val"] + split["test"]) == [0, 1, 2]
+    batch = next(ds.batches(jax.random.key(0), "train", batch_size=1, sequence=2))
+    assert batch.image.shape == (1, 2, 12, 16, 3) and batch.normal.shape == (1, 2, 12, 16, 3)
+    assert batch.roughness.shape == (1, 2, 12, 16) and batch.mask.dtype == bool
+    assert batch.waves.omega.shape == (1, 8) and batch.times.shape == (1, 2)
+    assert np.all(np.diff(batch.times[0]) > 0)
+    # normals are unit where the sea is seen (half floats: ~1e-3)
+    n = batch.normal[batch.mask]
+    np.testing.assert_allclose(np.linalg.norm(n, axis=-1), 1.0, atol=3e-3)
+
+
+def test_resume_after_crash_equals_clean_run(clean, tmp_path, monkeypatch):
+    root, _ = clean
+    original = dataset._write_scene_files
+
+    def crash_on_scene_two(out, index, *args, **kwargs):
+        if index == 2:
+            raise KeyboardInterrupt("simulated kill")
+        return original(out, index, *args, **kwargs)
+
+    monkeypatch.setattr(dataset, "_write_scene_files", crash_on_scene_two)
+    with pytest.raises(KeyboardInterrupt):
+        dataset.simulate(tmp_path, ranges=RANGES, progress=False, **SMALL)
+    assert not (tmp_path / "scene_00002" / "scene.json").exists()
+    assert not (tmp_path / "manifest.json").exists()
+    monkeypatch.setattr(dataset, "_write_scene_files", original)
+    stats = dataset.simulate(tmp_path, ranges=RANGES, progress=False, **SMALL)
+    assert stats["skipped"] == 2 and stats["generated"] == 1
+    assert _files(tmp_path) == _files(root)  # byte-identical, no stray temporary files
+
+
+def test_check_names_corrupt_and_missing_files(clean, tmp_path):
+    import shutil
+
+    root, _ = clean
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    flipped = copy / "scene_00001" / "frame_00001.exr"
+    data = bytearray(flipped.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # same size, one byte changed
+    flipped.write_bytes(bytes(data))
+    truncated = copy / "scene_00002" / "frame_00000.exr"
+    truncated.write_bytes(truncated.read_bytes()[:100])
+    (copy / "scene_00000" / "frame_00000.exr").unlink()
+    problems = dataset.check(copy)
+    assert any("scene_00001/frame_00001.exr" in p and "SHA-256" in p for p in problems)
+    assert any("scene_00002/frame_00000.exr" in p and "size 100" in p for p in problems)
+    assert any("scene_00000/frame_00000.exr: missing" in p for p in problems)
+    assert len(problems) == 3
+
+
+def test_other_settings_refuse_to_mix(clean):
+    root, _ = clean
+    with pytest.raises(InvalidValueError, match="other settings.*resolution"):
+        dataset.simulate(root, ranges=RANGES, progress=False, **{**SMALL, "resolution": (8, 8)})
+
+
+def test_paper_splits():
+    s = dataset.split_scenes(2000, seed=0)
+    assert len(s["test"]) == 200 and len(s["val"]) == 180 and len(s["train"]) == 1620
+    assert not set(s["test"]) & set(s["train"]) and not set(s["val"]) & set(s["train"])
+    assert dataset.split_scenes(2000, seed=0) == s and dataset.split_scenes(2000, seed=1) != s
+
+
+def test_scene_sampling_respects_ranges():
+    r = dataset.SceneRanges(n_waves=5)
+    for i in range(4):
+        sc = dataset.sample_scene(jax.random.key(i), r, (8, 8), 3)
+        assert r.camera_height[0] <= float(sc.camera.height) <= r.camera_height[1]
+        assert r.pitch[0] <= float(sc.camera.pitch) <= r.pitch[1]
+        assert r.hs[0] <= float(sc.spectrum.hs) <= r.hs[1]
+        assert sc.waves.omega.shape == (5,) and sc.times.shape == (3,)
+        dt = np.diff(np.asarray(sc.times))
+        assert np.all((dt >= r.frame_dt[0] - 1e-6) & (dt <= r.frame_dt[1] + 1e-6))
+    with pytest.raises(ValueError, match="unknown scene range"):
+        dataset.SceneRanges.from_json({"wind": [1, 2]})
+
+
+def test_dataset_json_records_settings(clean):
+    root, _ = clean
+    settings = json.loads((root / "dataset.json").read_text())
+    assert settings["resolution"] == [12, 16] and settings["ranges"]["n_waves"] == 8
