@@ -17,8 +17,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/jaxocean demo --out out/demo
 
+# the notebooks run too (nbmake), shrunk by JAXOCEAN_SMALL
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 -m "not slow" $(PYTEST_ARGS)
+	JAXOCEAN_SMALL=1 $(PY) -m pytest -q -n 2 -m "not slow" --nbmake tests notebooks $(PYTEST_ARGS)
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -m slow $(PYTEST_ARGS)
