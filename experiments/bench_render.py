@@ -52,16 +52,16 @@ def measure(n, res, repeats, camera_kw=None):
     grad = jax.value_and_grad(loss, argnums=(0, 1))
     x = jnp.linspace(-30, 30, res)
 
-    def grid(waves):
+    def grid(waves, x):
         g = surface.on_grid(waves, x, x, jnp.zeros(1))
         return g.displacement, g.normal
 
-    def grid_loss(waves):
-        d, nrm = grid(waves)
+    def grid_loss(waves, x):
+        d, nrm = grid(waves, x)
         return jnp.sum(d * d) + jnp.sum(nrm[..., :2] ** 2)
 
     for name, fn, args in (("render", fwd, (waves, light)), ("render", grad, (waves, light)),
-                           ("on_grid", grid, (waves,)), ("on_grid", jax.value_and_grad(grid_loss), (waves,))):
+                           ("on_grid", grid, (waves, x)), ("on_grid", jax.value_and_grad(grid_loss), (waves, x))):
         mode = "forward" if fn in (fwd, grid) else "forward+grad"
         r = benchutil.time_jitted(fn, *args, repeats=repeats)
         rows.append(dict(path=name, mode=mode, n_waves=n, res=res, pixels_per_s=res * res / r["median_s"],

@@ -93,7 +93,7 @@ def _weighted_trig(waves, xy, t, w):
     cos_psi, sin_psi = jnp.cos(psi), jnp.sin(psi)
     if w is not None:
         cos_psi, sin_psi = cos_psi * w, sin_psi * w
-    return cos_psi, sin_psi
+    return materialize(cos_psi, sin_psi)  # each sine once, not once per reduced channel
 
 
 def _displacement_from_sums(sin_sums, cos_sums):
