@@ -1,0 +1,225 @@
+"""Where the lighting fit fails: success rate against five stress axes.
+
+Each sweep point fits P problems (random true colours, random sun as stated, random
+initial guesses) on the 64^2 scene of ``lighting_fit.py`` (float64, noise-free unless
+stated) with several methods:
+
+* ``default``      ``fit.lighting`` as shipped: variable projection (colours by NNLS in the
+                   residual), LM on the two sun angles from the best of init / glint
+                   estimate / 24x24 sky grid (2 starts refined);
+* ``from init``    the same two-angle LM from the initial guess alone (no glint, no grid);
+* ``plain LM``     LM on all 11 parameters from the initial guess (log colours);
+* ``Adam-400``     the paper's baseline on the plain parameters (init-distance sweep only).
+
+Success (noise-free): sun within 0.01 deg and every colour within 1e-4 relative. With noise
+the bar is the noise-limited one: sun within 0.5 deg, colours within 5%. Also recorded: the
+rate of *false successes* (the fit reports success but misses the bar) -- a failed fit must
+be reported as failed.
+
+Axes: (1) distance of the initial guess (sun angle d, colours off by a factor e^(d/60 deg));
+(2) noise sigma on the tone-mapped image; (3) sun elevation (glitter saturating at low sun,
+leaving the frame at high sun); (4) view angle (pitch, down to grazing) with the sun at the
+mirror elevation; (5) roughness (the slope variance scaled from mirror-like to very rough).
+
+Usage: ``python experiments/stability_lighting.py [--quick]``; writes
+``experiments/results/stability_lighting.{json,png}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import math
+import sys
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, __file__.rsplit("/", 1)[0])
+import benchutil  # noqa: E402
+import lighting_fit as lfx  # noqa: E402
+
+from jaxocean import fit, shading  # noqa: E402
+
+METHODS = {
+    "default": dict(),
+    "from init": dict(grid=0, glint=False, n_starts=1),
+    "plain LM": dict(structure="plain"),
+    "Adam-400": dict(solver="adam", structure="plain", options={"learning_rate": 0.03}),
+}
+
+
+@functools.lru_cache(maxsize=None)
+def _fitter(method: str):
+    kw = METHODS[method]
+
+    def one(img, init, w, geo, camera):
+        return fit.lighting(img, geo, camera, init=init, weights=w, throw=False, **kw)
+
+    return jax.jit(jax.vmap(one, in_axes=(0, 0, 0, None, None)))
+
+
+def run_point(method, images, inits, truths, geo, camera, weights=None, noisy=False):
+    if weights is None:
+        weights = jax.vmap(fit.tonemap_weights)(images)
+    res = jax.block_until_ready(_fitter(method)(images, inits, weights, geo, camera))
+    e = lfx.errors(res.lighting, truths)
+    if noisy:
+        ok = (e["sun_angle_deg"] < 0.5) & np.all([e[n] < 0.05 for n in fit.COLOR_FIELDS], 0)
+    else:
+        ok = lfx.success_of(e)
+    reported = np.asarray(res.success)
+    return dict(method=method, n=int(ok.size), success=float(ok.mean()), reported=float(reported.mean()),
+                false_success=float(np.mean(reported & ~ok)),
+                sun_deg_median=float(np.median(e["sun_angle_deg"])),
+                steps_median=float(np.median(np.asarray(res.steps))))
+
+
+def truths_and_inits(key, P, *, azimuth=(-0.35, 0.35), elevation=(0.09, 0.6)):
+    k1, k2 = jax.random.split(key)
+    truths = [fit.random_lighting(k, sun_azimuth=azimuth, sun_elevation=elevation, dtype=jnp.float64)
+              for k in jax.random.split(k1, P)]
+    inits = [fit.random_lighting(k, dtype=jnp.float64) for k in jax.random.split(k2, P)]
+    return lfx.stack(truths), lfx.stack(inits)
+
+
+def offset_init(key, truth, degrees):
+    """An initial guess ``degrees`` from the true sun (random direction, kept above the
+    horizon) with colours off by a random factor of e^(+-degrees / 60)."""
+    k1, k2 = jax.random.split(key)
+    pq = fit.sun_to_pq(truth.sun_azimuth, truth.sun_elevation)
+    ang = jax.random.uniform(k1, (), truth.sun_azimuth.dtype, 0, 2 * math.pi)
+    pq = pq + math.radians(degrees) * jnp.stack([jnp.cos(ang), jnp.sin(ang)])
+    r = jnp.linalg.norm(pq)
+    pq = jnp.where(r > math.radians(89.0), pq * math.radians(89.0) / r, pq)
+    az, el = fit.pq_to_sun(pq)
+    signs = jnp.where(jax.random.bernoulli(k2, 0.5, (3, 3)), 1.0, -1.0)
+    f = jnp.exp(signs * degrees / 60.0)
+    return truth._replace(sun_azimuth=az, sun_elevation=el, sun_color=truth.sun_color * f[0],
+                          sky_color=truth.sky_color * f[1], sea_color=truth.sea_color * f[2])
+
+
+def sweep_init_distance(P, scene, rows, methods):
+    waves, camera, geo = scene
+    truths, _ = truths_and_inits(jax.random.key(11), P)
+    images = jax.vmap(lambda t: lfx.shade(geo, camera, t))(truths)
+    for d in (1.0, 3.0, 10.0, 30.0, 60.0, 100.0):
+        keys = jax.random.split(jax.random.key(int(d * 10)), P)
+        inits = jax.vmap(lambda k, t: offset_init(k, t, d))(keys, truths)
+        for m in methods:
+            r = run_point(m, images, inits, truths, geo, camera)
+            rows.append(dict(axis="init distance [deg]", x=d, **r))
+            print(f"  init {d:5.0f} deg  {m:10s} success {r['success']:.2f} reported {r['reported']:.2f}")
+
+
+def sweep_noise(P, scene, rows, methods):
+    waves, camera, geo = scene
+    truths, inits = truths_and_inits(jax.random.key(12), P)
+    clean = jax.vmap(lambda t: lfx.shade(geo, camera, t))(truths)
+    for sigma in (0.0, 0.003, 0.01, 0.03, 0.1):
+        keys = jax.random.split(jax.random.key(int(sigma * 1e4) + 1), P)
+        imgs, ws = jax.vmap(lambda k, c: lfx.noisy_observation(k, c, sigma))(keys, clean)
+        for m in methods:
+            r = run_point(m, imgs, inits, truths, geo, camera, weights=ws, noisy=True)
+            rows.append(dict(axis="noise sigma (display)", x=sigma, **r))
+            print(f"  noise {sigma:5.3f}  {m:10s} success {r['success']:.2f} reported {r['reported']:.2f}")
+
+
+def sweep_elevation(P, scene, rows, methods):
+    waves, camera, geo = scene
+    for el in (1.0, 3.0, 6.0, 12.0, 20.0, 30.0, 40.0, 50.0, 65.0):
+        e = math.radians(el)
+        truths, inits = truths_and_inits(jax.random.key(13 + int(el)), P, elevation=(e, e + 1e-9))
+        images = jax.vmap(lambda t: lfx.shade(geo, camera, t))(truths)
+        for m in methods:
+            r = run_point(m, images, inits, truths, geo, camera)
+            rows.append(dict(axis="sun elevation [deg]", x=el, **r))
+            print(f"  elevation {el:4.0f}  {m:10s} success {r['success']:.2f} reported {r['reported']:.2f}"
+                  f" false {r['false_success']:.2f}")
+
+
+def sweep_pitch(P, n, rows, methods):
+    for pitch in (0.03, 0.06, 0.1, 0.2, 0.35, 0.6, 0.9):
+        waves, camera, geo = lfx.make_scene(100, n, pitch=pitch, dtype=jnp.float64)
+        truths, inits = truths_and_inits(jax.random.key(14), P, elevation=(0.7 * pitch, 1.3 * pitch))
+        images = jax.vmap(lambda t: lfx.shade(geo, camera, t))(truths)
+        for m in methods:
+            r = run_point(m, images, inits, truths, geo, camera)
+            rows.append(dict(axis="view angle (pitch) [rad]", x=pitch, **r))
+            print(f"  pitch {pitch:4.2f}  {m:10s} success {r['success']:.2f} reported {r['reported']:.2f}")
+
+
+def sweep_roughness(P, n, rows, methods):
+    for scale in (1e-3, 1e-2, 0.1, 1.0, 10.0):
+        waves, camera, geo = lfx.make_scene(100, n, roughness_scale=scale, dtype=jnp.float64)
+        truths, inits = truths_and_inits(jax.random.key(15), P)
+        images = jax.vmap(lambda t: lfx.shade(geo, camera, t))(truths)
+        med = float(np.median(np.asarray(geo.roughness)[np.asarray(geo.mask)]))
+        for m in methods:
+            r = run_point(m, images, inits, truths, geo, camera)
+            rows.append(dict(axis="roughness scale", x=scale, median_roughness=med, **r))
+            print(f"  roughness x{scale:g} (median {med:.1e})  {m:10s} success {r['success']:.2f}"
+                  f" reported {r['reported']:.2f}")
+
+
+def plot(rows):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    axes_names = list(dict.fromkeys(r["axis"] for r in rows))
+    fig, axes = plt.subplots(1, len(axes_names), figsize=(4.2 * len(axes_names), 4))
+    axes = np.atleast_1d(axes)
+    colors = dict(zip(METHODS, ("C0", "C1", "C2", "C3")))
+    for ax, name in zip(axes, axes_names):
+        rs = [r for r in rows if r["axis"] == name]
+        for m in METHODS:
+            pts = [r for r in rs if r["method"] == m]
+            if not pts:
+                continue
+            x = [max(p["x"], 1e-4) for p in pts]
+            ax.plot(x, [p["success"] for p in pts], "o-", color=colors[m], label=f"{m}: correct")
+            ax.plot(x, [p["false_success"] for p in pts], "x:", color=colors[m], alpha=0.7)
+        if name.startswith(("init", "noise", "roughness")):
+            ax.set_xscale("log")
+        ax.set(xlabel=name, ylim=(-0.03, 1.03), title=name)
+        ax.grid(True, alpha=0.3)
+    axes[0].set_ylabel("success rate (o)  /  false success rate (x)")
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Lighting fit: where methods fail (64x64, float64; noise: sun < 0.5 deg, colours < 5%)")
+    fig.tight_layout()
+    fig.savefig(benchutil.RESULTS / "stability_lighting.png", dpi=110)
+    plt.close(fig)
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true")
+    args = parser.parse_args(argv)
+    P = 6 if args.quick else 16
+    n = 48 if args.quick else 64
+    rows = []
+    t0 = time.perf_counter()
+    with jax.enable_x64(True):
+        scene = lfx.make_scene(100, n, dtype=jnp.float64)
+        print("[init distance]")
+        sweep_init_distance(P, scene, rows, ("default", "from init", "plain LM", "Adam-400"))
+        print("[noise]")
+        sweep_noise(P, scene, rows, ("default", "from init"))
+        print("[sun elevation]")
+        sweep_elevation(P, scene, rows, ("default", "from init"))
+        print("[view angle]")
+        sweep_pitch(P, n, rows, ("default", "from init"))
+        print("[roughness]")
+        sweep_roughness(P, n, rows, ("default", "from init"))
+    name = "stability_lighting_quick" if args.quick else "stability_lighting"
+    benchutil.save(name, rows, dict(quick=args.quick, problems_per_point=P, resolution=n))
+    plot(rows)
+    print(f"done in {time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,83 @@
+"""Fitting applications: optimistix / jaxopt / optax solvers through the forward models.
+
+* :mod:`jaxocean.fit.solvers`  one registry of solvers (name -> runner) shared by every fit
+* :mod:`jaxocean.fit.lighting` sun direction and sun / sky / sea colours from an image and
+  its geometry (variable projection: colours in closed form, two sun angles searched)
+* :mod:`jaxocean.fit.camera`   camera height, pitch (and field of view) from an image and
+  its waves, alone or jointly with the lighting
+* :mod:`jaxocean.fit.reedit`   re-render fitted scenes under a new camera or light; style
+  transfer
+
+Usage::
+
+    from jaxocean import fit
+    result = fit.lighting(image, geometry, camera)          # LightingFit
+    images = fit.reedit(waves, camera, result.lighting, times, camera_height=5.0)
+"""
+
+from jaxocean.fit import camera as camera_fit
+from jaxocean.fit import lighting as lighting_fit
+from jaxocean.fit import reedit as reedit_module
+from jaxocean.fit import solvers
+from jaxocean.fit.camera import CAMERA_FIELDS, CameraFit, camera
+from jaxocean.fit.lighting import (
+    COLOR_FIELDS,
+    COLOR_RANGES,
+    FIT_FIELDS,
+    STRUCTURES,
+    LightingFit,
+    fit_to_dict,
+    lighting,
+    lighting_error,
+    lighting_from_dict,
+    nnls_small,
+    pq_to_direction,
+    pq_to_sun,
+    random_lighting,
+    sun_to_pq,
+    tonemap_weights,
+)
+from jaxocean.fit.reedit import StyleTransfer, edit_camera, edit_lighting, reedit, reedit_scene, style_transfer
+from jaxocean.fit.solvers import SOLVER_NAMES, SOLVERS, FitError, SolverOutput, get_solver, solve
+
+__all__ = [
+    # modules
+    "solvers",
+    "lighting_fit",
+    "camera_fit",
+    "reedit_module",
+    # solvers
+    "SOLVERS",
+    "SOLVER_NAMES",
+    "SolverOutput",
+    "FitError",
+    "get_solver",
+    "solve",
+    # lighting
+    "FIT_FIELDS",
+    "COLOR_FIELDS",
+    "STRUCTURES",
+    "COLOR_RANGES",
+    "LightingFit",
+    "lighting",
+    "random_lighting",
+    "tonemap_weights",
+    "lighting_error",
+    "sun_to_pq",
+    "pq_to_sun",
+    "pq_to_direction",
+    "nnls_small",
+    "fit_to_dict",
+    "lighting_from_dict",
+    # camera
+    "CAMERA_FIELDS",
+    "CameraFit",
+    "camera",
+    # re-editing
+    "StyleTransfer",
+    "edit_camera",
+    "edit_lighting",
+    "reedit",
+    "reedit_scene",
+    "style_transfer",
+]

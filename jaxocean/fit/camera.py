@@ -1,0 +1,312 @@
+"""Camera fit: height, pitch (and field of view) from an image and its waves.
+
+Protocol
+--------
+``camera(image, waves, t, init, *, lighting=..., fit=("height", "pitch"), ...) -> CameraFit``
+
+* ``image``   ``(H, W, 3)`` linear radiance, ``H, W`` the resolution of ``init``.
+* ``waves``   the :class:`jaxocean.waves.Waves` ``(N,)`` of the scene and ``t`` [s] the frame time:
+  the geometry is rendered (:func:`jaxocean.render.geometry`, unrefined rows path) for
+  every candidate camera, so the camera is seen through the wave pattern, the horizon
+  and the change of footprint with distance.
+* ``init``    a :class:`jaxocean.camera.Camera`: the starting guess, and every field that is not
+  fitted (yaw, position, resolution, projection).
+* ``lighting`` the known :class:`jaxocean.shading.Lighting`; or ``fit_lighting=True`` to fit
+  the lighting jointly (then ``lighting`` is the starting guess, default the renderer's).
+
+Parameterisation: ``log(height)``, ``pitch`` [rad] and ``log(tan(fov / 2))`` -- height and
+field of view stay positive and ``fov`` below pi. With ``fit_lighting=True`` the sun's
+azimuthal-equidistant ``(p, q)`` (see :mod:`jaxocean.fit.lighting`) are appended and the
+three colours are solved in closed form (non-negative least squares) inside the residual.
+
+Starts: ``search=(n_h, n_p)`` candidate cameras around ``init`` -- heights ``init * exp(
+linspace(-height_span, height_span, n_h))`` and pitches ``init + linspace(-pitch_span,
+pitch_span, n_p)`` -- are scored by their loss, and the best ``n_starts`` are refined by the
+solver; the lowest final loss wins. With ``fit_lighting`` the sun starts from the best of
+the lighting fit's starts (glint estimate and coarse grid) at each candidate camera.
+
+The loss is the lighting fit's: weighted mean square residual in linear radiance (see
+:func:`jaxocean.fit.lighting.lighting`); ``weights`` / ``mask`` as there. Everything after
+validation is one jitted function; results are arrays only (``vmap`` with ``throw=False``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import render, shading
+from jaxocean.errors import is_concrete
+from jaxocean.fit import lighting as lf
+from jaxocean.fit import solvers
+from jaxocean.fit.solvers import FitError
+from jaxocean.shading import Lighting
+from jaxocean.waves import Waves, validate
+
+__all__ = ["CAMERA_FIELDS", "CameraFit", "camera"]
+
+CAMERA_FIELDS = ("height", "pitch", "fov")
+
+
+class CameraFit(NamedTuple):
+    """Result of :func:`camera` (a pytree of arrays; batched under ``vmap``).
+
+    ``camera`` the fitted camera (other fields as ``init``); ``lighting`` the lighting used
+    (fitted when ``fit_lighting``); ``loss``, ``steps``, ``success``, ``wall_time``,
+    ``history`` as in :class:`jaxocean.fit.lighting.LightingFit`.
+    """
+
+    camera: cam.Camera
+    lighting: Lighting
+    loss: jax.Array
+    steps: jax.Array
+    success: jax.Array
+    wall_time: jax.Array
+    history: Any = None
+
+
+class _Static(NamedTuple):
+    fit: tuple
+    fit_lighting: bool
+    solver: str
+    max_steps: int
+    rtol: float
+    atol: float
+    search: tuple
+    height_span: float
+    pitch_span: float
+    n_starts: int
+    grid: int
+    history: bool
+    options: tuple
+    plan: Any  # render.RenderPlan or None (static)
+
+
+def _pack(camera, fit):
+    parts = {"height": jnp.log(camera.height), "pitch": camera.pitch, "fov": jnp.log(jnp.tan(camera.fov / 2))}
+    return jnp.stack([parts[n] for n in fit])
+
+
+def _unpack(y, init, fit):
+    values = {}
+    for i, n in enumerate(fit):
+        if n == "height":
+            values[n] = jnp.exp(y[i])
+        elif n == "pitch":
+            values[n] = y[i]
+        else:
+            values[n] = 2 * jnp.arctan(jnp.exp(y[i]))
+    return dataclasses.replace(init, **values)
+
+
+def _data(y, args, fit, plan):
+    image, weight, waves, t, init, hg = args[:6]
+    c = _unpack(y[: len(fit)], init, fit)
+    geo = render.geometry(waves, c, t, plan=plan)
+    return lf._prepare(image, geo.normal, geo.slope_variance, c, weight, hg)
+
+
+def _residual(y, args, fit, fit_lighting, plan):
+    data = _data(y, args, fit, plan)
+    light = args[6]
+    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
+    if fit_lighting:
+        direction = lf.pq_to_direction(y[len(fit):])
+        colors = lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS)
+    else:
+        direction = shading.sun_direction(light)
+        colors = fixed
+    return lf._residual_from_model(data, lf._model(data, direction, colors))
+
+
+@functools.lru_cache(maxsize=None)
+def _bound(fit: tuple, fit_lighting: bool, plan):
+    def fn(y, args):
+        return _residual(y, args, fit, fit_lighting, plan)
+
+    return solvers.dense_jacobian(fn)
+
+
+def _candidates(init, st: _Static, dtype):
+    n_h, n_p = st.search
+    fh = np.exp(np.linspace(-st.height_span, st.height_span, n_h)) if n_h > 1 else np.ones(1)
+    dp = np.linspace(-st.pitch_span, st.pitch_span, n_p) if n_p > 1 else np.zeros(1)
+    rows = []
+    for a in fh:
+        for b in dp:
+            rows.append((a, b))
+    rows.sort(key=lambda r: (abs(math.log(r[0])), abs(r[1])))  # init first
+    y0 = _pack(init, st.fit)
+    out = []
+    for a, b in rows:
+        y = y0
+        if "height" in st.fit:
+            y = y.at[st.fit.index("height")].add(math.log(a))
+        if "pitch" in st.fit:
+            y = y.at[st.fit.index("pitch")].add(b)
+        out.append(y)
+    return jnp.stack(out).astype(dtype)
+
+
+def _sun_start(y_cam, args, st: _Static):
+    """Best sun (p, q) at a candidate camera: lighting-fit starts scored at that geometry."""
+    data = _data(y_cam, args, st.fit, st.plan)
+    light = args[6]
+    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
+    init_pq = lf.sun_to_pq(light.sun_azimuth, light.sun_elevation).astype(data.target.dtype)
+    return lf._starts(data, init_pq, fixed, lf.COLOR_FIELDS, grid=st.grid, n_starts=1)[0]
+
+
+def _core(image, weight, waves, t, init, hg, light, st: _Static):
+    args = (image, weight, waves, t, init, hg, light)
+    dtype = image.dtype
+    fn = _bound(st.fit, st.fit_lighting, st.plan)
+    cands = _candidates(init, st, dtype)
+    if st.fit_lighting:
+        suns = jax.lax.map(lambda y: _sun_start(y, args, st), cands)
+        cands = jnp.concatenate([cands, suns], -1)
+
+    def score(y):
+        r = fn(y, args)
+        return jnp.sum(r * r)
+
+    losses = jax.lax.map(score, cands)
+    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf)
+    starts = jax.lax.stop_gradient(cands[jnp.argsort(losses)[: st.n_starts]])
+
+    def run_one(y0):
+        return solvers.solve(st.solver, fn, y0, args, max_steps=st.max_steps, rtol=st.rtol, atol=st.atol,
+                             history=st.history, options=dict(st.options))
+
+    spec = solvers.get_solver(st.solver)
+    outs = jax.lax.map(run_one, starts) if spec.traceable else lf._host_map(run_one, starts)
+    best = jnp.argmin(jnp.where(jnp.isfinite(outs.loss), outs.loss, jnp.inf))
+    out = jax.tree.map(lambda a: a[best], outs)
+    y = out.params
+    c = _unpack(y[: len(st.fit)], init, st.fit)
+    if st.fit_lighting:
+        data = _data(y, args, st.fit, st.plan)
+        direction = lf.pq_to_direction(y[len(st.fit):])
+        fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
+        colors = lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS)
+        light = lf._finish(data, y[len(st.fit):], colors)
+    loss = 2 * out.loss
+    hist = None if out.history is None else 2 * out.history
+    success = out.success & jnp.isfinite(loss) & (c.height > 0) & (jnp.abs(c.pitch) < jnp.pi / 2)
+    if st.fit_lighting:
+        success = success & (light.sun_elevation > 0)
+    return c, light, loss, out.steps, success, hist
+
+
+_core_jit = jax.jit(_core, static_argnames=("st",))
+
+
+def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | None = None, fit=("height", "pitch"),
+           fit_lighting: bool = False, solver: str = "lm", weights="display", mask=None, exposure=1.0,
+           tonemap: str = "bruneton", saturation: float | None = 0.9, horizon_gradient=0.0,
+           max_steps: int | None = None, rtol: float | None = None, atol: float | None = None,
+           search=(3, 3), height_span: float = 0.2, pitch_span: float = 0.04, n_starts: int = 2, grid: int = 16,
+           plan="auto", history: bool = False, throw: bool = True, options: dict | None = None) -> CameraFit:
+    """Fit camera height and pitch (and ``fov``) to ``image`` of ``waves`` at time ``t``.
+
+    Args:
+        image: ``(H, W, 3)`` linear radiance; its dtype is the fit's.
+        waves, t: the scene's waves ``(N,)`` and the frame time [s].
+        init: starting camera (resolution ``(H, W)``); unfitted fields are kept.
+        lighting: the scene's lighting (known), or the starting guess with ``fit_lighting``.
+        fit: camera fields to fit, a subset of :data:`CAMERA_FIELDS`.
+        fit_lighting: also fit sun direction and colours (jointly).
+        solver, weights, mask, exposure, tonemap, saturation, horizon_gradient, max_steps, rtol, atol,
+            history, throw, options: as in :func:`jaxocean.fit.lighting.lighting`.
+        search, height_span, pitch_span, n_starts: the start candidates (module docstring).
+        grid: the sun grid of the lighting starts (``fit_lighting`` only).
+        plan: how the geometry is evaluated for every candidate camera: ``"auto"`` (default)
+            uses the refinement count that :func:`jaxocean.render.plan` picks at ``init`` (as
+            :func:`jaxocean.render.render` does by default) with every wave evaluated (a
+            wave skipped at ``init`` may matter at the fitted camera); ``None`` the
+            unrefined path; or a :class:`jaxocean.render.RenderPlan`. The model must match
+            the way the image was made: a refined render differs from an unrefined one.
+
+    Returns:
+        :class:`CameraFit`.
+    """
+    image = jnp.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
+    if not jnp.issubdtype(image.dtype, jnp.floating):
+        image = image.astype(jnp.zeros(()).dtype)
+    dtype = image.dtype
+    cam.validate_camera(init)
+    if init.projection != "perspective":
+        raise ValueError("camera fits need a perspective camera (an orthographic one has no height or pitch to see)")
+    if tuple(image.shape[:2]) != tuple(init.resolution):
+        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {init.resolution}")
+    if isinstance(fit, str):
+        fit = (fit,)
+    unknown = [f for f in fit if f not in CAMERA_FIELDS]
+    if unknown or not fit:
+        raise ValueError(f"fit= must be a non-empty subset of {CAMERA_FIELDS}; got {tuple(fit)}")
+    fit = tuple(f for f in CAMERA_FIELDS if f in fit)
+    validate(waves)
+    if waves.omega.ndim != 1:
+        raise ValueError(f"waves must have leaves (N,); got {waves.omega.shape}")
+    spec = solvers.get_solver(solver)
+    if len(search) != 2 or any(not isinstance(n, int) or n < 1 for n in search):
+        raise ValueError(f"search must be two positive ints (n_heights, n_pitches); got {search!r}")
+    if lighting is None:
+        if not fit_lighting:
+            raise ValueError("pass the scene's lighting=, or fit_lighting=True to fit it jointly")
+        lighting = shading.make_lighting(dtype=dtype)
+    shading.validate_lighting(lighting)
+    lighting = jax.tree.map(lambda a: jnp.asarray(a, dtype), lighting)
+    waves = jax.tree.map(lambda a: jnp.asarray(a, dtype), waves)
+    init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
+    weight = lf._weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
+    traced = not is_concrete(image, weight, waves, init, lighting, t)
+    if traced and throw:
+        raise ValueError("fit.camera under jit/vmap cannot raise on failure: pass throw=False and read .success")
+    if traced and not spec.traceable:
+        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
+    used = lf._weights("uniform", mask, image.shape[:2], dtype)
+    lf._validate_values(image, weight, None, init, ("sun_direction",), used)
+    if not traced:
+        image = jnp.where(used > 0, image, 0.0)
+    if isinstance(plan, str):
+        if plan != "auto":
+            raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
+        if traced:
+            raise ValueError("plan='auto' needs concrete inputs; under jit/vmap pass plan=RenderPlan(...) or None")
+        refine = render.plan(waves, init, t).refine
+        plan = render.RenderPlan(active=tuple(range(waves.omega.shape[0])), refine=int(refine))
+    elif plan is not None:
+        plan = render.RenderPlan(active=tuple(int(i) for i in plan.active), refine=int(plan.refine))
+    if max_steps is None:
+        max_steps = lf._DEFAULT_MAX_STEPS.get(solver, 50)
+    d_rtol, d_atol = lf._DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
+    st = _Static(fit=fit, fit_lighting=bool(fit_lighting), solver=solver, max_steps=int(max_steps),
+                 rtol=float(d_rtol if rtol is None else rtol), atol=float(d_atol if atol is None else atol),
+                 search=tuple(int(n) for n in search), height_span=float(height_span), pitch_span=float(pitch_span),
+                 n_starts=int(n_starts), grid=int(grid), history=bool(history),
+                 options=tuple(sorted((options or {}).items())), plan=plan)
+    run = _core_jit if spec.traceable else _core
+    t0 = time.perf_counter()
+    c, light, loss, steps, success, hist = run(image, weight, waves, jnp.asarray(t, dtype), init,
+                                              jnp.asarray(horizon_gradient, dtype), lighting, st)
+    if traced:
+        wall = jnp.asarray(jnp.nan, dtype)
+    else:
+        jax.block_until_ready(loss)
+        wall = jnp.asarray(time.perf_counter() - t0, dtype)
+    result = CameraFit(c, light, loss, steps, success, wall, hist)
+    if throw and not bool(success):
+        raise FitError(f"camera fit did not converge (solver {solver!r}): loss {float(loss):.3e} after "
+                       f"{int(steps)} steps", result)
+    return result

@@ -1,0 +1,944 @@
+"""Image-based lighting fit: sun direction and the sun, sky and sea colours.
+
+Protocol
+--------
+``lighting(image, geometry, camera, ...) -> LightingFit``
+
+* ``image``     ``(H, W, 3)`` linear radiance (what an EXR frame stores), ``H, W`` the
+  camera's resolution.
+* ``geometry``  per-pixel geometry of the same frame: a :class:`jaxocean.render.Geometry`,
+  a :class:`jaxocean.io.Frame` read from an EXR, or anything with ``normal (H, W, 3)``,
+  ``roughness (H, W)`` and optionally ``slope_variance (H, W, 2)`` (anisotropic; else
+  isotropic ``roughness / 2`` per axis, as :func:`jaxocean.render.shade`) and ``mask``.
+* ``camera``    the :class:`jaxocean.camera.Camera` that saw it: views and the sea / sky
+  mask come from it, exactly as in :func:`jaxocean.render.shade`.
+
+The model is the renderer's own (:func:`jaxocean.shading.shade_components`)::
+
+    image = sun_color * B_sun(L) + sky_color * S + sea_color * E
+
+with ``B_sun`` the sun glitter per unit colour (it depends on the sun direction ``L`` only),
+``S = F_mean * sky(R) / sky_color`` on the sea and the sky weight on sky pixels, and
+``E = 1 - F_mean`` on the sea (0 on the sky). ``S`` and ``E`` do not depend on the lighting.
+
+The loss is the weighted mean square of the residual in linear radiance,
+``loss = sum(w^2 (model - image)^2) / sum(w^2)`` over pixels and channels, with
+``w = weights * mask``. The default ``weights="display"`` is :func:`tonemap_weights` of the
+observed image: the tone map's slope at the observed radiance, i.e. the Gauss-Newton
+weighting of a loss on tone-mapped display values -- the image loss a viewer (and the
+paper) sees, and the right weighting for noise added to display values -- while the problem
+stays linear in the colours. It also keeps a few glints of radiance 1e3-1e4 from dominating
+the fit: with uniform weights (``weights="uniform"``, plain linear MSE) float32 rounding at
+those pixels costs the sky and sea colours 0.1-4% (measured), with display weights 1e-5.
+
+Parameterisation (well conditioned, constraints built in):
+
+* sun direction: azimuthal-equidistant coordinates ``(p, q) = (pi/2 - elevation) *
+  (cos azimuth, sin azimuth)``: smooth through the zenith (where azimuth / elevation are
+  singular), equally scaled in every direction; the horizon is the circle ``|(p, q)| = pi/2``.
+* colours: non-negative. ``structure="varpro"`` solves them exactly (non-negative least
+  squares) for every sun direction; ``structure="plain"`` carries them as parameters, as
+  ``exp(s)`` for the unbounded solvers and raw with a lower bound 0 for ``lbfgsb``.
+
+Structures (``structure=``):
+
+* ``"varpro"`` (default): variable projection. For a sun direction the image is linear in
+  the (fitted) colours; they are solved in closed form, per channel, by an exact
+  non-negative least-squares solve of at most three unknowns (every active set
+  enumerated), inside the residual. The solver then searches the two sun angles only.
+  Starts: the ``init`` sun, the *glint* estimate (the sea's mirror direction at the
+  brightest 1% of sea pixels, where the normal is the half vector) and the best points of a
+  coarse grid over the sky hemisphere evaluated on a sub-sampled image; the best
+  ``n_starts`` (by loss) are refined together (``vmap``) and the lowest loss wins.
+* ``"plain"``: every fitted parameter at once from ``init`` alone -- the formulation of the
+  paper's Adam baseline, kept for comparison charts (it fails from most random starts).
+
+Solvers: any name of :data:`jaxocean.fit.solvers.SOLVER_NAMES` (``"lm"`` by default).
+
+Everything after validation is one jitted function of arrays (static: the names, sizes and
+tolerances), so a fit compiles once per image size and configuration, and runs under
+``jax.vmap`` over images, geometries, cameras or initial guesses with ``throw=False``
+(results are arrays only; ``wall_time`` is NaN when traced). A fit that does not converge
+has ``success=False``; called eagerly with ``throw=True`` (the default) it raises
+:class:`jaxocean.fit.solvers.FitError` carrying the result.
+
+Validation: shapes and names -> ``ValueError``; NaN/inf pixels, negative weights, an empty
+selection, no sea pixel while sun or sea colour are fitted, and a geometry mask that
+disagrees with the camera -> :class:`jaxocean.errors.InvalidValueError` (when concrete).
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import shading
+from jaxocean._math import safe_norm, safe_normalize, smoothstep
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
+from jaxocean.fit import solvers
+from jaxocean.fit.solvers import FitError
+from jaxocean.shading import Lighting
+
+__all__ = [
+    "FIT_FIELDS",
+    "COLOR_FIELDS",
+    "STRUCTURES",
+    "COLOR_RANGES",
+    "LightingFit",
+    "lighting",
+    "random_lighting",
+    "tonemap_weights",
+    "lighting_error",
+    "sun_to_pq",
+    "pq_to_sun",
+    "pq_to_direction",
+    "nnls_small",
+    "fit_to_dict",
+    "lighting_from_dict",
+]
+
+FIT_FIELDS = ("sun_direction", "sun_color", "sky_color", "sea_color")
+COLOR_FIELDS = ("sun_color", "sky_color", "sea_color")
+STRUCTURES = ("varpro", "plain")
+
+#: Ranges of the random colours of :func:`random_lighting` (log-uniform per channel), linear RGB.
+COLOR_RANGES = {"sun_color": (1.0, 40.0), "sky_color": (0.05, 1.0), "sea_color": (0.002, 0.1)}
+
+_HALF_PI = math.pi / 2
+_GLINT_QUANTILE = 0.99
+_GRID_PIXELS = 4096
+# The sun is "seen" when its glitter carries at least this fraction of the (weighted) image
+# energy; below it (a sun behind the camera lights the sea through the BRDF's far tails,
+# 1e-20 and less) its direction is undetermined and the fit is reported as failed.
+_SUN_SEEN = 1e-8  # the coarse grid is evaluated on at most about this many pixels
+_DEFAULT_TOL = {"float32": (1e-6, 1e-6), "float64": (1e-10, 1e-10)}
+_DEFAULT_MAX_STEPS = {"adam": 400}
+
+
+class LightingFit(NamedTuple):
+    """Result of :func:`lighting` (a pytree of arrays; batched under ``vmap``).
+
+    * ``lighting``  the fitted :class:`jaxocean.shading.Lighting` (fields not fitted keep
+      their ``init`` values).
+    * ``loss``      ``()`` weighted mean squared residual (linear radiance squared).
+    * ``steps``     ``()`` int32 solver steps (of the winning start).
+    * ``success``   ``()`` bool: the solver converged, the loss is finite, the sun is above
+      the horizon and (when the sun direction is fitted) its glitter is seen: it carries at
+      least 1e-8 of the weighted image energy -- otherwise the direction is undetermined.
+    * ``wall_time`` ``()`` seconds of the call, compilation included on a first call (NaN
+      when traced).
+    * ``history``   ``(max_steps + 1,)`` loss after each step (winning start), or None
+      unless ``history=True``.
+    """
+
+    lighting: Lighting
+    loss: jax.Array
+    steps: jax.Array
+    success: jax.Array
+    wall_time: jax.Array
+    history: Any = None
+
+
+# --------------------------------------------------------------------------- parameterisation
+
+
+def sun_to_pq(azimuth, elevation):
+    """Sun azimuth / elevation [rad] -> azimuthal-equidistant ``(p, q)``, shape ``(..., 2)``."""
+    r = _HALF_PI - jnp.asarray(elevation)
+    return jnp.stack([r * jnp.cos(azimuth), r * jnp.sin(azimuth)], axis=-1)
+
+
+def pq_to_sun(pq):
+    """``(p, q)`` -> ``(azimuth, elevation)`` [rad]; azimuth 0 at the zenith (where it is undefined)."""
+    pq = jnp.asarray(pq)
+    p, q = pq[..., 0], pq[..., 1]
+    r = safe_norm(pq)
+    ok = r > 0
+    azimuth = jnp.where(ok, jnp.arctan2(jnp.where(ok, q, 0.0), jnp.where(ok, p, 1.0)), 0.0)
+    return azimuth, _HALF_PI - r
+
+
+def pq_to_direction(pq):
+    """``(p, q)`` -> unit vector towards the sun, ``(..., 3)``: ``(sin r p/r, sin r q/r, cos r)``,
+    ``r = |(p, q)|`` the zenith angle. Smooth everywhere, the zenith included."""
+    pq = jnp.asarray(pq)
+    r = safe_norm(pq)
+    s = jnp.sinc(r / jnp.pi)  # sin(r) / r, exact and smooth at 0
+    return jnp.concatenate([s[..., None] * pq, jnp.cos(r)[..., None]], axis=-1)
+
+
+# --------------------------------------------------------------------------- small NNLS
+
+
+def nnls_small(gram, rhs, ridge=None):
+    """Exact non-negative least squares ``min_{x >= 0} x^T G x - 2 b^T x`` for a few unknowns.
+
+    ``gram (..., k, k)`` symmetric positive semi-definite, ``rhs (..., k)``; returns
+    ``x (..., k)``. Every one of the ``2^k`` active sets is solved and the best feasible one
+    kept -- exact (the NNLS optimum is the least-squares solution on its own support that
+    also satisfies the KKT conditions; the set with the smallest KKT violation is taken),
+    branch free, jittable, vmappable and differentiable almost everywhere. Columns are scaled to unit
+    norm first; ``ridge`` (default ``8 eps``) keeps empty columns solvable (their ``x`` is 0).
+    """
+    gram, rhs = jnp.asarray(gram), jnp.asarray(rhs)
+    k = gram.shape[-1]
+    dtype = gram.dtype
+    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
+    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
+    ok = diag > jnp.finfo(dtype).tiny
+    d = jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0)
+    gn = gram / (d[..., :, None] * d[..., None, :])
+    bn = rhs / d
+    masks = np.array([[(s >> i) & 1 for i in range(k)] for s in range(2**k)], dtype=bool)  # (2^k, k)
+    m = jnp.asarray(masks, dtype)
+    eye = jnp.eye(k, dtype=dtype)
+    g_sub = gn[..., None, :, :] * m[:, :, None] * m[:, None, :] + eye * (1 - m)[:, :, None] + ridge * eye
+    b_sub = bn[..., None, :] * m
+    x_sub = _small_solve(g_sub, b_sub) * m  # (..., 2^k, k)
+    # Pick the active set by its KKT violation, not by comparing objective values: those
+    # differ by less than float32 resolution when a few bright pixels dominate |y|^2.
+    # On the support x >= 0; off it the gradient G x - b >= 0 (no descent into x_i > 0).
+    grad = jnp.einsum("...ij,...sj->...si", gn, x_sub) - bn[..., None, :]
+    violation = jnp.sum(m * jnp.maximum(-x_sub, 0) + (1 - m) * jnp.maximum(-grad, 0), axis=-1)
+    # ties (degenerate problems): prefer the larger support, i.e. the later subset index
+    best = (2**k - 1) - jnp.argmin(violation[..., ::-1], axis=-1)
+    x = jnp.take_along_axis(x_sub, best[..., None, None], axis=-2)[..., 0, :]
+    return x / d
+
+
+def _small_solve(a, b):
+    """``a^-1 b`` for ``k <= 3`` by cofactors: elementwise arithmetic (cheap to compile and
+    to differentiate, unlike a batched LU), fine for the well-conditioned scaled systems here."""
+    k = a.shape[-1]
+    if k == 1:
+        return b / a[..., 0]
+    if k == 2:
+        det = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
+        x0 = a[..., 1, 1] * b[..., 0] - a[..., 0, 1] * b[..., 1]
+        x1 = a[..., 0, 0] * b[..., 1] - a[..., 1, 0] * b[..., 0]
+        return jnp.stack([x0, x1], -1) / det[..., None]
+    if k != 3:
+        raise AssertionError(k)
+    c0 = jnp.cross(a[..., 1, :], a[..., 2, :])  # rows of the adjugate's transpose
+    c1 = jnp.cross(a[..., 2, :], a[..., 0, :])
+    c2 = jnp.cross(a[..., 0, :], a[..., 1, :])
+    det = jnp.sum(a[..., 0, :] * c0, -1)
+    # a^-1 = [c0 c1 c2] / det (columns), so a^-1 b = (c0 b0 + c1 b1 + c2 b2) / det
+    x = c0 * b[..., 0:1] + c1 * b[..., 1:2] + c2 * b[..., 2:3]
+    return x / det[..., None]
+
+
+# --------------------------------------------------------------------------- data
+
+
+class _Data(NamedTuple):
+    """Lighting-independent per-pixel terms, ``(H, W, ...)`` (sky pixels hold a flat sea
+    seen from the zenith in the geometric fields, as in :func:`jaxocean.render.shade`).
+
+    Besides the geometry, the view-only factors of the sun BRDF are precomputed (tangent
+    frame, ``z_V``, Smith's ``Lambda_V``, the slope-pdf normalisation): the residual then
+    evaluates only the sun-dependent half of :func:`jaxocean.shading.sun_radiance_factor`,
+    which halves the compiled program and the work per step (tests check the two agree).
+    """
+
+    normal: jax.Array  # unit
+    sx2: jax.Array  # clamped slope variances
+    sy2: jax.Array
+    view: jax.Array  # unit
+    sea: jax.Array  # bool
+    sky_term: jax.Array  # S
+    sea_term: jax.Array  # E
+    target: jax.Array  # (H, W, 3)
+    weight: jax.Array  # (H, W, 3), w (residual = w (model - target))
+    t_x: jax.Array  # tangent frame
+    t_y: jax.Array
+    z_view: jax.Array  # max(V.N, MIN_COSINE)
+    lambda_view: jax.Array  # Smith Lambda of the view
+    pdf_norm: jax.Array  # 1 / (2 pi sigma_x sigma_y)
+
+
+def _prepare(image, normal, slope_var, camera, weight, horizon_gradient) -> _Data:
+    dtype = image.dtype
+    hit = cam.intersect_sea(camera)
+    sea = hit.mask
+    up = jnp.zeros(3, dtype).at[2].set(1.0)
+    view = jnp.where(sea[..., None], hit.view.astype(dtype), up)
+    normal = jnp.where(sea[..., None], normal, up)
+    normal, view = safe_normalize(normal), safe_normalize(view)
+    floor = shading.MIN_SLOPE_VARIANCE_AXIS
+    sx2 = jnp.maximum(slope_var[..., 0], floor)
+    sy2 = jnp.maximum(slope_var[..., 1], floor)
+    ones, zeros = jnp.ones(3, dtype), jnp.zeros(3, dtype)
+    unit = Lighting(jnp.zeros((), dtype), jnp.ones((), dtype), ones, ones, zeros)
+    terms = shading.shade_components(normal, sx2, sy2, view, unit, horizon_gradient=horizon_gradient)
+    sky_weight = shading.sky_radiance(hit.direction.astype(dtype), unit, horizon_gradient=horizon_gradient)[..., 0]
+    sky_term = jnp.where(sea, terms.fresnel * terms.reflected[..., 0], sky_weight)
+    sea_term = jnp.where(sea, 1.0 - terms.fresnel, 0.0)
+    t_x, t_y = shading.tangent_frame(normal)
+    z_view = jnp.maximum(_dot(view, normal), shading.MIN_COSINE)
+    lambda_view = shading.smith_lambda(z_view, shading.projected_variance(view, normal, sx2, sy2))
+    pdf_norm = 1.0 / (2.0 * jnp.pi * jnp.sqrt(sx2 * sy2))
+    return _Data(normal, sx2, sy2, view, sea, sky_term, sea_term, image, weight, t_x, t_y, z_view, lambda_view,
+                 pdf_norm)
+
+
+def _dot(a, b):
+    return jnp.sum(a * b, axis=-1)
+
+
+def _sun_term(data: _Data, light):
+    """``B_sun`` of every pixel for the unit sun vector ``light`` (3,): the sun-dependent part of
+    :func:`jaxocean.shading.sun_radiance_factor` on the precomputed view terms (same formula,
+    Bruneton 2010: ``F p / (4 z_V (H.N)^4 (1 + Lambda_L + Lambda_V))`` times the horizon fade)."""
+    n, v = data.normal, data.view
+    half = safe_normalize(light + v, fallback=n)
+    h_n = jnp.maximum(_dot(half, n), shading.MIN_COSINE)
+    zeta_x = _dot(half, data.t_x) / h_n
+    zeta_y = _dot(half, data.t_y) / h_n
+    slope_pdf = jnp.exp(-0.5 * (zeta_x**2 / data.sx2 + zeta_y**2 / data.sy2)) * data.pdf_norm
+    fresnel = shading.FRESNEL_NORMAL + (1.0 - shading.FRESNEL_NORMAL) * jnp.clip(1.0 - _dot(v, half), 0.0, 1.0) ** 5
+    z_light = jnp.maximum(_dot(light, n), shading.MIN_COSINE)
+    a2 = _dot(light, data.t_x) ** 2
+    b2 = _dot(light, data.t_y) ** 2
+    total = a2 + b2
+    ok = total > jnp.finfo(total.dtype).tiny
+    var_light = jnp.where(ok, (data.sx2 * a2 + data.sy2 * b2) / jnp.where(ok, total, 1.0), 0.5 * (data.sx2 + data.sy2))
+    shadowing = 1.0 + shading.smith_lambda(z_light, var_light) + data.lambda_view
+    brdf = fresnel * slope_pdf / (4.0 * z_light * data.z_view * h_n**4 * shadowing)
+    b = brdf * z_light * smoothstep(0.0, shading.SUN_HORIZON_FADE, light[..., 2])
+    return jnp.where(data.sea, b, 0.0)
+
+
+def _columns(data: _Data, direction):
+    """``{name: (H, W)}`` of the three colour columns for a sun direction."""
+    return {"sun_color": _sun_term(data, direction), "sky_color": data.sky_term, "sea_color": data.sea_term}
+
+
+def _model(data: _Data, direction, colors: dict):
+    cols = _columns(data, direction)
+    return sum(cols[name][..., None] * colors[name] for name in COLOR_FIELDS)
+
+
+def _norm2(data: _Data):
+    return jnp.sum(data.weight * data.weight)
+
+
+def _residual_from_model(data: _Data, model):
+    return (data.weight * (model - data.target)).reshape(-1) / jnp.sqrt(_norm2(data))
+
+
+def _project_colors(data: _Data, direction, fixed: dict, free: tuple, cols=None):
+    """Variable projection: the non-negative least-squares colours of ``free`` for a sun
+    direction, the others held at ``fixed``. Returns ``{name: (3,)}`` for all three."""
+    cols = _columns(data, direction) if cols is None else cols
+    known = sum((cols[n][..., None] * fixed[n] for n in COLOR_FIELDS if n not in free),
+                jnp.zeros_like(data.target))
+    colors = {n: fixed[n] for n in COLOR_FIELDS if n not in free}
+    if not free:
+        return colors
+    a = jnp.stack([cols[n] for n in free], axis=-1).reshape(-1, len(free))  # (P, k)
+    w2 = (data.weight * data.weight).reshape(-1, 3)  # (P, 3)
+    y = (data.target - known).reshape(-1, 3)
+    gram = jnp.einsum("pc,pi,pj->cij", w2, a, a)
+    rhs = jnp.einsum("pc,pi,pc->ci", w2, a, y)
+    x = nnls_small(gram, rhs)  # (3 channels, k)
+    for i, n in enumerate(free):
+        colors[n] = x[:, i]
+    return colors
+
+
+def _varpro_residual(pq, args):
+    data, fixed, free = args[0], args[1], args[2]
+    direction = pq_to_direction(pq)
+    colors = _project_colors(data, direction, fixed, free)
+    return _residual_from_model(data, _model(data, direction, colors))
+
+
+def _varpro_loss(data, pq, fixed, free):
+    r = _varpro_residual(pq, (data, fixed, free))
+    return jnp.sum(r * r)
+
+
+# --------------------------------------------------------------------------- starts
+
+
+def _glint_pq(data: _Data, dtype):
+    """Sun estimate from the glints: where a glint is, the sun lies in the mirror direction of
+    the view about the macro normal. Glints are the pixels the sky and sea alone cannot
+    explain: the excess over a sun-free fit (non-negative sky and sea colours), so bright
+    sky reflections near the horizon do not count; saturated pixels do (they are glints)."""
+    sea_ok = data.sea & jnp.all(jnp.isfinite(data.target), axis=-1)
+    target = jnp.where(sea_ok[..., None], data.target, 0.0)
+    a = jnp.stack([data.sky_term, data.sea_term], -1).reshape(-1, 2)
+    w2 = (data.weight * data.weight).reshape(-1, 3)
+    y = target.reshape(-1, 3)
+    x = nnls_small(jnp.einsum("pc,pi,pj->cij", w2, a, a), jnp.einsum("pc,pi,pc->ci", w2, a, y))  # (3, 2)
+    excess = jnp.sum(target - (a @ x.T).reshape(target.shape), axis=-1)
+    r = shading.reflect(data.view, data.normal)
+    cand = sea_ok & (r[..., 2] > 0)
+    e = jnp.where(cand, excess, jnp.nan)
+    any_cand = jnp.any(cand)
+    thr = jnp.maximum(jnp.nanquantile(jnp.where(any_cand, e, 0.0), _GLINT_QUANTILE), 0.0)
+    w = jnp.where(e > thr, e - thr, 0.0)  # NaN compares False
+    w = jnp.where(jnp.sum(w) > 0, w, jnp.where(e >= thr, 1.0, 0.0))
+    direction = safe_normalize(jnp.sum(w[..., None] * r, axis=(0, 1)))
+    direction = direction.at[2].set(jnp.maximum(direction[2], 0.02))
+    direction = safe_normalize(direction)
+    el = jnp.arcsin(jnp.clip(direction[2], -1.0, 1.0))
+    az = jnp.arctan2(direction[1], direction[0])
+    return sun_to_pq(az, el).astype(dtype)
+
+
+def _grid_pq(n: int, dtype):
+    """A square ``n x n`` grid of (p, q) over the upper hemisphere (cells of pi / n rad)."""
+    c = (np.arange(n) + 0.5) / n * math.pi - _HALF_PI
+    p, q = np.meshgrid(c, c, indexing="ij")
+    pq = np.stack([p.reshape(-1), q.reshape(-1)], -1)
+    pq = pq[(pq**2).sum(-1) < (_HALF_PI * 0.999) ** 2]
+    return jnp.asarray(pq, dtype)
+
+
+def _subsample(data: _Data, stride: int) -> _Data:
+    if stride == 1:
+        return data
+    return jax.tree.map(lambda a: a[::stride, ::stride], data)
+
+
+def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool = True):
+    """The ``n_starts`` lowest-loss candidates among init, glint and the grid (no gradient:
+    the solution, not the path to it, is differentiated)."""
+    data, init_pq, fixed = jax.lax.stop_gradient((data, init_pq, fixed))
+    dtype = data.target.dtype
+    H, W = data.target.shape[:2]
+    stride = max(1, math.ceil(math.sqrt(H * W / _GRID_PIXELS)))
+    small = _subsample(data, stride)
+    cands = [init_pq[None]]
+    if glint:
+        cands.append(_glint_pq(data, dtype)[None])
+    if grid > 0:
+        cands.append(_grid_pq(grid, dtype))
+    cands = jnp.concatenate(cands, 0)
+    losses = jax.lax.map(lambda pq: _varpro_loss(small, pq, fixed, free), cands, batch_size=64)
+    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf)
+    order = jnp.argsort(losses)
+    return cands[order[:n_starts]]
+
+
+# --------------------------------------------------------------------------- plain structure
+
+
+def _plain_layout(fit: tuple):
+    """Slices of the plain parameter vector: (p, q) then 3 per fitted colour."""
+    layout, i = {}, 0
+    if "sun_direction" in fit:
+        layout["sun_direction"] = slice(0, 2)
+        i = 2
+    for n in COLOR_FIELDS:
+        if n in fit:
+            layout[n] = slice(i, i + 3)
+            i += 3
+    return layout, i
+
+
+def _plain_unpack(y, init_pq, init_colors, fit, log_colors):
+    layout, _ = _plain_layout(fit)
+    pq = y[layout["sun_direction"]] if "sun_direction" in layout else init_pq
+    colors = {}
+    for n in COLOR_FIELDS:
+        if n in layout:
+            s = y[layout[n]]
+            colors[n] = jnp.exp(jnp.clip(s, -60.0, 60.0)) if log_colors else s
+        else:
+            colors[n] = init_colors[n]
+    return pq, colors
+
+
+def _plain_pack(init_pq, init_colors, fit, log_colors, dtype):
+    parts = []
+    if "sun_direction" in fit:
+        parts.append(init_pq)
+    for n in COLOR_FIELDS:
+        if n in fit:
+            c = jnp.maximum(init_colors[n], 1e-6)
+            parts.append(jnp.log(c) if log_colors else c)
+    return jnp.concatenate(parts).astype(dtype)
+
+
+def _plain_residual(y, args):
+    data, init_pq, init_colors, fit, log_colors = args[0], args[1], args[2], args[3], args[4]
+    pq, colors = _plain_unpack(y, init_pq, init_colors, fit, log_colors)
+    return _residual_from_model(data, _model(data, pq_to_direction(pq), colors))
+
+
+def _display_residual(y, args):
+    data, init_pq, init_colors, observed, used, fit, exposure, mode = args
+    pq, colors = _plain_unpack(y, init_pq, init_colors, fit, True)
+    model = _model(data, pq_to_direction(pq), colors)
+    r = used * (shading.tonemap(model, exposure, mode) - observed)
+    return r.reshape(-1) / jnp.sqrt(jnp.sum(used))
+
+
+@functools.lru_cache(maxsize=None)
+def _display_bound(fit: tuple, exposure: float, mode: str):
+    def fn(y, args):
+        return _display_residual(y, (*args, fit, exposure, mode))
+
+    return solvers.dense_jacobian(fn)
+
+
+def _refine_display(data, used, pq, colors, init_colors, st: _Static):
+    """Stage 2 of ``space="display"``: every fitted parameter by least squares on the
+    tone-mapped values, from the linear-space solution (unbiased under display noise)."""
+    dtype = data.target.dtype
+    observed = shading.tonemap(data.target, st.exposure, st.tonemap)
+    y0 = _plain_pack(pq, colors, st.fit, True, dtype)
+    out = solvers.solve(st.solver if solvers.get_solver(st.solver).traceable else "lm",
+                        _display_bound(st.fit, st.exposure, st.tonemap), y0,
+                        (data, pq, colors, observed, used), max_steps=st.max_steps, rtol=st.rtol, atol=st.atol,
+                        options=dict(st.options))
+    pq2, colors2 = _plain_unpack(out.params, pq, colors, st.fit, True)
+    colors2 = {n: colors2[n] if n in st.fit else init_colors[n] for n in COLOR_FIELDS}
+    return pq2, colors2, out
+
+
+class _Static(NamedTuple):
+    """Hashable configuration of the jitted core."""
+
+    fit: tuple
+    free: tuple
+    solver: str
+    structure: str
+    max_steps: int
+    rtol: float
+    atol: float
+    grid: int
+    n_starts: int
+    glint: bool
+    history: bool
+    options: tuple
+    space: str
+    exposure: float
+    tonemap: str
+
+
+def _finish(data, pq, colors):
+    az, el = pq_to_sun(pq)
+    dtype = data.target.dtype
+    return Lighting(az.astype(dtype), el.astype(dtype), colors["sun_color"].astype(dtype),
+                    colors["sky_color"].astype(dtype), colors["sea_color"].astype(dtype))
+
+
+def _final(data: _Data, pq, init_colors, free, colors=None):
+    """One evaluation at the solution: colours (projected unless given), the loss
+    ``0.5 |r|^2`` and the weighted energy of the sun's glitter."""
+    direction = pq_to_direction(pq)
+    cols = _columns(data, direction)
+    if colors is None:
+        colors = _project_colors(data, direction, init_colors, free, cols)
+    model = sum(cols[name][..., None] * colors[name] for name in COLOR_FIELDS)
+    r = _residual_from_model(data, model)
+    sun = cols["sun_color"][..., None] * colors["sun_color"]
+    return colors, 0.5 * jnp.sum(r * r), jnp.sum((data.weight * sun) ** 2)
+
+
+def _solve_core(data: _Data, used, init: Lighting, st: _Static):
+    """Everything after preparation; with ``space="display"`` a display-space refinement
+    follows (its loss is the reported one, its steps are added)."""
+    pq, colors, loss, steps, success, hist, sun_energy = _solve_linear(data, init, st)
+    if st.space == "display":
+        init_colors = {n: getattr(init, n).astype(data.target.dtype) for n in COLOR_FIELDS}
+        pq, colors, out = _refine_display(data, used, pq, colors, init_colors, st)
+        _, _, sun_energy = _final(data, pq, init_colors, st.free, colors)
+        loss, steps, success = 2 * out.loss, steps + out.steps, success & out.success
+    return pq, colors, loss, steps, success, hist, sun_energy
+
+
+def _solve_linear(data: _Data, init: Lighting, st: _Static):
+    """The linear-radiance fit: returns (pq, colors, loss, steps, success, history, sun energy)."""
+    dtype = data.target.dtype
+    init_pq = sun_to_pq(init.sun_azimuth, init.sun_elevation).astype(dtype)
+    init_colors = {n: getattr(init, n).astype(dtype) for n in COLOR_FIELDS}
+    options = dict(st.options)
+    spec = solvers.get_solver(st.solver)
+
+    if st.structure == "varpro":
+        if "sun_direction" not in st.fit:
+            colors, half_loss, sun_energy = _final(data, init_pq, init_colors, st.free)
+            loss = 2 * half_loss
+            hist = jnp.full((st.max_steps + 1,), loss) if st.history else None
+            return init_pq, colors, loss, jnp.asarray(0, jnp.int32), jnp.isfinite(loss), hist, sun_energy
+        starts = _starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint)
+
+        def run_one(y0):
+            return solvers.solve(st.solver, _varpro_bound(st.free), y0, (data, init_colors),
+                                 max_steps=st.max_steps, rtol=st.rtol, atol=st.atol,
+                                 history=st.history, options=options)
+
+        # lax.map, not vmap: one un-batched copy of the solver loop (batching its while loop
+        # and conds doubles the compiled program); under an outer vmap it is batched anyway
+        outs = jax.lax.map(run_one, starts) if spec.traceable else _host_map(run_one, starts)
+        losses = jnp.where(jnp.isfinite(outs.loss), outs.loss, jnp.inf)
+        best = jnp.argmin(losses)
+        out = jax.tree.map(lambda a: a[best], outs)
+        pq = out.params
+        # the loss of the colours returned (not the solver's copy of it)
+        colors, half_loss, sun_energy = _final(data, pq, init_colors, st.free)
+        out = out._replace(loss=half_loss)
+    else:
+        log_colors = not spec.bounded
+        y0 = _plain_pack(init_pq, init_colors, st.fit, log_colors, dtype)
+        lower = upper = None
+        if spec.bounded:
+            layout, n = _plain_layout(st.fit)
+            lower = jnp.zeros(n, dtype)
+            upper = jnp.full(n, jnp.inf, dtype)
+            if "sun_direction" in layout:
+                lower = lower.at[0:2].set(-_HALF_PI)
+                upper = upper.at[0:2].set(_HALF_PI)
+        out = solvers.solve(st.solver, _plain_bound(st.fit, log_colors), y0, (data, init_pq, init_colors),
+                            max_steps=st.max_steps, rtol=st.rtol, atol=st.atol, lower=lower, upper=upper,
+                            history=st.history, options=options)
+        pq, colors = _plain_unpack(out.params, init_pq, init_colors, st.fit, log_colors)
+        _, _, sun_energy = _final(data, pq, init_colors, st.free, colors)
+    # 0.5 |r|^2 -> weighted mean square
+    loss = 2 * out.loss
+    hist = None if out.history is None else 2 * out.history
+    return pq, colors, loss, out.steps, out.success, hist, sun_energy
+
+
+@functools.lru_cache(maxsize=None)
+def _varpro_bound(free: tuple):
+    def fn(pq, args):
+        return _varpro_residual(pq, (args[0], args[1], free))
+
+    return solvers.dense_jacobian(fn)
+
+
+@functools.lru_cache(maxsize=None)
+def _plain_bound(fit: tuple, log_colors: bool):
+    def fn(y, args):
+        return _plain_residual(y, (args[0], args[1], args[2], fit, log_colors))
+
+    return solvers.dense_jacobian(fn)
+
+
+def _host_map(fn, starts):
+    outs = [fn(starts[i]) for i in range(starts.shape[0])]
+    return jax.tree.map(lambda *xs: jnp.stack(xs), *outs)
+
+
+def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, st: _Static):
+    data = _prepare(image, normal, slope_var, camera, weight, horizon_gradient)
+    pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
+    light = _finish(data, pq, colors)
+    success = success & jnp.isfinite(loss) & (light.sun_elevation > 0)
+    if "sun_direction" in st.fit:
+        # the sun direction is only determined where its glitter is seen: a fit that explains
+        # the image without any sun light (zero sun colour or no glitter on a selected
+        # pixel) has not found the sun, whatever the solver says
+        success = success & (sun_energy > _SUN_SEEN * jnp.sum((data.weight * data.target) ** 2))
+    return light, loss, steps, success, hist
+
+
+_fit_jit = jax.jit(_fit_arrays, static_argnames=("st",))
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def _geometry_fields(geometry, resolution, dtype):
+    """``(normal (H, W, 3), slope_variance (H, W, 2), mask or None)`` from a geometry-like."""
+    H, W = resolution
+    for attr in ("normal", "roughness"):
+        if not hasattr(geometry, attr):
+            raise ValueError(f"geometry must have a '{attr}' field (a render.Geometry or io.Frame); "
+                             f"got {type(geometry).__name__}")
+    if geometry.normal is None:
+        raise ValueError("geometry has no normals (an EXR frame without geometry channels?)")
+    normal = jnp.asarray(geometry.normal, dtype)
+    if normal.shape != (H, W, 3):
+        raise ValueError(f"geometry.normal must be (H, W, 3) = {(H, W, 3)} to match the image; got {normal.shape}")
+    slope_var = getattr(geometry, "slope_variance", None)
+    if slope_var is not None:
+        slope_var = jnp.asarray(slope_var, dtype)
+        if slope_var.shape != (H, W, 2):
+            raise ValueError(f"geometry.slope_variance must be (H, W, 2) = {(H, W, 2)}; got {slope_var.shape}")
+    else:
+        rough = jnp.asarray(geometry.roughness, dtype)
+        if rough.shape != (H, W):
+            raise ValueError(f"geometry.roughness must be (H, W) = {(H, W)} to match the image; got {rough.shape}")
+        slope_var = 0.5 * jnp.stack([rough, rough], -1)
+    mask = getattr(geometry, "mask", None)
+    if mask is not None:
+        mask = jnp.asarray(mask)
+        if mask.shape != (H, W):
+            raise ValueError(f"geometry.mask must be (H, W) = {(H, W)}; got {mask.shape}")
+    return normal, slope_var, mask
+
+
+def _check_fit_names(fit) -> tuple:
+    if isinstance(fit, str):
+        fit = (fit,)
+    fit = tuple(fit)
+    unknown = [f for f in fit if f not in FIT_FIELDS]
+    if unknown:
+        raise ValueError(f"unknown lighting field(s) {unknown} in fit=; expected a subset of {FIT_FIELDS}")
+    if not fit:
+        raise ValueError(f"fit= names nothing to fit; expected a non-empty subset of {FIT_FIELDS}")
+    return tuple(f for f in FIT_FIELDS if f in fit)  # canonical order: static config is hashable
+
+
+WEIGHT_MODES = ("display", "uniform")
+
+
+def _weights(weights, mask, resolution, dtype, image=None, exposure=1.0, tonemap="bruneton", saturation=None):
+    H, W = resolution
+    w = jnp.ones((H, W, 3), dtype)
+    if isinstance(weights, str):
+        if weights not in WEIGHT_MODES:
+            raise ValueError(f"weights must be an array or one of {WEIGHT_MODES}; got {weights!r}")
+        if weights == "uniform":
+            weights = None
+        else:  # the tone map's slope at the observed radiance (NaN pixels: checked later)
+            finite = jnp.where(jnp.isfinite(image), image, 0.0)
+            weights = tonemap_weights(finite, exposure, tonemap)
+            if saturation is not None:
+                weights = jnp.where(shading.tonemap(finite, exposure, tonemap) > saturation, 0.0, weights)
+    if weights is not None:
+        weights = jnp.asarray(weights, dtype)
+        if weights.shape == (H, W):
+            weights = weights[..., None]
+        if weights.shape not in ((H, W, 1), (H, W, 3)):
+            raise ValueError(f"weights must be (H, W) or (H, W, 3) = {(H, W, 3)}; got {weights.shape}")
+        if is_concrete(weights):
+            check_values(np.isfinite(np.asarray(weights)), "weights must be finite", weights)
+            check_values(np.asarray(weights) >= 0, "weights must be >= 0", weights)
+        w = w * weights
+    if mask is not None:
+        mask = jnp.asarray(mask)
+        if mask.shape != (H, W):
+            raise ValueError(f"mask must be (H, W) = {(H, W)}; got {mask.shape}")
+        w = jnp.where(mask[..., None], w, 0.0)
+    return w
+
+
+def _validate_values(image, weight, geo_mask, camera, fit, used=None):
+    """Value checks before any work (concrete inputs only). ``used``: the pixels the caller
+    selected (mask), ``weight``: their weights."""
+    if not is_concrete(image, weight, camera, used):
+        return
+    img = np.asarray(image)
+    w = np.asarray(weight)
+    bad = ~np.isfinite(img)
+    used_bad = bad & ((w > 0) if used is None else (np.asarray(used) > 0))
+    if used_bad.any():
+        n = int(np.any(used_bad, axis=-1).sum())
+        first = np.argwhere(np.any(used_bad, axis=-1))[0].tolist()
+        raise InvalidValueError(f"image has {n} NaN/inf pixel(s) (first at (row, col) = {first}); "
+                                f"exclude them with mask= (and set their values to 0)")
+    if not (w > 0).any():
+        raise InvalidValueError("the pixel selection is empty: mask/weights exclude every pixel")
+    sea = np.asarray(cam.intersect_sea(camera).mask)
+    if geo_mask is not None and is_concrete(geo_mask):
+        gm = np.asarray(geo_mask).astype(bool)
+        n = int((gm != sea).sum())
+        if n:
+            raise InvalidValueError(f"geometry.mask disagrees with the camera's sea mask on {n} pixel(s): "
+                                    f"was the geometry made with another camera?")
+    needs_sea = [f for f in fit if f in ("sun_direction", "sun_color", "sea_color")]
+    if needs_sea and not (np.any(w > 0, axis=-1) & sea).any():
+        raise InvalidValueError(f"no selected pixel sees the sea: cannot fit {needs_sea}")
+
+
+def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_FIELDS, solver: str = "lm",
+             structure: str = "varpro", weights="display", mask=None, exposure=1.0, tonemap: str = "bruneton",
+             saturation: float | None = 0.9, space: str = "linear", horizon_gradient=0.0, max_steps: int | None = None,
+             rtol: float | None = None, atol: float | None = None, grid: int = 24, n_starts: int = 2,
+             glint: bool = True, history: bool = False, throw: bool = True, options: dict | None = None) -> LightingFit:
+    """Fit sun direction and colours to ``image`` given its ``geometry`` and ``camera``.
+
+    Args:
+        image: ``(H, W, 3)`` linear radiance; its dtype (float32 / float64) is the fit's.
+        geometry: ``render.Geometry``, ``io.Frame`` or any object with ``normal``,
+            ``roughness`` (and optionally ``slope_variance``, ``mask``) of shape ``(H, W, ...)``.
+        camera: the frame's camera (resolution ``(H, W)``).
+        init: starting :class:`Lighting`, and the values of the fields not fitted
+            (default :func:`jaxocean.shading.make_lighting`'s defaults).
+        fit: the fields to fit, a subset of :data:`FIT_FIELDS`.
+        solver: a name of :data:`jaxocean.fit.solvers.SOLVER_NAMES`.
+        structure: ``"varpro"`` (default: colours in closed form, search the two sun
+            angles from several starts) or ``"plain"`` (all parameters from ``init``).
+        weights: ``"display"`` (default): :func:`tonemap_weights` of ``image`` with
+            ``exposure`` and ``tonemap``, so that the loss is (to first order) the mean
+            squared error of the tone-mapped display image; ``"uniform"``: plain linear-
+            radiance MSE; or ``(H, W)`` / ``(H, W, 3)`` non-negative weights.
+            ``mask``: ``(H, W)`` bool, pixels used (default all).
+        saturation: with ``weights="display"``, pixels whose tone-mapped value exceeds this
+            get weight 0 (censored: a saturated glint says little about its radiance, and
+            noise on it inverts to a radiance far too low); None keeps them.
+        space: ``"linear"`` (default) or ``"display"``: after the linear-space fit, refine
+            every fitted parameter by least squares on the tone-mapped values (``exposure``,
+            ``tonemap``). Noise on display values makes the inverse tone map biased
+            (dark pixels) and censored (bright ones); the refinement removes that bias. The
+            reported ``loss`` is then the MSE of the tone-mapped images.
+        horizon_gradient: the sky model's, as in :func:`jaxocean.render.shade`.
+        max_steps: solver step limit (default 50; 400 for ``"adam"``).
+        rtol, atol: tolerances (default 1e-6 in float32, 1e-10 in float64).
+        grid: ``"varpro"``: the coarse start grid has ``grid x grid`` cells over the sky
+            (0: no grid). ``n_starts``: how many of the best starts are refined.
+            ``glint``: include the glint estimate among the starts (``grid=0, glint=False,
+            n_starts=1`` starts from ``init`` alone).
+        history: record the loss after every step (scripted runs; not differentiable).
+        throw: raise :class:`FitError` when the fit fails (eager calls only; under
+            ``jit`` / ``vmap`` pass ``throw=False`` and read ``success``).
+        options: passed to the solver (e.g. ``{"learning_rate": 0.02}`` for Adam).
+
+    Returns:
+        :class:`LightingFit`.
+    """
+    image = jnp.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
+    if not jnp.issubdtype(image.dtype, jnp.floating):
+        image = image.astype(jnp.zeros(()).dtype)
+    dtype = image.dtype
+    cam.validate_camera(camera)
+    if tuple(image.shape[:2]) != tuple(camera.resolution):
+        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {camera.resolution}")
+    fit = _check_fit_names(fit)
+    spec = solvers.get_solver(solver)
+    if structure not in STRUCTURES:
+        raise ValueError(f"unknown structure {structure!r}; expected one of {STRUCTURES}")
+    if not isinstance(grid, int) or grid < 0 or not isinstance(n_starts, int) or n_starts < 1:
+        raise ValueError(f"grid must be an int >= 0 and n_starts an int >= 1; got {grid!r}, {n_starts!r}")
+    normal, slope_var, geo_mask = _geometry_fields(geometry, image.shape[:2], dtype)
+    if space not in ("linear", "display"):
+        raise ValueError(f"space must be 'linear' or 'display'; got {space!r}")
+    weight = _weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
+    used = _weights("uniform", mask, image.shape[:2], dtype)
+    init = shading.make_lighting(dtype=dtype) if init is None else init
+    shading.validate_lighting(init)
+    init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
+    traced = not is_concrete(image, normal, slope_var, weight, init, camera)
+    if traced and throw:
+        raise ValueError("fit.lighting under jit/vmap cannot raise on failure: pass throw=False and read .success")
+    if traced and not spec.traceable:
+        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
+    _validate_values(image, weight, geo_mask, camera, fit, used)
+    # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN)
+    image = jnp.where(used > 0, image, 0.0) if not traced else image
+
+    if max_steps is None:
+        max_steps = _DEFAULT_MAX_STEPS.get(solver, 50)
+    d_rtol, d_atol = _DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
+    free = tuple(n for n in COLOR_FIELDS if n in fit)
+    st = _Static(fit=fit, free=free, solver=solver, structure=structure, max_steps=int(max_steps),
+                 rtol=float(d_rtol if rtol is None else rtol), atol=float(d_atol if atol is None else atol),
+                 grid=int(grid), n_starts=int(n_starts), glint=bool(glint), history=bool(history),
+                 options=tuple(sorted((options or {}).items())), space=space, exposure=float(exposure),
+                 tonemap=str(tonemap))
+    hg = jnp.asarray(horizon_gradient, dtype)
+    run = _fit_jit if spec.traceable else _fit_arrays
+    t0 = time.perf_counter()
+    light, loss, steps, success, hist = run(image, normal, slope_var, camera, weight, used, hg, init, st)
+    if traced:
+        wall = jnp.asarray(jnp.nan, dtype)
+    else:
+        jax.block_until_ready((light, loss))
+        wall = jnp.asarray(time.perf_counter() - t0, dtype)
+    result = LightingFit(light, loss, steps, success, wall, hist)
+    if throw and not bool(success):
+        raise FitError(f"lighting fit did not converge (solver {solver!r}, structure {structure!r}): "
+                       f"loss {float(loss):.3e} after {int(steps)} steps", result)
+    return result
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def random_lighting(key, *, sun_azimuth=(-math.pi, math.pi), sun_elevation=(math.radians(1.0), math.radians(89.0)),
+                    ranges: dict | None = None, dtype=None) -> Lighting:
+    """A random :class:`Lighting`: azimuth and elevation uniform in the given ranges [rad],
+    each colour channel log-uniform in ``ranges`` (default :data:`COLOR_RANGES`)."""
+    ranges = {**COLOR_RANGES, **(ranges or {})}
+    dtype = jnp.zeros(()).dtype if dtype is None else dtype
+    k_az, k_el, k_sun, k_sky, k_sea = jax.random.split(key, 5)
+    az = jax.random.uniform(k_az, (), dtype, *sun_azimuth)
+    el = jax.random.uniform(k_el, (), dtype, *sun_elevation)
+
+    def color(k, name):
+        lo, hi = ranges[name]
+        return jnp.exp(jax.random.uniform(k, (3,), dtype, math.log(lo), math.log(hi)))
+
+    return Lighting(az, el, color(k_sun, "sun_color"), color(k_sky, "sky_color"), color(k_sea, "sea_color"))
+
+
+def tonemap_weights(image, exposure=1.0, mode: str = "bruneton"):
+    """Per-pixel residual weights ``(H, W, 3)``: the slope of :func:`jaxocean.shading.tonemap`
+    at ``image``. With them, a linear-radiance residual approximates the residual of the
+    tone-mapped display values (to first order), so noise added to display values is
+    weighted correctly while the fit stays linear in the colours. Saturated pixels get
+    (almost) zero weight."""
+    image = jnp.asarray(image)
+    _, slope = jax.jvp(lambda x: shading.tonemap(x, exposure, mode), (image,), (jnp.ones_like(image),))
+    return slope
+
+
+def lighting_error(fitted: Lighting, truth: Lighting) -> dict:
+    """Errors of a fitted lighting: ``sun_angle_deg`` (angle between the sun directions) and,
+    per colour, the largest relative channel error. Works on batches (leading axes)."""
+    def vec(light):
+        return shading.sun_direction(light) if jnp.ndim(light.sun_azimuth) == 0 else jax.vmap(shading.sun_direction)(light)
+
+    a, b = vec(fitted), vec(truth)
+    cos = jnp.clip(jnp.sum(a * b, -1), -1.0, 1.0)
+    # arctan2 of |cross| and dot: accurate for tiny angles (arccos is not)
+    angle = jnp.arctan2(safe_norm(jnp.cross(a, b)), cos)
+    out = {"sun_angle_deg": jnp.degrees(angle)}
+    for n in COLOR_FIELDS:
+        f, t = getattr(fitted, n), getattr(truth, n)
+        out[n] = jnp.max(jnp.abs(f - t) / jnp.maximum(jnp.abs(t), jnp.finfo(jnp.asarray(t).dtype).tiny), axis=-1)
+    return out
+
+
+def fit_to_dict(result) -> dict:
+    """A JSON-safe dict of a (single) fit result: the lighting, loss, steps, success, time."""
+    light = result.lighting
+    out = {
+        "lighting": {
+            "sun_azimuth": float(light.sun_azimuth),
+            "sun_elevation": float(light.sun_elevation),
+            "sun_azimuth_deg": math.degrees(float(light.sun_azimuth)),
+            "sun_elevation_deg": math.degrees(float(light.sun_elevation)),
+            "sun_color": [float(x) for x in np.asarray(light.sun_color)],
+            "sky_color": [float(x) for x in np.asarray(light.sky_color)],
+            "sea_color": [float(x) for x in np.asarray(light.sea_color)],
+        },
+        "loss": float(result.loss),
+        "rms_residual": float(np.sqrt(max(float(result.loss), 0.0))),
+        "steps": int(result.steps),
+        "success": bool(result.success),
+        "wall_time_s": float(result.wall_time),
+    }
+    if hasattr(result, "camera"):
+        c = result.camera
+        out["camera"] = {"height": float(c.height), "pitch": float(c.pitch), "fov": float(c.fov),
+                         "pitch_deg": math.degrees(float(c.pitch)), "fov_deg": math.degrees(float(c.fov))}
+    return out
+
+
+def lighting_from_dict(d: dict, dtype=None) -> Lighting:
+    """The :class:`Lighting` of a :func:`fit_to_dict` output (or of its ``"lighting"`` entry)."""
+    d = d.get("lighting", d)
+    try:
+        return shading.make_lighting(d["sun_azimuth"], d["sun_elevation"], d["sun_color"], d["sky_color"],
+                                     d["sea_color"], dtype=dtype)
+    except KeyError as error:
+        raise ValueError(f"lighting dict lacks {error.args[0]!r}; expected the output of fit_to_dict") from None

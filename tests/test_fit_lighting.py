@@ -1,0 +1,322 @@
+"""Tests of jaxocean.fit: the solver registry, the lighting fit (variable projection), the
+camera fit, re-editing and style transfer.
+
+Compile budget: every fit configuration is compiled once per module (module-level fixtures
+on tiny images); the expensive checks share programs.
+"""
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from jaxocean import camera as cam
+from jaxocean import fit, render, shading
+from jaxocean.errors import InvalidValueError
+from jaxocean.waves import GRAVITY, make_waves
+
+lf = fit.lighting_fit  # the module (fit.lighting is the function)
+
+
+def _sea(n=16, seed=0, scale=1.0):
+    """Waves from 0.9 to 14 rad/s: the short ones are sub-pixel roughness on a 16x16 image, so
+    the sun's glitter is a broad, visible lobe."""
+    rng = np.random.default_rng(seed)
+    om = np.geomspace(0.9, 14.0, n)
+    amp = scale * rng.uniform(0.5, 1.0, n) * 0.25 / 6 * GRAVITY / om**2
+    return make_waves(amp, om, rng.uniform(-0.6, 0.6, n) + 0.3, rng.uniform(0, 2 * np.pi, n))
+
+
+TRUTHS = [
+    dict(sun_azimuth=0.05, sun_elevation=0.25, sun_color=(20.0, 18.0, 15.0), sky_color=(0.35, 0.55, 0.9),
+         sea_color=(0.01, 0.04, 0.06)),
+    dict(sun_azimuth=-0.15, sun_elevation=0.12, sun_color=(8.0, 5.0, 3.0), sky_color=(0.6, 0.5, 0.4),
+         sea_color=(0.03, 0.02, 0.05)),
+    # sun behind the camera: no glitter in view, the direction is undetermined
+    dict(sun_azimuth=3.0, sun_elevation=0.5, sun_color=(20.0, 18.0, 15.0), sky_color=(0.35, 0.55, 0.9),
+         sea_color=(0.01, 0.04, 0.06)),
+]
+
+
+@pytest.fixture(scope="module")
+def scene():
+    """float64 scene on 16x16 pixels: NumPy arrays (tests switch x64 on themselves)."""
+    with jax.enable_x64(True):
+        waves = _sea()
+        camera = cam.make_camera(height=8.0, pitch=0.3, fov=0.7, resolution=(16, 16))
+        geo = render.geometry(waves, camera, 0.0)
+        truths = [shading.make_lighting(**t) for t in TRUTHS]
+        images = np.stack([np.asarray(render.shade(geo.normal, geo.roughness, camera, t,
+                                                   slope_variance=geo.slope_variance)) for t in truths])
+        return dict(waves=waves, camera=camera, geo=jax.tree.map(np.asarray, geo), truths=truths, images=images)
+
+
+def _f64(tree):
+    return jax.tree.map(lambda a: jnp.asarray(a, jnp.float64) if jnp.issubdtype(jnp.asarray(a).dtype, jnp.floating)
+                        else jnp.asarray(a), tree)
+
+
+@pytest.fixture(scope="module")
+def singles(scene):
+    """Eager single fits of the three images (one compiled program), from random starts."""
+    with jax.enable_x64(True):
+        geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+        inits = [fit.random_lighting(jax.random.key(10 + i), dtype=jnp.float64) for i in range(3)]
+        results = [fit.lighting(jnp.asarray(img), geo, camera, init=init, throw=False)
+                   for img, init in zip(scene["images"], inits)]
+        return dict(inits=inits, results=results)
+
+
+# --------------------------------------------------------------------------- small pieces
+
+
+_nnls_jit = jax.jit(fit.nnls_small)
+
+
+@given(k=st.integers(1, 3), seed=st.integers(0, 10_000))
+def test_nnls_small_matches_active_set_reference(k, seed, x64):
+    from scipy.optimize import nnls
+
+    rng = np.random.default_rng(seed)
+    a = rng.normal(size=(12, k)) * rng.uniform(0.1, 10, k)
+    y = rng.normal(size=12)
+    x = np.asarray(_nnls_jit(jnp.asarray(a.T @ a), jnp.asarray(a.T @ y)))
+    ref = nnls(a, y)[0]
+    np.testing.assert_allclose(x, ref, atol=1e-9 * (1 + np.abs(ref).max()))
+    assert np.all(x >= 0)
+
+
+@given(azimuth=st.floats(-math.pi + 1e-3, math.pi - 1e-3), elevation=st.floats(0.01, math.pi / 2 - 0.01))
+def test_pq_parameterisation_round_trips_and_matches_sun_direction(azimuth, elevation, x64):
+    pq = fit.sun_to_pq(azimuth, elevation)
+    az, el = fit.pq_to_sun(pq)
+    np.testing.assert_allclose([float(az), float(el)], [azimuth, elevation], atol=1e-12)
+    light = shading.make_lighting(sun_azimuth=azimuth, sun_elevation=elevation)
+    np.testing.assert_allclose(fit.pq_to_direction(pq), shading.sun_direction(light), atol=1e-12)
+
+
+def test_pq_direction_is_smooth_at_the_zenith(x64):
+    jac = jax.jacfwd(fit.pq_to_direction)(jnp.zeros(2))
+    np.testing.assert_allclose(jac, [[1, 0], [0, 1], [0, 0]], atol=1e-12)
+
+
+def test_precomputed_sun_term_equals_the_shader(scene, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    data = lf._prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
+                       jnp.ones((16, 16, 3)), 0.0)
+    for el in (-0.01, 0.001, 0.2, 1.3):
+        light = shading.sun_direction(shading.make_lighting(sun_azimuth=0.1, sun_elevation=el))
+        ref = jnp.where(data.sea, shading.sun_radiance_factor(data.normal, data.sx2, data.sy2, data.view, light), 0)
+        np.testing.assert_allclose(lf._sun_term(data, light), ref, rtol=1e-12, atol=1e-300)
+
+
+def test_model_columns_reproduce_the_renderer(scene, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    truth = scene["truths"][0]
+    data = lf._prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
+                       jnp.ones((16, 16, 3)), 0.0)
+    model = lf._model(data, shading.sun_direction(truth), {n: getattr(truth, n) for n in fit.COLOR_FIELDS})
+    np.testing.assert_allclose(model, scene["images"][0], rtol=1e-12)
+
+
+# --------------------------------------------------------------------------- solvers
+
+
+def _rosenbrock(y, a):
+    return jnp.stack([1.0 - y[0], a * (y[1] - y[0] ** 2)])
+
+
+@pytest.mark.parametrize("name", fit.SOLVER_NAMES)
+def test_every_solver_runs_the_same_problem(name, x64):
+    y0 = jnp.array([-1.2, 1.0])
+    steps = 3000 if name == "adam" else 200
+    opts = {"learning_rate": 0.02} if name == "adam" else None
+    out = fit.solve(name, _rosenbrock, y0, 3.0, max_steps=steps, rtol=1e-10, atol=1e-10, history=True,
+                    options=opts)
+    assert out.history.shape == (steps + 1,)
+    assert float(out.history[0]) == pytest.approx(float(fit.solvers.loss_of(_rosenbrock, y0, 3.0)))
+    assert float(out.history[-1]) == pytest.approx(float(out.loss), rel=1e-6, abs=1e-20)
+    tol = 1e-3 if name == "adam" else 1e-6
+    np.testing.assert_allclose(out.params, [1.0, 1.0], atol=tol)
+    if name != "adam":
+        assert bool(out.success)
+        assert 0 < int(out.steps) <= steps
+
+
+def test_solver_out_of_steps_is_a_failure(x64):
+    out = fit.solve("lm", _rosenbrock, jnp.array([-1.2, 1.0]), 3.0, max_steps=2, rtol=1e-12, atol=1e-12)
+    assert not bool(out.success) and int(out.steps) == 2
+
+
+def test_unknown_solver_and_bad_steps_are_structural_errors():
+    with pytest.raises(ValueError, match="unknown solver"):
+        fit.get_solver("newton")
+    with pytest.raises(ValueError, match="max_steps"):
+        fit.solve("lm", _rosenbrock, jnp.zeros(2), 1.0, max_steps=0, rtol=1e-6, atol=1e-6)
+
+
+# --------------------------------------------------------------------------- lighting fit
+
+
+@pytest.mark.parametrize("i", [0, 1])
+def test_fit_recovers_lighting_from_a_random_start(scene, singles, i, x64):
+    res = singles["results"][i]
+    err = fit.lighting_error(res.lighting, scene["truths"][i])
+    assert bool(res.success)
+    assert float(err["sun_angle_deg"]) < 1e-6
+    for name in fit.COLOR_FIELDS:
+        assert float(err[name]) < 1e-7, (name, float(err[name]))
+    assert 0 < int(res.steps) <= 30
+    assert float(res.loss) < 1e-20
+    assert float(res.wall_time) > 0
+
+
+def test_fit_without_glitter_is_reported_as_failed(scene, singles, x64):
+    res = singles["results"][2]
+    assert not bool(res.success)
+    # and raised, not returned, when the caller asks for it
+    with pytest.raises(fit.FitError, match="did not converge") as info:
+        fit.lighting(jnp.asarray(scene["images"][2]), _f64(scene["geo"]), _f64(scene["camera"]),
+                     init=singles["inits"][2])
+    assert not bool(info.value.result.success)
+
+
+def test_batched_fit_equals_single_fits(scene, singles, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    inits = jax.tree.map(lambda *xs: jnp.stack(xs), *singles["inits"])
+    batched = jax.jit(jax.vmap(lambda img, init: fit.lighting(img, geo, camera, init=init, throw=False)))(
+        jnp.asarray(scene["images"]), inits)
+    for i, single in enumerate(singles["results"]):
+        got = jax.tree.map(lambda a: a[i], batched)
+        assert bool(got.success) == bool(single.success)
+        if bool(single.success):
+            np.testing.assert_allclose(jnp.stack([got.lighting.sun_azimuth, got.lighting.sun_elevation]),
+                                       jnp.stack([single.lighting.sun_azimuth, single.lighting.sun_elevation]),
+                                       atol=1e-9)
+            for name in fit.COLOR_FIELDS:
+                np.testing.assert_allclose(getattr(got.lighting, name), getattr(single.lighting, name), rtol=1e-8)
+    assert np.all(np.isnan(np.asarray(batched.wall_time)))
+
+
+def test_colours_alone_are_a_linear_solve(scene, x64):
+    geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][1]
+    init = shading.make_lighting(sun_azimuth=truth.sun_azimuth, sun_elevation=truth.sun_elevation, dtype=jnp.float64)
+    res = fit.lighting(jnp.asarray(scene["images"][1]), geo, camera, init=init, fit=fit.COLOR_FIELDS)
+    assert int(res.steps) == 0 and bool(res.success)
+    for name in fit.COLOR_FIELDS:
+        np.testing.assert_allclose(getattr(res.lighting, name), getattr(truth, name), rtol=1e-10)
+
+
+def test_gradient_through_a_fit_matches_finite_differences(scene, singles, x64):
+    """d(fitted lighting)/d(image) by the implicit adjoint against central differences; the
+    forward evaluations reuse the compiled program of the single fits."""
+    geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][0]
+    image = jnp.asarray(scene["images"][0])
+    init = singles["inits"][0]
+    # a glitter-shaped perturbation of the image, off the true sun: it moves the fitted sun
+    data = lf._prepare(image, geo.normal, geo.slope_variance, camera, jnp.ones_like(image), 0.0)
+    off = shading.sun_direction(truth._replace(sun_azimuth=truth.sun_azimuth + 0.02))
+    pattern = lf._sun_term(data, off)[..., None] * truth.sun_color
+
+    def params(s):
+        light = fit.lighting(image + s * pattern, geo, camera, init=init, throw=False).lighting
+        return jnp.concatenate([jnp.stack([light.sun_azimuth, light.sun_elevation]), light.sun_color,
+                                light.sky_color, light.sea_color])
+
+    # h: the fits stop at |step| <= 1e-10, so finite differences carry ~1e-10 / h of solver noise
+    s0, h = 0.01, 1e-4
+    tangent = jax.jit(lambda s: jax.jvp(params, (s,), (jnp.ones_like(s),))[1])(s0)
+    fd = (params(s0 + h) - params(s0 - h)) / (2 * h)
+    assert float(jnp.max(jnp.abs(fd[:2]))) > 1e-3  # the perturbation does move the sun
+    np.testing.assert_allclose(tangent, fd, rtol=2e-4, atol=1e-7)
+
+
+# --------------------------------------------------------------------------- bad inputs
+
+
+def test_bad_inputs_give_clear_errors(scene, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    image = jnp.asarray(scene["images"][0])
+    with pytest.raises(ValueError, match="resolution"):
+        fit.lighting(image[:8], geo, camera)
+    with pytest.raises(ValueError, match="geometry.normal"):
+        fit.lighting(image, geo._replace(normal=geo.normal[:8]), camera)
+    with pytest.raises(ValueError, match="unknown lighting field"):
+        fit.lighting(image, geo, camera, fit=("sun_colour",))
+    with pytest.raises(ValueError, match="unknown solver"):
+        fit.lighting(image, geo, camera, solver="newton")
+    with pytest.raises(ValueError, match="throw=False"):
+        jax.jit(lambda im: fit.lighting(im, geo, camera).loss)(image)
+    nan_image = image.at[3, 4, 1].set(jnp.nan)
+    with pytest.raises(InvalidValueError, match=r"NaN/inf pixel.*\[3, 4\]"):
+        fit.lighting(nan_image, geo, camera)
+    with pytest.raises(InvalidValueError, match="selection is empty"):
+        fit.lighting(image, geo, camera, mask=np.zeros((16, 16), bool))
+    with pytest.raises(InvalidValueError, match="weights must be >= 0"):
+        fit.lighting(image, geo, camera, weights=-np.ones((16, 16)))
+    sky_only = ~np.asarray(geo.mask)
+    with pytest.raises(InvalidValueError, match="no selected pixel sees the sea"):
+        fit.lighting(image, geo, camera, mask=sky_only)
+    other = cam.make_camera(height=8.0, pitch=0.1, fov=0.7, resolution=(16, 16), dtype=jnp.float64)
+    with pytest.raises(InvalidValueError, match="disagrees with the camera"):
+        fit.lighting(image, geo, other)
+
+
+def test_excluded_nan_pixels_are_allowed(scene, x64):
+    geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][1]
+    image = jnp.asarray(scene["images"][1]).at[2, 3].set(jnp.nan)
+    mask = np.ones((16, 16), bool)
+    mask[2, 3] = False
+    init = shading.make_lighting(sun_azimuth=truth.sun_azimuth, sun_elevation=truth.sun_elevation, dtype=jnp.float64)
+    res = fit.lighting(image, geo, camera, init=init, mask=mask, fit=fit.COLOR_FIELDS)
+    np.testing.assert_allclose(res.lighting.sky_color, truth.sky_color, rtol=1e-10)
+
+
+# --------------------------------------------------------------------------- camera fit
+
+
+def test_camera_fit_recovers_height_and_pitch(x64):
+    waves = _sea(n=8, seed=3, scale=0.15)  # gentle sea: the renderer's plan needs no refinement
+    true_cam = cam.make_camera(height=6.0, pitch=0.25, fov=0.7, resolution=(16, 16), dtype=jnp.float64)
+    light = shading.make_lighting(**TRUTHS[0], dtype=jnp.float64)
+    assert render.plan(waves, true_cam, 0.5).refine == 0
+    image = render.render(waves, true_cam, light, 0.5)
+    init = dataclasses.replace(true_cam, height=jnp.asarray(6.4), pitch=jnp.asarray(0.27))
+    res = fit.camera(image, waves, 0.5, init, lighting=light, search=(1, 1), n_starts=1)
+    assert bool(res.success)
+    np.testing.assert_allclose([float(res.camera.height), float(res.camera.pitch)], [6.0, 0.25], rtol=1e-7)
+    assert float(res.loss) < 1e-18
+    with pytest.raises(ValueError, match="lighting="):
+        fit.camera(image, waves, 0.5, init)
+    with pytest.raises(ValueError, match="subset"):
+        fit.camera(image, waves, 0.5, init, lighting=light, fit=("roll",))
+
+
+# --------------------------------------------------------------------------- re-editing
+
+
+def test_reedit_applies_the_edits_and_style_transfer_carries_the_lighting(scene, singles, x64):
+    waves, camera = scene["waves"], _f64(scene["camera"])
+    res = singles["results"][0]
+    frames = fit.reedit(waves, camera, res.lighting, [0.0, 0.5], camera_height=5.0, sun_elevation=0.3)
+    assert frames.shape == (2, 16, 16, 3) and np.all(np.isfinite(frames))
+    want = render.render(waves, fit.edit_camera(camera, height=5.0), fit.edit_lighting(res.lighting, sun_elevation=0.3),
+                         0.5, plan=render.plan(waves, fit.edit_camera(camera, height=5.0), 0.0))
+    np.testing.assert_allclose(frames[1], want, rtol=1e-10)
+    with pytest.raises(InvalidValueError):
+        fit.edit_camera(camera, height=-1.0)
+
+    # style transfer: lighting of image A onto scene B (another camera yaw); the sun keeps its
+    # azimuth relative to the view
+    cam_b = fit.edit_camera(camera, yaw=1.0)
+    out = fit.style_transfer((jnp.asarray(scene["images"][0]), _f64(scene["geo"]), camera), (waves, cam_b, 0.0),
+                             init=singles["inits"][0])
+    truth = scene["truths"][0]
+    np.testing.assert_allclose(float(out.lighting.sun_azimuth), float(truth.sun_azimuth) + 1.0, atol=1e-9)
+    np.testing.assert_allclose(out.lighting.sea_color, truth.sea_color, rtol=1e-7)
+    assert out.image.shape == (16, 16, 3)
