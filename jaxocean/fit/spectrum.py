@@ -1,0 +1,349 @@
+"""Sea-state fitting: the directional spectrum behind fitted waves and the roughness.
+
+Protocol
+--------
+``spectrum(waves, *, camera=None, roughness=None, reliable=None, ...) -> SpectrumFit``
+estimates a :class:`jaxocean.spectrum.Spectrum` ``(hs, tp, gamma, theta_mean, s_max)``
+from component waves (usually :func:`jaxocean.fit.waves`' result) and, when given, the
+observed roughness of the sub-pixel tail:
+
+* **Frequency spectrum** (Hs, Tp, gamma). Waves drawn by
+  :func:`jaxocean.spectrum.sample_waves` carry the energy of a frequency bin each
+  (``h^2 / 2 = int_bin S``), one wave per bin. The reliable waves (default: those
+  :func:`jaxocean.fit.waves.resolvable` by ``camera``, else all), sorted by frequency,
+  get bins whose edges are the geometric midpoints between neighbours; the model's
+  cumulative bin energies ``int_{e_0}^{e_i} S`` (Gauss-Legendre per bin) are matched to
+  the data's cumulative ``sum_{j<=i} h_j^2/2``, relative to the total. The cumulative form
+  is insensitive to where inside its bin each wave's frequency was jittered. For each
+  ``(Tp, gamma)`` on a coarse grid ``Hs^2`` is solved in closed form (the energies are
+  linear in it); the best grid point starts a bounded fit (``solver``, default the
+  registry's ``"lbfgsb"``: ``1 <= gamma <= 10``, positive Hs and Tp).
+* **Roughness** (optional, needs ``camera``). Per image row, the observed roughness
+  (frame and column mean) is compared with the model's sub-pixel slope variance,
+  ``sum_fitted (1 - w_n) k^2 h^2 / 2`` plus ``int (1 - w_n(lambda/fp)) k^2 S dw`` over the
+  tail above the fitted waves up to the band's end (``band``, default the sampler's
+  ``(0.5, 8) x wp``). Rows at the renderer's floor carry no information and are skipped.
+* **Directions** (theta_mean, s_max): maximum likelihood of the reliable waves'
+  directions under the Mitsuyasu spreading ``D(theta; w_i)`` of their own frequency
+  (each sampled wave is one draw), by a grid over ``theta_mean`` x ``s_max`` refined by a
+  parabola in each.
+
+Only the peak makes Hs and Tp separately identifiable: if the fitted waves stop above the
+peak (the camera sees a patch shorter than the peak wavelength), the tail fixes only the
+Phillips level ``alpha ~ Hs^2 wp^4``. ``SpectrumFit.peak_observed`` says whether the fitted
+peak lies inside the band of reliable frequencies.
+
+``correct_amplitudes(waves, spectrum, reliable=None)`` is the spectrum correction:
+waves that the image cannot resolve individually (too long for the view, or flagged
+unreliable) get the amplitude of their bin's energy under the fitted spectrum,
+``h = sqrt(2 int_bin S)``, while resolved waves keep their fitted amplitudes. (Our
+reading of the paper's spectrum correction, which rescales the network's wave amplitudes
+to the spectrum; the paper gives no formula we could check.)
+``tail_waves(key, spectrum, omega_from, n_waves)`` draws the sub-pixel tail from the
+fitted spectrum, for re-rendering roughness.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import hierarchy, shading
+from jaxocean import spectrum as spec
+from jaxocean._math import smoothstep
+from jaxocean.errors import InvalidValueError, check_values
+from jaxocean.waves import GRAVITY, Waves, validate
+
+__all__ = ["SpectrumFit", "spectrum", "correct_amplitudes", "tail_waves", "sea_state", "SeaState"]
+
+
+class SpectrumFit(NamedTuple):
+    """Result of :func:`spectrum`.
+
+    * ``spectrum``       the fitted :class:`~jaxocean.spectrum.Spectrum`.
+    * ``loss``           final value of the energy (and roughness) objective.
+    * ``success``        the bounded solver converged.
+    * ``steps``          solver steps.
+    * ``n_waves``        number of waves the frequency and direction fits used.
+    * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
+    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band``.
+    * ``alpha``          Phillips tail level ``(5/16) Hs^2 wp^4 / g^2`` (identifiable even
+      when the peak is not observed).
+    * ``time_s``         wall time.
+    """
+
+    spectrum: spec.Spectrum
+    loss: float
+    success: bool
+    steps: int
+    n_waves: int
+    omega_band: tuple
+    peak_observed: bool
+    alpha: float
+    time_s: float
+
+
+class SeaState(NamedTuple):
+    """Bulk parameters of a set of waves: ``hs = 4 sqrt(sum h^2/2)``, ``tp`` the period of
+    the most energetic wave per log-frequency, ``theta_mean`` the energy-weighted circular
+    mean direction, ``m0`` the variance."""
+
+    hs: float
+    tp: float
+    theta_mean: float
+    m0: float
+
+
+_GL = np.polynomial.legendre.leggauss(8)
+
+
+def _bin_edges(omega):
+    """Geometric-midpoint bin edges ``(n + 1,)`` of sorted frequencies ``(n,)``."""
+    om = np.asarray(omega, np.float64)
+    if om.size == 1:
+        return np.array([om[0] / 1.05, om[0] * 1.05])
+    mid = np.sqrt(om[1:] * om[:-1])
+    first = om[0] ** 2 / mid[0]
+    last = om[-1] ** 2 / mid[-1]
+    return np.concatenate([[first], mid, [last]])
+
+
+def _bin_energy(params, edges):
+    """``int S`` over each bin ``[edges[i], edges[i+1]]`` for ``params = (log hs, log tp, gamma)``."""
+    x, w = (jnp.asarray(v, edges.dtype) for v in _GL)
+    a, b = edges[:-1, None], edges[1:, None]
+    half = 0.5 * (b - a)
+    nodes = a + half * (x + 1.0)
+    sp = spec.Spectrum(hs=jnp.exp(params[0]), tp=jnp.exp(params[1]), gamma=params[2])
+    dens = spec._jonswap_kernel(nodes, sp.hs, sp.tp, sp.gamma, 0.07, 0.09)
+    return jnp.sum(half * w * dens, axis=-1)
+
+
+def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96):
+    """``int_{omega_from}^{band_hi wp} (1 - w_n(lambda/fp)) k^2 S dw`` per row ``(H,)``."""
+    tp = jnp.exp(params[1])
+    wp = 2 * jnp.pi / tp
+    hi = band_hi_rel * wp
+    lo = jnp.minimum(omega_from, hi)
+    t = (jnp.arange(n) + 0.5) / n
+    om = lo * (hi / lo) ** t  # geometric midpoints
+    dom = om * jnp.log(hi / lo) / n
+    dens = spec._jonswap_kernel(om, jnp.exp(params[0]), tp, params[2], 0.07, 0.09)
+    k = om * om / GRAVITY
+    lam = 2 * jnp.pi / k
+    w_r = 1.0 - smoothstep(n_min, n_max, lam[None, :] / fp_row[:, None])
+    return (w_r * (k * k * dens * dom)[None, :]).sum(-1)
+
+
+def sea_state(waves: Waves) -> SeaState:
+    """Bulk parameters of a set of waves (eager, NumPy): see :class:`SeaState`."""
+    validate(waves, max_steepness=None)
+    h = np.asarray(waves.amplitude, np.float64)
+    om = np.asarray(waves.omega, np.float64)
+    th = np.asarray(waves.theta, np.float64)
+    e = 0.5 * h * h
+    m0 = float(e.sum())
+    order = np.argsort(om)
+    edges = _bin_edges(om[order])
+    dens = e[order] / np.diff(edges)  # energy per rad/s
+    tp = float(2 * np.pi / om[order][np.argmax(dens)])
+    theta_mean = float(np.arctan2(np.sum(e * np.sin(th)), np.sum(e * np.cos(th))))
+    return SeaState(hs=4.0 * math.sqrt(m0), tp=tp, theta_mean=theta_mean, m0=m0)
+
+
+def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=spec.SAMPLE_BAND, gamma=None,
+             solver: str = "lbfgsb", max_steps: int = 300, roughness_weight: float = 1.0,
+             n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX) -> SpectrumFit:
+    """Fit a JONSWAP / Mitsuyasu :class:`~jaxocean.spectrum.Spectrum` to waves (module
+    docstring). ``waves``: leaves ``(N,)``; ``reliable``: bool ``(N,)`` of waves to trust
+    (default: resolvable by ``camera`` when given, else all); ``roughness``: observed
+    ``(T, H, W)`` or ``(H, W)`` sub-pixel slope variance (needs ``camera``); ``band``: the
+    sampling band in units of wp; ``gamma``: fix the peak enhancement (None fits it).
+    Eager (the wave selection is data dependent)."""
+    from jaxocean.fit import solvers
+    from jaxocean.fit.waves import resolvable
+
+    t0 = time.perf_counter()
+    validate(waves, max_steepness=None)
+    if waves.omega.ndim != 1:
+        raise ValueError(f"fit.spectrum takes Waves with leaves (N,); got {waves.omega.shape}")
+    if roughness is not None and camera is None:
+        raise ValueError("fitting the roughness tail needs the camera (its footprints)")
+    n = waves.omega.shape[0]
+    if reliable is None:
+        reliable = resolvable(waves, camera) if camera is not None else np.ones(n, bool)
+    reliable = np.asarray(reliable, bool)
+    if reliable.shape != (n,):
+        raise ValueError(f"reliable must be a bool mask (N,) = ({n},); got {reliable.shape}")
+    if reliable.sum() < 3:
+        raise InvalidValueError(f"fit.spectrum needs at least 3 reliable waves; got {int(reliable.sum())}")
+    if gamma is not None:
+        check_values(np.asarray(gamma) >= 1, "gamma must be >= 1", gamma)
+
+    h = np.asarray(waves.amplitude, np.float64)[reliable]
+    om = np.asarray(waves.omega, np.float64)[reliable]
+    th = np.asarray(waves.theta, np.float64)[reliable]
+    order = np.argsort(om)
+    h, om, th = h[order], om[order], th[order]
+    edges = _bin_edges(om)
+    e_data = 0.5 * h * h
+    cum_data = np.cumsum(e_data)
+    total = cum_data[-1]
+    dtype = jnp.result_type(float)
+    edges_j = jnp.asarray(edges, dtype)
+    cum_j = jnp.asarray(cum_data / total, dtype)
+
+    # roughness rows (optional)
+    rough_rows = None
+    if roughness is not None:
+        hit = cam.intersect_sea(camera)
+        W = camera.resolution[1]
+        r = np.asarray(roughness, np.float64)
+        r = r.mean(0) if r.ndim == 3 else r
+        mask = np.asarray(hit.mask)
+        fp_row = np.asarray(hit.footprint)[:, W // 2]
+        rows = mask.any(1)
+        r_row = np.array([r[i][mask[i]].mean() if rows[i] else 0.0 for i in range(r.shape[0])])
+        fitted_share = _fitted_roughness(waves, fp_row, n_min, n_max)
+        informative = rows & (r_row > 2.0 * shading.MIN_SLOPE_VARIANCE)
+        if informative.any():
+            rough_rows = (jnp.asarray(fp_row[informative], dtype), jnp.asarray(r_row[informative], dtype),
+                          jnp.asarray(fitted_share[informative], dtype))
+    band_hi = float(band[1]) if band is not None else 10.0
+    om_top = float(edges[-1])
+
+    def residual(y, args):
+        params = y if gamma is None else jnp.stack([y[0], y[1], jnp.asarray(gamma, y.dtype)])
+        e_mod = _bin_energy(params, edges_j)
+        r = jnp.cumsum(e_mod) / total - cum_j
+        if rough_rows is not None:
+            fp, obs, share = rough_rows
+            model = share + _tail_roughness(params, fp, om_top, band_hi, n_min, n_max)
+            model = jnp.maximum(model, shading.MIN_SLOPE_VARIANCE)
+            rr = (model - obs) / obs * math.sqrt(roughness_weight * len(om) / max(int(fp.shape[0]), 1))
+            r = jnp.concatenate([r, rr])
+        return r
+
+    # global start: a grid over (Tp, gamma) with Hs^2 in closed form
+    tps = np.geomspace(2 * np.pi / (om[-1]), 2 * np.pi / (0.3 * om[0]), 48)
+    gammas = [1.0, 2.0, 3.3, 5.0, 7.0] if gamma is None else [float(gamma)]
+    best = None
+    for g in gammas:
+        for tp in tps:
+            e1 = np.asarray(_bin_energy(jnp.asarray([0.0, math.log(tp), g], dtype), edges_j), np.float64)
+            c1 = np.cumsum(e1)
+            if not np.all(np.isfinite(c1)) or c1[-1] <= 0:
+                continue
+            hs2 = float(np.dot(c1, cum_data) / np.dot(c1, c1))  # LS in the cumulative
+            if hs2 <= 0:
+                continue
+            y = [0.5 * math.log(hs2), math.log(tp), g]
+            val = float(np.sum(np.asarray(residual(jnp.asarray(y if gamma is None else y[:2], dtype), None)) ** 2))
+            if best is None or val < best[0]:
+                best = (val, y)
+    if best is None:
+        raise InvalidValueError("fit.spectrum found no admissible starting point (check the waves)")
+    y0 = jnp.asarray(best[1] if gamma is None else best[1][:2], dtype)
+    lower = jnp.asarray([math.log(1e-3), math.log(0.3), 1.0][: y0.shape[0]], dtype)
+    upper = jnp.asarray([math.log(50.0), math.log(60.0), 10.0][: y0.shape[0]], dtype)
+    out = solvers.solve(solver, residual, y0, None, max_steps=max_steps, rtol=1e-8, atol=1e-10, lower=lower,
+                        upper=upper)
+    y = np.asarray(out.params, np.float64)
+    hs_fit, tp_fit = math.exp(y[0]), math.exp(y[1])
+    g_fit = float(y[2]) if gamma is None else float(gamma)
+    wp = 2 * math.pi / tp_fit
+
+    theta_mean, s_max = _direction_mle(om, th, wp)
+    fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
+                           gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
+                           s_max=jnp.asarray(s_max, dtype))
+    alpha = 5.0 / 16.0 * hs_fit ** 2 * wp ** 4 / GRAVITY ** 2
+    return SpectrumFit(spectrum=fitted, loss=float(out.loss), success=bool(out.success), steps=int(out.steps),
+                       n_waves=int(len(om)), omega_band=(float(edges[0]), float(edges[-1])),
+                       peak_observed=bool(edges[0] <= wp <= edges[-1]), alpha=float(alpha),
+                       time_s=time.perf_counter() - t0)
+
+
+def _fitted_roughness(waves, fp_row, n_min, n_max):
+    om = np.asarray(waves.omega, np.float64)
+    h = np.asarray(waves.amplitude, np.float64)
+    k = om * om / GRAVITY
+    lam = 2 * np.pi / k
+    x = lam[None, :] / np.asarray(fp_row)[:, None]
+    q = np.clip((x - n_min) / (n_max - n_min), 0, 1)
+    w_r = 1.0 - q * q * (3 - 2 * q)
+    kh2 = np.minimum((k * h) ** 2, 1.0)
+    return w_r @ (kh2 / (1 + np.sqrt(1 - kh2)))
+
+
+def _direction_mle(om, th, wp):
+    """Maximum-likelihood (theta_mean, s_max) of directions under Mitsuyasu spreading."""
+    th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
+    s_grid = np.geomspace(0.5, 150.0, 48)
+    x = om / wp
+    shape = np.where(x > 1, x ** -2.5, x ** 5)  # s / s_max per wave
+    s = s_grid[:, None] * shape[None, :]  # (S, n)
+    log_q = _lgamma(s + 1) - _lgamma(s + 0.5) - math.log(2 * math.sqrt(math.pi))
+    c2 = 0.5 * (1 + np.cos(th[None, None, :] - th_grid[:, None, None]))  # (T, 1, n)
+    ll = np.sum(log_q[None] + s[None] * np.log(np.maximum(c2, 1e-300)), axis=-1)  # (T, S)
+    i, j = np.unravel_index(np.argmax(ll), ll.shape)
+
+    def parabola(f_m, f_0, f_p):
+        den = f_m - 2 * f_0 + f_p
+        return 0.0 if den >= 0 else float(np.clip(0.5 * (f_m - f_p) / den, -0.5, 0.5))
+
+    dt = th_grid[1] - th_grid[0]
+    theta = th_grid[i] + dt * parabola(ll[(i - 1) % 360, j], ll[i, j], ll[(i + 1) % 360, j])
+    if 0 < j < len(s_grid) - 1:
+        ls = np.log(s_grid)
+        s_best = math.exp(ls[j] + (ls[1] - ls[0]) * parabola(ll[i, j - 1], ll[i, j], ll[i, j + 1]))
+    else:
+        s_best = float(s_grid[j])
+    return float(np.mod(theta + np.pi, 2 * np.pi) - np.pi), s_best
+
+
+def _lgamma(x):
+    from scipy.special import gammaln
+
+    return gammaln(x)
+
+
+def correct_amplitudes(waves: Waves, spectrum_: spec.Spectrum, *, reliable=None) -> Waves:
+    """The spectrum correction: waves not marked ``reliable`` (bool ``(N,)``; default none)
+    get ``h = sqrt(2 int_bin S)`` of the fitted spectrum over their frequency bin
+    (geometric midpoints between neighbours); reliable waves keep their amplitude. Order
+    of the waves is kept. Steepness is capped at k h = 0.9 (no looping crests)."""
+    validate(waves, max_steepness=None)
+    spec.validate_spectrum(spectrum_)
+    n = waves.omega.shape[0]
+    reliable = np.zeros(n, bool) if reliable is None else np.asarray(reliable, bool)
+    om = np.asarray(waves.omega, np.float64)
+    order = np.argsort(om)
+    edges = _bin_edges(om[order])
+    params = jnp.asarray([math.log(float(spectrum_.hs)), math.log(float(spectrum_.tp)), float(spectrum_.gamma)])
+    e = np.asarray(_bin_energy(params, jnp.asarray(edges, params.dtype)), np.float64)
+    h_spec = np.empty(n)
+    h_spec[order] = np.sqrt(2.0 * np.maximum(e, 0.0))
+    k = om * om / GRAVITY
+    h_spec = np.minimum(h_spec, 0.9 / k)
+    h = np.where(reliable, np.asarray(waves.amplitude, np.float64), h_spec)
+    return waves._replace(amplitude=jnp.asarray(h, waves.amplitude.dtype))
+
+
+def tail_waves(key, spectrum_: spec.Spectrum, omega_from, n_waves: int, *, band=spec.SAMPLE_BAND) -> Waves:
+    """``n_waves`` waves of the fitted spectrum's tail above ``omega_from`` [rad/s] up to the
+    band's end (``band[1] x wp``), drawn by :func:`jaxocean.spectrum.sample_waves`: the
+    sub-pixel waves to add back when re-rendering roughness from a fit."""
+    spec.validate_spectrum(spectrum_)
+    wp = 2 * math.pi / float(spectrum_.tp)
+    hi = float(band[1]) * wp
+    lo = float(omega_from)
+    if not lo < hi:
+        raise InvalidValueError(f"omega_from={lo:g} rad/s is above the band's end {hi:g} rad/s: no tail to draw")
+    return spec.sample_waves(key, spectrum_, n_waves, band=(lo, hi)).waves

@@ -1,0 +1,161 @@
+"""Forecasting: evolve fitted waves in time and re-render them with any camera or light.
+
+Protocol
+--------
+Linear (deep-water) wave trains evolve by their phase alone: a wave seen at time ``t`` is
+the same wave ``dt`` seconds later with its phase advanced by ``omega dt``. So a forecast
+needs no integration: :func:`advance` shifts phases, and :func:`forecast` evaluates the
+sea at any times ``(T,)`` [s]:
+
+* ``forecast(waves, times) -> Forecast`` with ``waves`` of leaves ``(T, N)``: the state of
+  every wave at each time, re-expressed at ``t = 0`` (``phase + omega t``, wrapped);
+* ``forecast(waves, times, camera)`` adds the per-pixel hierarchical ``geometry``
+  (a :class:`jaxocean.render.Geometry` with a leading ``(T,)`` axis) seen by ``camera``;
+* ``forecast(waves, times, camera, lighting)`` adds the linear RGB ``image (T, H, W, 3)``.
+
+The camera and the light need not be those of the observation: that is the paper's
+re-editing (its Fig. 15-16). Rendering goes through :func:`jaxocean.render.geometry`;
+``plan="rows"`` (default) evaluates every wave on the rows fast path (no hit refinement,
+the fit's own model), ``plan="auto"`` lets the renderer choose (refinement for close
+views), or pass a :class:`jaxocean.render.RenderPlan`.
+
+Frames: :func:`frame_times` turns frame indices (``0, 100, 500``) into times on the
+observed sequence's clock (``t0 + f dt`` with ``dt`` the median frame interval).
+Errors: :func:`geometry_error` gives the per-frame mean normal angle and mean absolute
+roughness difference between two geometry sequences (the paper's Fig. 13 metric).
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import hierarchy, render, shading
+from jaxocean._math import safe_sqrt
+from jaxocean.errors import check_values, is_concrete
+from jaxocean.waves import Waves, validate
+
+__all__ = ["Forecast", "GeometryError", "advance", "forecast", "frame_times", "geometry_error"]
+
+
+class Forecast(NamedTuple):
+    """A forecast at ``times (T,)``: advanced ``waves`` (leaves ``(T, N)``), and when a camera
+    (and light) was given, ``geometry`` (``Geometry`` with leading ``(T,)``) and ``image``
+    ``(T, H, W, 3)`` linear RGB; None otherwise."""
+
+    times: jax.Array
+    waves: Waves
+    geometry: render.Geometry | None = None
+    image: jax.Array | None = None
+
+
+class GeometryError(NamedTuple):
+    """Per-frame errors ``(T,)``: mean normal angle [rad] and mean absolute roughness
+    difference over pixels that are sea in both sequences."""
+
+    normal: jax.Array
+    roughness: jax.Array
+
+
+def advance(waves: Waves, dt) -> Waves:
+    """The same sea ``dt`` seconds later, expressed at ``t = 0``: phases ``phi + omega dt``
+    wrapped to [0, 2 pi). ``dt`` may be an array: it broadcasts against the wave axis as
+    ``(..., 1)`` (so ``dt (T, 1)`` gives leaves ``(T, N)``)."""
+    validate(waves, max_steepness=None)
+    dt = jnp.asarray(dt, waves.omega.dtype)
+    phase = jnp.mod(waves.phase + waves.omega * dt, 2 * jnp.pi)
+    shape = jnp.broadcast_shapes(phase.shape, waves.omega.shape)
+    return Waves(*(jnp.broadcast_to(x, shape) for x in (waves.amplitude, waves.omega, waves.theta)),
+                 jnp.broadcast_to(phase, shape))
+
+
+def frame_times(times, frames):
+    """Times [s] of frame indices ``frames`` on the clock of an observed sequence ``times``:
+    ``times[0] + f * dt`` with ``dt`` the median frame interval (needs >= 2 times)."""
+    t = np.asarray(times, np.float64)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError(f"need the observed frame times (T,), T >= 2; got shape {t.shape}")
+    check_values(np.diff(t) > 0, "frame times must be strictly increasing", np.diff(t))
+    f = np.asarray(frames, np.float64)
+    check_values(np.isfinite(f), "frame indices must be finite", f)
+    return t[0] + f * float(np.median(np.diff(t)))
+
+
+def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_min=hierarchy.DEFAULT_N_MIN,
+             n_max=hierarchy.DEFAULT_N_MAX, horizon_gradient=0.0) -> Forecast:
+    """Evolve ``waves`` (leaves ``(N,)``) to ``times (T,)``; re-render when given a camera (and
+    a lighting). See the module docstring. Jittable (with a static ``plan``) and
+    differentiable in the waves, camera and lighting."""
+    validate(waves, max_steepness=None)
+    if waves.omega.ndim != 1:
+        raise ValueError(f"forecast takes Waves with leaves (N,); got {waves.omega.shape} (vmap batches)")
+    times = jnp.atleast_1d(jnp.asarray(times, waves.omega.dtype))
+    if times.ndim != 1:
+        raise ValueError(f"times must be a scalar or (T,); got shape {times.shape}")
+    if is_concrete(times):
+        check_values(np.isfinite(np.asarray(times)), "forecast times must be finite", times)
+    advanced = advance(waves, times[:, None])
+    if camera is None:
+        if lighting is not None:
+            raise ValueError("rendering an image needs a camera (lighting given without camera)")
+        return Forecast(times, advanced)
+    cam.validate_camera(camera)
+    if isinstance(plan, str) and plan == "rows":
+        plan = render.RenderPlan(active=tuple(range(waves.omega.shape[0])), refine=0)
+    elif isinstance(plan, str) and plan == "auto":
+        plan = render.plan(waves, camera, times[0], n_min=n_min, n_max=n_max) if is_concrete(waves, camera) else None
+    elif plan is not None and not isinstance(plan, render.RenderPlan):
+        raise ValueError(f"plan must be 'rows', 'auto', None or a RenderPlan; got {plan!r}")
+
+    def one(t):
+        return render.geometry(waves, camera, t, plan=plan, n_min=n_min, n_max=n_max)
+
+    geo = jax.lax.map(one, times)
+    image = None
+    if lighting is not None:
+        shading.validate_lighting(lighting)
+
+        def shade_one(g):
+            return render.shade(g.normal, g.roughness, camera, lighting, slope_variance=g.slope_variance,
+                                horizon_gradient=horizon_gradient)
+
+        image = jax.lax.map(shade_one, geo)
+    return Forecast(times, advanced, geo, image)
+
+
+def geometry_error(predicted, truth, mask=None) -> GeometryError:
+    """Per-frame mean normal angle [rad] and mean |roughness difference| between two
+    geometry sequences (each a ``Geometry`` with leading ``(T,)``, or a pair ``(normal (T,
+    H, W, 3), roughness (T, H, W))``). ``mask (H, W)`` or ``(T, H, W)``: pixels to count
+    (default: the geometries' own sea masks where available, else all)."""
+    pn, pr, pm = _unpack_geometry(predicted)
+    tn, tr, tm = _unpack_geometry(truth)
+    if pn.shape != tn.shape:
+        raise ValueError(f"normal shapes differ: {pn.shape} vs {tn.shape}")
+    if mask is None:
+        mask = jnp.ones(pn.shape[:-1], bool)
+        for m in (pm, tm):
+            if m is not None:
+                mask = mask & m
+    mask = jnp.broadcast_to(jnp.asarray(mask, bool), pn.shape[:-1]).astype(pn.dtype)
+    cos = jnp.clip(jnp.sum(pn * tn, -1), -1.0, 1.0)
+    cross = jnp.cross(pn, tn)
+    angle = jnp.arctan2(safe_sqrt(jnp.sum(cross * cross, -1)), cos)
+    count = jnp.maximum(jnp.sum(mask, axis=(-2, -1)), 1.0)
+    normal = jnp.sum(angle * mask, axis=(-2, -1)) / count
+    rough = jnp.sum(jnp.abs(pr - tr) * mask, axis=(-2, -1)) / count
+    return GeometryError(normal, rough)
+
+
+def _unpack_geometry(g):
+    if isinstance(g, render.Geometry):
+        return jnp.asarray(g.normal), jnp.asarray(g.roughness), jnp.asarray(g.mask)
+    try:
+        normal, roughness = g
+    except (TypeError, ValueError):
+        raise ValueError("expected a Geometry or a pair (normal, roughness)") from None
+    return jnp.asarray(normal), jnp.asarray(roughness), None
