@@ -122,6 +122,9 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     return RenderPlan(active=active, refine=refine)
 
 
+_make_plan = plan  # geometry()'s `plan` argument shadows the function's name
+
+
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "max_distance"))
 def _refine_residuals(waves, camera, t, grid_cell, *, n_min, n_max, max_distance):
     """Worst hit residual [m] over sea pixels after 1 .. MAX_REFINE_ITERATIONS iterations."""
@@ -229,8 +232,8 @@ def geometry(waves: Waves, camera, t, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
-        plan = globals()["plan"](waves, camera, t, n_min=n_min, n_max=n_max, grid_cell=grid_cell,
-                                 max_distance=max_distance) if is_concrete(waves, camera, t) else None
+        plan = _make_plan(waves, camera, t, n_min=n_min, n_max=n_max, grid_cell=grid_cell,
+                          max_distance=max_distance) if is_concrete(waves, camera, t) else None
     active, refine = (None, 0) if plan is None else (tuple(plan.active), int(plan.refine))
     if active is not None and len(active) == 0:
         active = (0,)  # nothing resolvable: evaluate one wave (its weights are zero) to keep shapes static

@@ -214,7 +214,7 @@ def _surface_from_sums(sums):
     return jnp.stack([d_x, d_y, d_z], axis=-1), normal_from_sums(a_xx, a_xy, a_yy, b_x, b_y)
 
 
-def _check_weight_shape(waves: Waves, weights, shape, fn: str):
+def _check_weight_shape(weights, shape, fn: str):
     for level in ("displacement", "normal"):
         w = _level(weights, level)
         if w is not None and jnp.shape(w) != shape:
@@ -234,7 +234,7 @@ def on_grid(waves: Waves, x, y, times, weights=None) -> GridSurface:
     if x.ndim != 1 or y.ndim != 1 or times.ndim != 1:
         raise ValueError(f"x, y, times must be 1-D; got shapes {x.shape}, {y.shape}, {times.shape}")
     n = waves.omega.shape[-1]
-    _check_weight_shape(waves, weights, (n,), "on_grid (per-wave)")
+    _check_weight_shape(weights, (n,), "on_grid (per-wave)")
 
     k = wavenumber(waves)
     kx, ky = k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)
@@ -289,7 +289,7 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     if origin.ndim != 2 or origin.shape[-1] != 2 or step.shape != origin.shape:
         raise ValueError(f"origin and step must both be (R, 2); got {origin.shape} and {step.shape}")
     rows, n = origin.shape[0], waves.omega.shape[-1]
-    _check_weight_shape(waves, weights, (rows, n), "on_rows (per-row)")
+    _check_weight_shape(weights, (rows, n), "on_rows (per-row)")
     # B ~ 2 sqrt(W): the (R, W/B, 8, 2N) factor is built elementwise (memory-bound) and the
     # (R, B, 2N) tables feed per-row GEMMs; this balance measured fastest at W = 128..256
     block = max(1, min(n_cols, int(round(2 * n_cols ** 0.5)))) if block is None else int(block)
