@@ -49,7 +49,7 @@ def scene():
     with jax.enable_x64(True):
         waves = _sea()
         camera = cam.make_camera(height=8.0, pitch=0.3, fov=0.7, resolution=(16, 16))
-        geo = render.geometry(waves, camera, 0.0)
+        geo = render.geometry(waves, camera, 0.0, plan=None)  # unrefined: cheap to compile
         truths = [shading.make_lighting(**t) for t in TRUTHS]
         images = np.stack([np.asarray(render.shade(geo.normal, geo.roughness, camera, t,
                                                    slope_variance=geo.slope_variance)) for t in truths])
@@ -320,3 +320,23 @@ def test_reedit_applies_the_edits_and_style_transfer_carries_the_lighting(scene,
     np.testing.assert_allclose(float(out.lighting.sun_azimuth), float(truth.sun_azimuth) + 1.0, atol=1e-9)
     np.testing.assert_allclose(out.lighting.sea_color, truth.sea_color, rtol=1e-7)
     assert out.image.shape == (16, 16, 3)
+
+
+def test_reedit_scene_writes_frames_and_scene(scene, singles, tmp_path, x64):
+    from jaxocean import io
+
+    src = tmp_path / "scene"
+    io.write_scene(src, io.scene_to_dict(waves=scene["waves"], camera=_f64(scene["camera"]),
+                                         lighting=scene["truths"][0], times=[0.0, 0.25], seed=0))
+    # the lighting of a fit, through its JSON form, as the command line passes it
+    light = fit.lighting_from_dict(fit.fit_to_dict(singles["results"][0]), dtype=jnp.float64)
+    out = fit.reedit_scene(src, tmp_path / "out", camera_height=5.0, sun_elevation_deg=20.0, lighting=light,
+                           frames=[1])
+    frame = io.read_frame(out / "frame_00000.exr")
+    assert frame.image.shape == (16, 16, 3) and frame.normal is not None
+    assert (out / "frame_00000.png").exists()
+    edited = io.read_scene(out)
+    assert float(edited.camera.height) == pytest.approx(5.0)
+    assert float(edited.lighting.sun_elevation) == pytest.approx(math.radians(20.0))
+    np.testing.assert_allclose(edited.lighting.sea_color, scene["truths"][0].sea_color, rtol=1e-6)
+    np.testing.assert_allclose(np.asarray(edited.times), [0.25])

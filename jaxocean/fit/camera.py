@@ -213,7 +213,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
            fit_lighting: bool = False, solver: str = "lm", weights="display", mask=None, exposure=1.0,
            tonemap: str = "bruneton", saturation: float | None = 0.9, horizon_gradient=0.0,
            max_steps: int | None = None, rtol: float | None = None, atol: float | None = None,
-           search=(3, 3), height_span: float = 0.2, pitch_span: float = 0.04, n_starts: int = 2, grid: int = 16,
+           search=(7, 5), height_span: float = 0.15, pitch_span: float = 0.04, n_starts: int = 2, grid: int = 16,
            plan="auto", history: bool = False, throw: bool = True, options: dict | None = None) -> CameraFit:
     """Fit camera height and pitch (and ``fov``) to ``image`` of ``waves`` at time ``t``.
 
