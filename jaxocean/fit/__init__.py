@@ -7,18 +7,30 @@
   its waves, alone or jointly with the lighting
 * :mod:`jaxocean.fit.reedit`   re-render fitted scenes under a new camera or light; style
   transfer
+* :mod:`jaxocean.fit.waves`    component waves from a geometry sequence (spectral start,
+  greedy detection with order selection, structured Levenberg-Marquardt)
+* :mod:`jaxocean.fit.spectrum` sea state (Hs, Tp, gamma, direction, spreading) behind fitted
+  waves and the roughness; the spectrum correction of unresolved amplitudes
+
+The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera`` and ``fit.lighting`` shadow
+their modules' names on this package; the modules are re-exported as ``waves_fit``,
+``spectrum_fit``, ``camera_fit`` and ``lighting_fit``.
 
 Usage::
 
     from jaxocean import fit
     result = fit.lighting(image, geometry, camera)          # LightingFit
     images = fit.reedit(waves, camera, result.lighting, times, camera_height=5.0)
+    waves = fit.waves(normals, roughness, camera, times).waves   # WaveFit
+    sea = fit.spectrum(waves, camera=camera, roughness=roughness) # SpectrumFit
 """
 
 from jaxocean.fit import camera as camera_fit
 from jaxocean.fit import lighting as lighting_fit
 from jaxocean.fit import reedit as reedit_module
 from jaxocean.fit import solvers
+from jaxocean.fit import spectrum as spectrum_fit
+from jaxocean.fit import waves as waves_fit
 from jaxocean.fit.camera import CAMERA_FIELDS, CameraFit, camera
 from jaxocean.fit.lighting import (
     COLOR_FIELDS,
@@ -38,6 +50,19 @@ from jaxocean.fit.lighting import (
     tonemap_weights,
 )
 from jaxocean.fit.reedit import StyleTransfer, edit_camera, edit_lighting, reedit, reedit_scene, style_transfer
+from jaxocean.fit.spectrum import SeaState, SpectrumFit, correct_amplitudes, sea_state, spectrum, tail_waves
+from jaxocean.fit.waves import (
+    OrderSelection,
+    SpectralEstimate,
+    WaveFit,
+    WaveMatch,
+    match,
+    refine,
+    resolvable,
+    spectral_estimate,
+    spectral_init,
+    waves,
+)
 from jaxocean.fit.solvers import SOLVER_NAMES, SOLVERS, FitError, SolverOutput, get_solver, solve
 
 __all__ = [
@@ -46,6 +71,8 @@ __all__ = [
     "lighting_fit",
     "camera_fit",
     "reedit_module",
+    "waves_fit",
+    "spectrum_fit",
     # solvers
     "SOLVERS",
     "SOLVER_NAMES",
@@ -80,4 +107,22 @@ __all__ = [
     "reedit",
     "reedit_scene",
     "style_transfer",
+    # waves
+    "WaveFit",
+    "OrderSelection",
+    "SpectralEstimate",
+    "WaveMatch",
+    "waves",
+    "refine",
+    "match",
+    "resolvable",
+    "spectral_estimate",
+    "spectral_init",
+    # spectrum
+    "SpectrumFit",
+    "SeaState",
+    "spectrum",
+    "sea_state",
+    "correct_amplitudes",
+    "tail_waves",
 ]

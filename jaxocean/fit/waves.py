@@ -40,12 +40,17 @@ Pipeline of :func:`waves`:
    ``(omega, theta)`` are known (DESIGN section 6).
 3. **Greedy detection with order selection**: candidates from the spectral estimate of the
    current residual plus a polar grid of waves longer than the largest ground grid are
-   scored on every pixel by the energy a single wave removes, refined in ``(omega,
-   theta)``, added in batches, and the whole set is refined by the structured
-   Levenberg-Marquardt below. A batch is kept while it lowers the information criterion
-   (``"bic"``: ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; or with a known
-   ``noise`` sigma, ``RSS / sigma^2 + 4 N ln M``); the final set is pruned by each wave's
-   Wald statistic against the same penalty.
+   scored on a spread subsample of pixel-frames by the energy a single wave removes,
+   refined in ``(a, b, omega, theta)`` by a single-wave Levenberg-Marquardt, solved jointly
+   for ``(a, b)`` (sidelobes and repeats lose their energy there), added in batches, and
+   the whole set is refined by the structured Levenberg-Marquardt below (without the
+   roughness term: the observed roughness holds waves the model does not have yet). A
+   batch is kept while it lowers the information criterion (``"bic"``:
+   ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
+   ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, the model's own
+   floating-point precision). Optionally the final set is pruned by each wave's Wald
+   statistic against the same penalty. The final refinement adds the roughness term with
+   the sub-pixel tail of waves outside the set fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
    ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling) whose
    normal equations ``J^T J`` are accumulated frame by frame and row block by row block
@@ -747,7 +752,8 @@ def _uncertainty(y, jtj, active, half_rss, n_obs):
 
 def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "structured", max_steps: int = 50,
            rtol=1e-6, atol=0.0, roughness_weight: float = 1.0, n_min=hierarchy.DEFAULT_N_MIN,
-           n_max=hierarchy.DEFAULT_N_MAX, history: bool = False, options=None, tail_rows=None) -> WaveFit:
+           n_max=hierarchy.DEFAULT_N_MAX, history: bool = False, options=None, tail_rows=None,
+           throw: bool = False) -> WaveFit:
     """Refine ``init`` waves (fixed count) against observed geometry; returns a :class:`WaveFit`.
 
     Pure and traceable for every solver but ``"scipy"``: ``jax.vmap`` over scenes (batched
@@ -755,7 +761,9 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
     of the result with respect to the data flow through the registry solvers' implicit
     adjoints; the ``"structured"`` solver's loop is not reverse-differentiable (use
     ``"lm"`` for gradients through a fit). ``tail_rows (H,)``: a fixed roughness offset per
-    row for waves outside the fitted set (see :func:`jaxocean.fit.spectrum`).
+    row for waves outside the fitted set; without it the roughness term assumes that
+    ``init`` holds every wave (pass ``roughness_weight=0`` otherwise). ``throw``: raise
+    :class:`jaxocean.fit.solvers.FitError` (eagerly) when the solver did not converge.
     """
     t0 = time.perf_counter()
     normals, roughness, times = check_inputs(normals, roughness, camera, times)
@@ -782,10 +790,10 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         half = out.loss
         res = _result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
                       hist if history else None, roughness_weight, n_min, n_max, t0)
-        if n_pad == n:
-            return res
-        cut = lambda w: Waves(*[x[:n] for x in w])  # noqa: E731
-        return res._replace(waves=cut(res.waves), uncertainty=cut(res.uncertainty), n_waves=jnp.asarray(n))
+        if n_pad != n:
+            cut = lambda w: Waves(*[x[:n] for x in w])  # noqa: E731
+            res = res._replace(waves=cut(res.waves), uncertainty=cut(res.uncertainty), n_waves=jnp.asarray(n))
+        return _maybe_throw(res, throw, max_steps)
     else:
         y0 = _pack(init)
         active = jnp.ones(n, bool)
@@ -795,8 +803,18 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
                                                   history=history, options=options)
         y, steps, success, hist, half = out.params, out.steps, out.success, out.history, out.loss
         jtj = _dense_jtj(residual, y)
-    return _result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
-                   hist if history else None, roughness_weight, n_min, n_max, t0)
+    res = _result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
+                  hist if history else None, roughness_weight, n_min, n_max, t0)
+    return _maybe_throw(res, throw, max_steps)
+
+
+def _maybe_throw(res: WaveFit, throw: bool, max_steps):
+    if throw and is_concrete(res.success) and not bool(res.success):
+        from jaxocean.fit.solvers import FitError
+
+        raise FitError(f"wave fit did not converge within {max_steps} steps (loss {float(res.loss):.3e}, "
+                       f"{int(res.n_waves)} waves); the result is attached as .result", res)
+    return res
 
 
 def _dense_jtj(residual, y):
@@ -1108,7 +1126,7 @@ def _score(omega, theta, s: _Samples, n_min, n_max):
     def one(x):
         return _energy_ab(_single_wave_stats(x[0], x[1], s, n_min, n_max))
 
-    return jax.lax.map(one, (omega, theta), batch_size=8)
+    return jax.lax.map(one, (omega, theta), batch_size=32)
 
 
 def _single_wave_jac(p, s: _Samples, n_min, n_max):
@@ -1250,7 +1268,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=0.0,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
-          score_samples: int = 32768, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
+          score_samples: int = 32768, prune: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
+          n_max=hierarchy.DEFAULT_N_MAX,
           throw: bool = False, history: bool = False, return_selection: bool = False, verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (module docstring).
 
@@ -1264,6 +1283,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       once the model is explained to its floating-point precision.
     * ``init``: starting waves; then no spectral initialisation, and waves are added only
       if ``n_waves`` asks for more.
+    * ``prune``: after the greedy stage, drop waves whose Wald statistic is below the
+      criterion's penalty, refit, and keep the smaller model only if the criterion improves
+      (off by default: with correlated long waves a refit can land in a worse optimum).
     * ``solver``: ``"structured"`` (default) or a registry name (module docstring).
     * ``throw``: raise :class:`jaxocean.fit.solvers.FitError` (carrying the result) when the
       final refinement did not converge; otherwise read ``success``.
@@ -1339,7 +1361,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     spacing = np.asarray(spacing)
     coarse_extent = float(spacing[-1]) * grid
     om_long_hi = math.sqrt(GRAVITY * 1.5 * 2 * math.pi / coarse_extent) * 1.3
-    long_om, long_th = _long_wave_grid(min(omega_min, 0.5 * om_long_hi), om_long_hi, 10, 48, dtype)
+    long_om, long_th = _long_wave_grid(min(omega_min, 0.5 * om_long_hi), om_long_hi, 10, 36, dtype)
     res_scale = 2 * math.pi / (spacing * grid)  # FFT resolution of each grid [rad/m]
     # the finest wave-vector resolution the whole image allows: two waves closer than this
     # are one wave to the data (the longest sea baseline in the image)
@@ -1367,7 +1389,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     path_rss.append(rss_now)
     path_acc.append(True)
 
-    n_cand = 2 * batch + 8
+    n_cand = batch + 8
     cur_batch = batch
     timing = dict(detect=0.0, refine=0.0, lm=0.0)
     while current.omega.shape[0] < limit:
@@ -1380,7 +1402,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             resid = _slopes(_clean(fit_n, None, wt)[0])
         smp = _samples(resid, wt, fit_t, camera)
         smp_score = _subsample(smp, score_samples)
-        est = _spectral(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=24)
+        est = _spectral(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16)
         c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
         c_th = jnp.concatenate([est.peak_theta.ravel(), long_th])
         valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(long_om.shape, bool)])
@@ -1406,7 +1428,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         smp_ref = _subsample(smp, 2 * score_samples)
         r_om, r_th, e_ref, a_ref, b_ref = (np.asarray(x) for x in _refine_candidates(
             jnp.asarray(_pad_to(np.asarray(c_om)[pj], n_cand, 1.0)), jnp.asarray(_pad_to(np.asarray(c_th)[pj], n_cand, 0.0)),
-            smp_ref, n_min, n_max, 10))
+            smp_ref, n_min, n_max, 8))
         e_ref = np.where(np.arange(n_cand) < pj.size, e_ref, -np.inf)
         # a candidate is worth a trial only if it would explain more than the criterion's
         # penalty for 4 parameters in units of the residual variance (energies are on a
@@ -1488,7 +1510,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # squares over virtual wavelengths) for the current waves, then the waves for that tail
         tail = tail_rows
         out = None
-        for _ in range(2 if rough_info else 1):
+        for _ in range(1):
             if rough_info:
                 tail = _nnls_tail(w, roughness, camera, n_min, n_max, dtype)
             out = _final_once(w, tail)
@@ -1522,8 +1544,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     best = final_fit(current)
     total_steps += int(best["steps"])
-    if n_waves is None:
-        for _ in range(3):
+    if n_waves is None and prune:
+        for _ in range(2):
             n_cur = current.omega.shape[0]
             keep = _wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
                               criterion, noise, floor2)[:n_cur]
@@ -1548,11 +1570,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype))
-    if throw and not bool(result.success):
-        from jaxocean.fit.solvers import FitError
-
-        raise FitError(f"wave fit did not converge in {max_steps} steps (loss {float(result.loss):.3e}, "
-                       f"{n_fit} waves)", result)
+    _maybe_throw(result, throw, max_steps)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
         return result, sel

@@ -1,0 +1,256 @@
+"""Wave fitting (jaxocean.fit.waves) and sea-state fitting (jaxocean.fit.spectrum).
+
+Tiny scenes (24 x 24 pixels, 5 frames, a handful of waves) that share array shapes, so the
+compiled kernels are reused across tests; longer checks live in experiments/.
+"""
+
+import warnings
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxocean import camera as cam
+from jaxocean import render, spectrum
+from jaxocean.errors import InvalidValueError
+import jaxocean.fit as fit_package
+from jaxocean.fit import spectrum_fit as fit_spectrum
+from jaxocean.fit import waves_fit as fw
+from jaxocean.fit.solvers import FitError
+from jaxocean.waves import GRAVITY, Waves, make_waves
+
+RES = (24, 24)
+TIMES = np.arange(5) * 0.15
+
+
+def ortho():
+    return cam.make_orthographic(12.0, RES)
+
+
+def persp():
+    return cam.make_camera(height=6.0, pitch=0.9, fov=0.8, yaw=0.4, resolution=RES)
+
+
+def few_waves():
+    # three waves well inside the 12 m / 0.5 m-pixel window: 2.6 to 7.9 m long
+    return make_waves([0.03, 0.02, 0.012], [2.8, 3.6, 4.9], [0.4, 2.1, -1.2], [0.5, 4.0, 2.0])
+
+
+@pytest.fixture(scope="module")
+def ortho_scene():
+    c = ortho()
+    truth = few_waves()
+    normals, rough = fw.predict(truth, c, TIMES)
+    return c, truth, normals, rough
+
+
+@pytest.fixture(scope="module")
+def ortho_fit(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    return fw.waves(normals, rough, c, TIMES, return_selection=True)
+
+
+def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
+    c, truth, normals, _ = ortho_scene
+    fit, selection = ortho_fit
+    assert int(fit.n_waves) == 3, f"order selection chose {int(fit.n_waves)} waves for a clean 3-wave sea"
+    assert bool(fit.success)
+    m = fw.match(fit.waves, truth)
+    assert m.missed.size == 0 and m.spurious.size == 0
+    assert np.max(m.abs_error.amplitude) < 2e-4
+    assert np.max(m.abs_error.omega) < 2e-3
+    assert np.max(m.abs_error.theta) < 2e-3
+    assert np.max(m.abs_error.phase) < 2e-2
+    assert float(fit.normal_error) < 1e-4
+    # the selection path is a decreasing criterion for every kept step
+    kept = selection.criterion[selection.accepted]
+    assert np.all(np.diff(kept) < 0)
+    # uncertainties are finite, non-negative, and shaped like the waves
+    for leaf in fit.uncertainty:
+        assert leaf.shape == (3,) and np.all(np.isfinite(leaf)) and np.all(np.asarray(leaf) >= 0)
+
+
+def test_spectral_initialiser_finds_a_single_wave():
+    c = ortho()
+    one = make_waves([0.03], [3.3], [2.5], [1.0])
+    normals, _ = fw.predict(one, c, TIMES)
+    est = fw.spectral_estimate(normals, c, TIMES)
+    k = est.kx.shape[-1]
+    best = int(np.argmax(np.asarray(est.peak_power[0])))
+    om, th = float(est.peak_omega[0, best]), float(est.peak_theta[0, best])
+    # within one FFT bin (2 pi / (2 G d)) of the truth, and travelling the right way
+    dk = 2 * np.pi / (k * float(est.spacing[0]))
+    k_true = 3.3 ** 2 / GRAVITY
+    assert abs(om ** 2 / GRAVITY - k_true) < 1.5 * dk
+    assert abs(np.angle(np.exp(1j * (th - 2.5)))) < 1.5 * dk / k_true
+    # the opposite direction is dark: the dispersion shell resolves the travel direction
+    assert np.sort(np.asarray(est.peak_power[0]))[-2] < 0.2 * float(est.peak_power[0, best])
+    init = fw.spectral_init(normals, c, TIMES, 1)
+    assert abs(float(init.amplitude[0]) - 0.03) < 0.01
+
+
+def test_linear_amplitude_solve_recovers_amplitudes_and_phases(ortho_scene):
+    c, truth, normals, _ = ortho_scene
+    w = fw.solve_amplitudes(normals, c, TIMES, truth.omega, truth.theta)
+    # first order in the steepness (k h <= 0.03 here): a few percent
+    np.testing.assert_allclose(np.asarray(w.amplitude), np.asarray(truth.amplitude), rtol=0.05)
+    dphi = np.angle(np.exp(1j * (np.asarray(w.phase) - np.asarray(truth.phase))))
+    assert np.max(np.abs(dphi)) < 0.05
+
+
+def test_refine_from_the_spectral_start_in_perspective():
+    c = persp()
+    truth = few_waves()
+    normals, rough = fw.predict(truth, c, TIMES)
+    init = truth._replace(omega=truth.omega * (1 + jnp.asarray([2e-3, -2e-3, 1e-3])),
+                          theta=truth.theta + jnp.asarray([0.01, -0.01, 0.005]),
+                          amplitude=truth.amplitude * 0.9)
+    fit = fw.refine(normals, rough, c, TIMES, init)
+    assert bool(fit.success)
+    np.testing.assert_allclose(np.asarray(fit.waves.omega), np.asarray(truth.omega), rtol=1e-4)
+    np.testing.assert_allclose(np.asarray(fit.waves.amplitude), np.asarray(truth.amplitude), rtol=2e-3)
+    assert float(fit.normal_error) < 1e-4
+
+
+def test_a_fit_that_fails_says_so(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    bad = truth._replace(omega=truth.omega * 1.3, theta=truth.theta + 1.0)
+    fit = fw.refine(normals, rough, c, TIMES, bad, max_steps=2)
+    assert not bool(fit.success)
+    with pytest.raises(FitError) as info:
+        fw.refine(normals, rough, c, TIMES, bad, max_steps=2, throw=True)
+    assert info.value.result is not None and not bool(info.value.result.success)
+
+
+def test_refine_maps_over_scenes_with_vmap(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    init = truth._replace(amplitude=truth.amplitude * 0.95)
+    batch = lambda x: jnp.stack([x, x])  # noqa: E731
+    cams = jax.tree.map(batch, c)
+    out = jax.vmap(lambda n, r, cc, w: fw.refine(n, r, cc, TIMES, w, max_steps=20))(
+        batch(normals), batch(rough), cams, jax.tree.map(batch, init))
+    assert out.waves.amplitude.shape == (2, 3)
+    np.testing.assert_allclose(np.asarray(out.waves.amplitude[1]), np.asarray(truth.amplitude), rtol=1e-3)
+
+
+def test_structured_jacobian_matches_autodiff_through_render(x64):
+    c = persp()
+    truth = make_waves([0.03, 0.02, 0.006], [2.8, 3.6, 9.0], [0.4, 2.1, -1.2], [0.5, 4.0, 2.0])
+    normals, _ = fw.predict(truth, c, TIMES[:2])
+    weight = fw._weights(normals, c)
+    y = fw._pack(truth) * 1.01
+    samples = fw._samples(normals[..., :2], weight, jnp.asarray(TIMES[:2]), c)
+    r, J = fw._jacobian(y.reshape(4, 3), jnp.ones(3), samples, 1.0, 1.5)
+
+    def residual(yy):
+        pred, _ = fw.predict(fw._to_waves(yy, 3), c, TIMES[:2])
+        return ((pred[..., :2] - normals[..., :2]) * weight[..., None]).reshape(-1)
+
+    np.testing.assert_allclose(r, residual(y), atol=1e-12)
+    np.testing.assert_allclose(J, jax.jacfwd(residual)(y), atol=1e-9)
+
+
+def test_gradients_through_a_fit_are_finite(x64):
+    c = cam.make_orthographic(6.0, (8, 8))
+    truth = make_waves([0.02], [3.2], [0.7], [1.0])
+    times = np.arange(3) * 0.2
+    normals, _ = fw.predict(truth, c, times)
+    init = truth._replace(amplitude=truth.amplitude * 0.8)
+
+    def fitted_amplitude(nrm):
+        fit = fw.refine(nrm, None, c, times, init, solver="lm", max_steps=30, rtol=1e-10, atol=1e-12)
+        return fit.waves.amplitude[0]
+
+    g = jax.grad(fitted_amplitude)(normals)
+    assert np.all(np.isfinite(np.asarray(g))) and float(jnp.max(jnp.abs(g))) > 0
+    # the loss itself has finite gradients in the waves, the data and the camera
+    gl = jax.grad(lambda w, n: fw.loss(w, n, None, c, times), argnums=(0, 1))(truth, normals)
+    assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(gl))
+
+
+def test_bad_inputs_give_clear_errors(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    with pytest.raises(ValueError, match="at least 2 frames"):
+        fw.waves(normals[:1], rough[:1], c, TIMES[:1])
+    with pytest.raises(InvalidValueError, match="strictly increasing"):
+        fw.waves(normals, rough, c, TIMES[::-1])
+    with pytest.raises(ValueError, match="camera"):
+        fw.waves(normals, rough, None, TIMES)
+    with pytest.raises(ValueError, match="times must be"):
+        fw.waves(normals, rough, c, TIMES[:3])
+    with pytest.raises(ValueError, match="normals must be"):
+        fw.waves(normals[:, :10], rough, c, TIMES)
+    with pytest.raises(ValueError, match="unknown solver"):
+        fw.refine(normals, rough, c, TIMES, truth, solver="newton")
+    with pytest.raises(InvalidValueError, match="no valid sea pixel"):
+        fw.waves(jnp.full_like(normals, jnp.nan), rough, c, TIMES)
+
+
+def test_match_and_resolvable_helpers():
+    truth = few_waves()
+    fitted = Waves(*[jnp.asarray(x)[::-1] for x in truth])
+    m = fw.match(fitted, truth)
+    assert m.missed.size == 0 and np.all(m.abs_error.omega == 0)
+    far = truth._replace(omega=jnp.asarray([0.5, 3.6, 40.0]))  # 246 m: too long; 4 cm: sub-pixel
+    ok = fw.resolvable(far, ortho())
+    assert ok.tolist() == [False, True, False]
+
+
+# ------------------------------------------------------------------------- fit.spectrum
+
+
+@pytest.fixture(scope="module")
+def sampled_sea():
+    truth = spectrum.Spectrum(hs=1.2, tp=5.0, gamma=3.3, theta_mean=0.6, s_max=20.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        waves = spectrum.sample_waves(jax.random.key(3), truth, 60).waves
+    return truth, waves
+
+
+def test_spectrum_fit_recovers_the_sea_state_from_its_waves(sampled_sea):
+    truth, waves = sampled_sea
+    fit = fit_spectrum.spectrum(waves)
+    assert fit.success and fit.peak_observed and fit.n_waves == 60
+    assert abs(float(fit.spectrum.hs) / 1.2 - 1) < 0.03
+    assert abs(float(fit.spectrum.tp) / 5.0 - 1) < 0.05
+    assert abs(np.angle(np.exp(1j * (float(fit.spectrum.theta_mean) - 0.6)))) < np.radians(8)
+    # the spectrum correction gives every wave the energy of its bin
+    corrected = fit_spectrum.correct_amplitudes(waves, fit.spectrum)
+    np.testing.assert_allclose(fit_spectrum.sea_state(corrected).hs, fit_spectrum.sea_state(waves).hs, rtol=0.05)
+    # reliable waves keep their fitted amplitudes
+    keep = fit_spectrum.correct_amplitudes(waves, fit.spectrum, reliable=np.ones(60, bool))
+    np.testing.assert_array_equal(keep.amplitude, waves.amplitude)
+
+
+def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
+    _, waves = sampled_sea
+    tail = np.asarray(waves.omega) > 2.5 * 2 * np.pi / 5.0
+    fit = fit_spectrum.spectrum(waves, reliable=tail)
+    assert not fit.peak_observed
+    # the Phillips level of the tail is still right
+    alpha_true = float(spectrum.jonswap_normalisation(3.3)) * 5 / 16 * 1.2 ** 2 * (2 * np.pi / 5.0) ** 4 / GRAVITY ** 2
+    assert abs(fit.alpha / alpha_true - 1) < 0.15
+
+
+def test_spectrum_tail_waves_and_errors(sampled_sea):
+    truth, waves = sampled_sea
+    tail = fit_spectrum.tail_waves(jax.random.key(0), truth, 8.0, 12)
+    assert tail.omega.shape == (12,) and float(jnp.min(tail.omega)) >= 8.0
+    with pytest.raises(InvalidValueError, match="at least 3 reliable"):
+        fit_spectrum.spectrum(waves, reliable=np.arange(60) < 2)
+    with pytest.raises(ValueError, match="camera"):
+        fit_spectrum.spectrum(waves, roughness=np.zeros((2, 4, 4)))
+
+
+def test_render_plan_of_the_fit_model_is_the_rows_path():
+    # the fit's forward model is render.geometry with every wave evaluated, unrefined
+    plan = fw._plan(4)
+    assert isinstance(plan, render.RenderPlan) and plan.refine == 0 and plan.active == (0, 1, 2, 3)
+
+
+def test_package_exports_the_fits_and_their_modules():
+    assert fit_package.waves is fw.waves and fit_package.spectrum is fit_spectrum.spectrum
+    assert fit_package.waves_fit.__name__ == "jaxocean.fit.waves"
+    assert set(fw.__all__) >= {"waves", "refine", "match", "resolvable", "spectral_estimate", "spectral_init"}

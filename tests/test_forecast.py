@@ -1,0 +1,102 @@
+"""Forecasting (jaxocean.forecast): phase advance, re-rendering at later times, error metric."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxocean import camera as cam
+from jaxocean import forecast as fc
+from jaxocean import render, shading
+from jaxocean.errors import InvalidValueError
+from jaxocean.waves import make_waves
+
+RES = (12, 12)
+
+
+def sea():
+    return make_waves([0.05, 0.02, 0.01], [1.2, 2.0, 3.1], [0.3, 1.9, -2.2], [0.5, 4.0, 2.0])
+
+
+def camera():
+    return cam.make_camera(height=6.0, pitch=0.5, fov=0.8, resolution=RES)
+
+
+def test_advance_is_a_phase_shift_that_composes():
+    w = sea()
+    a = fc.advance(fc.advance(w, 1.3), 2.4)
+    b = fc.advance(w, 3.7)
+    np.testing.assert_allclose(np.exp(1j * np.asarray(a.phase)), np.exp(1j * np.asarray(b.phase)), atol=1e-5)
+    np.testing.assert_array_equal(a.omega, w.omega)
+    assert np.all((np.asarray(b.phase) >= 0) & (np.asarray(b.phase) < 2 * np.pi))
+    # times broadcast to a (T, N) stack
+    stack = fc.advance(w, jnp.asarray([[0.0], [1.0]]))
+    assert stack.phase.shape == (2, 3)
+
+
+def test_forecast_geometry_equals_rendering_the_advanced_waves_at_zero():
+    w, c = sea(), camera()
+    times = jnp.asarray([0.0, 0.7, 5.0])
+    out = fc.forecast(w, times, c, shading.make_lighting())
+    assert out.geometry.normal.shape == (3, *RES, 3) and out.image.shape == (3, *RES, 3)
+    plan = render.RenderPlan(active=(0, 1, 2), refine=0)
+    for i, t in enumerate(np.asarray(times)):
+        # the sea at time t == the advanced sea at time 0 == the original sea rendered at t
+        direct = render.geometry(w, c, float(t), plan=plan)
+        shifted = render.geometry(jax.tree.map(lambda x, i=i: x[i], out.waves), c, 0.0, plan=plan)
+        np.testing.assert_allclose(out.geometry.normal[i], direct.normal, atol=2e-5)
+        np.testing.assert_allclose(shifted.normal, direct.normal, atol=2e-4)
+    assert np.all(np.isfinite(np.asarray(out.image)))
+
+
+def test_forecast_without_camera_and_bad_inputs():
+    w = sea()
+    out = fc.forecast(w, 2.0)
+    assert out.geometry is None and out.image is None and out.waves.phase.shape == (1, 3)
+    with pytest.raises(ValueError, match="needs a camera"):
+        fc.forecast(w, [0.0, 1.0], None, shading.make_lighting())
+    with pytest.raises(ValueError, match="leaves \\(N,\\)"):
+        fc.forecast(jax.tree.map(lambda x: jnp.stack([x, x]), w), [0.0])
+    with pytest.raises(InvalidValueError, match="finite"):
+        fc.forecast(w, [0.0, np.nan])
+    with pytest.raises(ValueError, match="plan must be"):
+        fc.forecast(w, [0.0], camera(), plan="fast")
+
+
+def test_frame_times_and_their_errors():
+    np.testing.assert_allclose(fc.frame_times([1.0, 1.1, 1.2], [0, 100, 500]), [1.0, 11.0, 51.0])
+    with pytest.raises(ValueError, match="T >= 2"):
+        fc.frame_times([1.0], [0])
+    with pytest.raises(InvalidValueError, match="strictly increasing"):
+        fc.frame_times([1.0, 0.5], [0])
+
+
+def test_geometry_error_is_zero_for_identical_and_known_for_tilted_normals():
+    w, c = sea(), camera()
+    out = fc.forecast(w, [0.0, 1.0], c)
+    err = fc.geometry_error(out.geometry, out.geometry)
+    np.testing.assert_allclose(err.normal, 0.0, atol=1e-3)  # arctan2 of |n x n| with float32 rounding
+    np.testing.assert_allclose(err.roughness, 0.0, atol=0)
+    up = jnp.zeros((1, 2, 2, 3)).at[..., 2].set(1.0)
+    tilt = jnp.zeros((1, 2, 2, 3)).at[..., 0].set(np.sin(0.1)).at[..., 2].set(np.cos(0.1))
+    r = jnp.zeros((1, 2, 2))
+    np.testing.assert_allclose(fc.geometry_error((tilt, r + 0.01), (up, r)).normal, [0.1], rtol=1e-5)
+    np.testing.assert_allclose(fc.geometry_error((tilt, r + 0.01), (up, r)).roughness, [0.01], rtol=1e-5)
+    with pytest.raises(ValueError, match="shapes differ"):
+        fc.geometry_error((up, r), (up[:, :1], r[:, :1]))
+
+
+def test_forecast_is_differentiable_in_the_waves(x64):
+    w = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), sea())
+    c = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64) if isinstance(x, jax.Array) else x, camera())
+
+    def loss(amplitude):
+        out = fc.forecast(w._replace(amplitude=amplitude), jnp.asarray([0.0, 3.0]), c)
+        return jnp.sum(out.geometry.normal[..., :2] ** 2)
+
+    g = jax.grad(loss)(w.amplitude)
+    assert np.all(np.isfinite(np.asarray(g))) and float(jnp.max(jnp.abs(g))) > 0
+    eps = 1e-6
+    e0 = jnp.zeros(3).at[0].set(eps)
+    fd = (loss(w.amplitude + e0) - loss(w.amplitude - e0)) / (2 * eps)
+    np.testing.assert_allclose(float(g[0]), float(fd), rtol=1e-5)
