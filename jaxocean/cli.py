@@ -6,15 +6,36 @@ Subcommands (each has ``--help``):
 * ``simulate``  a synthetic dataset (resumable; progress bar with scenes/s and ETA)
 * ``check``     verify a dataset against its manifest; lists every bad file
 * ``demo``      the main job: a JONSWAP scene rendered, with maps and a contact sheet
+* ``fit-lighting``  sun direction and sun / sky / sea colours of one EXR frame -> fit.json
+* ``reedit``    re-render a scene under a new camera and / or light (a fit's, or edited)
+* ``fit-waves`` the component waves behind a scene's normal / roughness frames -> waves.json
+* ``forecast``  render waves (a ``waves.json`` or ``scene.json``) at future frames
 
-Exit codes: 0 success, 1 a check found problems, 2 bad input (the message names it),
-130 interrupted. Errors print ``jaxocean: error: ...`` on stderr, not a traceback.
+Exit codes: 0 success, 1 a check found problems or a fit did not converge (its JSON is
+still written, with ``success: false``), 2 bad input (the message names it), 130
+interrupted. Errors print ``jaxocean: error: ...`` on stderr, not a traceback. Every file is
+written atomically (:func:`jaxocean.io.atomic_write`).
+
+JSON written by the fits:
+
+* ``fit-lighting``: :func:`jaxocean.fit.fit_to_dict` (``lighting`` in radians and degrees,
+  ``loss``, ``rms_residual``, ``steps``, ``success``, ``wall_time_s``) plus ``frame`` (the
+  input path) and ``camera`` (``height`` [m], ``pitch`` / ``fov`` / ``yaw`` [rad] and
+  ``*_deg``, ``resolution``). ``reedit --lighting`` and ``forecast --lighting`` read it.
+* ``fit-waves``: a scene file (:mod:`jaxocean.io.scene` layout, readable by
+  :func:`jaxocean.io.read_scene`) with the fitted ``waves``, the scene's ``camera``,
+  ``lighting`` and ``times``, and ``extra.wave_fit``: ``source``, ``frames``, ``n_waves``,
+  ``loss`` (the paper's loss), ``normal_error_deg``, ``roughness_error``, ``steps``,
+  ``success``, ``time_s``, ``uncertainty`` (1-sigma per wave field; null where undefined)
+  and, when the scene holds its true waves, ``match`` (matched / missed / spurious and the
+  largest absolute errors). ``forecast`` reads it.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -36,6 +57,54 @@ def _resolution(text: str):
     if len(parts) != 2 or min(parts) < 1:
         raise argparse.ArgumentTypeError(f"resolution must be N or HxW with positive integers; got {text!r}")
     return tuple(parts)
+
+
+def _index_list(text: str):
+    try:
+        values = [int(p) for p in text.replace(",", " ").split()]
+    except ValueError:
+        values = []
+    if not values or min(values) < 0:
+        raise argparse.ArgumentTypeError(f"expected comma-separated frame indices >= 0, e.g. 0,1,5; got {text!r}")
+    return tuple(values)
+
+
+def _number_list(text: str):
+    try:
+        values = [float(p) for p in text.replace(",", " ").split()]
+    except ValueError:
+        values = []
+    if not values or not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, e.g. 0,1.5,10; got {text!r}")
+    return tuple(values)
+
+
+def _positive(text: str):
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a positive number; got {text!r}")
+    return value
+
+
+def _add_camera_edits(p, *, resolution: bool = True):
+    g = p.add_argument_group("camera (each option replaces that field of the scene's camera)")
+    g.add_argument("--camera-height", type=float, help="camera height above the sea [m]")
+    g.add_argument("--camera-pitch-deg", type=float, help="camera pitch below the horizon [deg]")
+    g.add_argument("--camera-fov-deg", type=float, help="vertical field of view [deg]")
+    g.add_argument("--camera-yaw-deg", type=float, help="viewing azimuth [deg from +x]")
+    if resolution:
+        g.add_argument("--res", type=_resolution, help="output resolution N or HxW")
+
+
+def _add_lighting_edits(p):
+    g = p.add_argument_group("lighting (applied on top of the scene's or --lighting's)")
+    g.add_argument("--lighting", metavar="FIT_JSON",
+                   help="lighting from a `jaxocean fit-lighting` JSON (or a scene.json)")
+    g.add_argument("--sun-azimuth", type=float, help="sun azimuth [deg from +x]")
+    g.add_argument("--sun-elevation", type=float, help="sun elevation [deg]")
 
 
 def _add_scene_options(p):
@@ -94,6 +163,59 @@ def build_parser():
                                    "roughness maps and a contact sheet.")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
     _add_scene_options(p)
+
+    p = sub.add_parser("fit-lighting", help="fit sun direction and colours to one EXR frame",
+                       description="Fit the sun direction and the sun, sky and sea colours to one EXR frame with "
+                                   "geometry channels (normal, roughness, mask), given the camera that saw it: "
+                                   "from --scene, or from the --camera-* options (height and pitch needed, field "
+                                   "of view 45 deg and yaw 0 by default). Writes jaxocean.fit.fit_to_dict JSON; "
+                                   "exit code 1 when the fit does not converge (the JSON is written anyway).")
+    p.add_argument("frame", help="EXR frame with normal.X/Y/Z, roughness and mask channels")
+    p.add_argument("--scene", help="scene directory or scene.json holding the frame's camera")
+    p.add_argument("--out", required=True, help="output JSON file")
+    _add_camera_edits(p, resolution=False)
+
+    p = sub.add_parser("reedit", help="re-render a scene under a new camera or light",
+                       description="Re-render a scene directory (scene.json with waves, camera, lighting, times) "
+                                   "with a new camera and/or light: EXR + PNG frames and the edited scene.json. "
+                                   "Angles in degrees.")
+    p.add_argument("scene", help="scene directory or scene.json")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--frames", type=_index_list, help="indices of the scene's frames, e.g. 0,1 (default all)")
+    p.add_argument("--float32", action="store_true", help="write float32 EXR instead of half")
+    _add_camera_edits(p)
+    _add_lighting_edits(p)
+
+    p = sub.add_parser("fit-waves", help="fit the component waves behind a scene's geometry frames",
+                       description="Fit the wave trains {h, omega, theta, phi} to the normal and roughness "
+                                   "channels of a scene's EXR frames (jaxocean.fit.waves; at least two frames). "
+                                   "Writes a scene-format JSON with the fitted waves, the scene's camera, lighting "
+                                   "and times, and the fit's report under extra.wave_fit; compares with the "
+                                   "scene's own waves when it has them. Exit code 1 when the fit does not "
+                                   "converge (the JSON is written anyway). Compilation takes a minute on a CPU.")
+    p.add_argument("scene", help="scene directory (scene.json + frame_XXXXX.exr)")
+    p.add_argument("--out", required=True, help="output JSON file (e.g. waves.json)")
+    p.add_argument("--frames", type=_index_list, help="frame indices to fit, e.g. 0,1,2 (default all)")
+    p.add_argument("--n-waves", type=int, help="fit exactly this many waves (default: chosen by BIC)")
+    p.add_argument("--max-waves", type=int, default=96, help="most waves the order selection tries (default 96)")
+    p.add_argument("--verbose", action="store_true", help="print the fit's order-selection steps")
+
+    p = sub.add_parser("forecast", help="render waves at future frames",
+                       description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "
+                                   "times and render them: EXR + PNG per frame (numbered in output order; each "
+                                   "file's metadata and scene.json's extra.forecast_frames give the requested "
+                                   "frame index) and scene.json. Camera and lighting come from the JSON unless "
+                                   "replaced by the options; the default lighting is jaxocean.shading's.")
+    p.add_argument("waves", help="JSON with waves (fit-waves output or scene.json)")
+    p.add_argument("--out", required=True, help="output directory")
+    when = p.add_mutually_exclusive_group(required=True)
+    when.add_argument("--frames", type=_index_list, help="frame indices, e.g. 0,100,500")
+    when.add_argument("--times", type=_number_list, help="times [s], e.g. 0,10,50")
+    p.add_argument("--fps", type=_positive, help="frames per second for --frames (default: the JSON's frame "
+                                                 "interval; frame 0 is its first time)")
+    p.add_argument("--float32", action="store_true", help="write float32 EXR instead of half")
+    _add_camera_edits(p)
+    _add_lighting_edits(p)
     return ap
 
 
@@ -128,8 +250,14 @@ def _scene_from_file(path):
     return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
 
 
-def _write_sequence(out: Path, scene, images, geo, *, half=True, seed=None, progress=True):
-    """EXR + PNG per frame, normal / roughness PNGs and scene.json; returns PNG paths."""
+def _write_sequence(out: Path, scene, images, geo, *, half=True, seed=None, progress=True, frame_ids=None,
+                    extra=None):
+    """EXR + PNG per frame, normal / roughness PNGs and scene.json; returns PNG paths.
+
+    Files are numbered 0, 1, ... in order; ``frame_ids`` (default the same numbers) go into
+    each EXR's ``frame`` metadata. Sequences with radiance beyond the half-float range
+    (bright glints) are written as float32 with a note.
+    """
     import imageio.v3 as iio
     from tqdm.auto import tqdm
 
@@ -137,17 +265,130 @@ def _write_sequence(out: Path, scene, images, geo, *, half=True, seed=None, prog
     from jaxocean.io import save_png, scene_to_dict, write_frame, write_scene
     from jaxocean.io.dataset import frame_name
 
+    if half and not np.abs(images).max() < 65504:
+        print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
+        half = False
+    frame_ids = range(images.shape[0]) if frame_ids is None else frame_ids
     out.mkdir(parents=True, exist_ok=True)
     pngs = []
     for f in tqdm(range(images.shape[0]), desc="write", unit="frame", disable=not progress):
         g = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f]}
-        write_frame(out / frame_name(f), images[f], g, {"frame": f, "time": float(scene.times[f])}, half=half)
+        meta = {"frame": int(frame_ids[f]), "time": float(scene.times[f])}
+        write_frame(out / frame_name(f), images[f], g, meta, half=half)
         pngs.append(save_png(out / frame_name(f).replace(".exr", ".png"), images[f]))
     iio.imwrite(out / "normal_00000.png", plots.normal_to_rgb(geo.normal[0], geo.mask[0]))
     iio.imwrite(out / "roughness_00000.png", plots.roughness_to_rgb(geo.roughness[0], geo.mask[0]))
     write_scene(out, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
-                                   spectrum=scene.spectrum, times=scene.times, seed=seed))
+                                   spectrum=scene.spectrum, times=scene.times, seed=seed, extra=extra))
     return pngs
+
+
+def _json_safe(data):
+    """``data`` with every non-finite float replaced by None (strict JSON has no NaN / inf):
+    a failed fit's NaN parameters are written as null."""
+    if isinstance(data, dict):
+        return {key: _json_safe(value) for key, value in data.items()}
+    if isinstance(data, (list, tuple)):
+        return [_json_safe(value) for value in data]
+    if isinstance(data, float) and not math.isfinite(data):
+        return None
+    return data
+
+
+def _write_json(path, data) -> Path:
+    """``data`` as indented strict JSON (non-finite numbers as null), written atomically."""
+    from jaxocean.io import atomic_write
+
+    text = json.dumps(_json_safe(data), indent=1, allow_nan=False) + "\n"
+    return atomic_write(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
+
+
+def _read_json(path, what: str) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such {what}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a readable JSON {what} ({error})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a {what} must be a JSON object")
+    return data
+
+
+def _lighting_from_file(path):
+    """The lighting of a ``fit-lighting`` JSON (or of a scene.json's ``lighting``)."""
+    from jaxocean.fit.lighting import lighting_from_dict
+
+    data = _read_json(path, "lighting file")
+    try:
+        return lighting_from_dict(data)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def _radians(degrees):
+    return None if degrees is None else math.radians(degrees)
+
+
+def _camera_from_args(args, base, resolution, where: str):
+    """``base`` with the --camera-* / --res options applied; without a base, a new camera from
+    the options (height and pitch needed; fov 45 deg, yaw 0 by default) of ``--res`` or else
+    ``resolution``."""
+    from jaxocean import camera as cam
+    from jaxocean.fit.reedit import edit_camera
+
+    if base is not None:
+        return edit_camera(base, height=args.camera_height, pitch=_radians(args.camera_pitch_deg),
+                           fov=_radians(args.camera_fov_deg), yaw=_radians(args.camera_yaw_deg),
+                           resolution=getattr(args, "res", None))
+    resolution = getattr(args, "res", None) or resolution
+    missing = [flag for flag, value in (("--camera-height", args.camera_height),
+                                        ("--camera-pitch-deg", args.camera_pitch_deg)) if value is None]
+    if missing:
+        raise ValueError(f"{where} has no camera: give {' and '.join(missing)} (--camera-fov-deg defaults to 45, "
+                         f"--camera-yaw-deg to 0){' or --scene' if where.startswith('frame') else ''}")
+    if resolution is None:
+        raise ValueError(f"{where} has no camera: give --res too")
+    return cam.make_camera(height=args.camera_height, pitch=math.radians(args.camera_pitch_deg),
+                           fov=math.radians(45.0 if args.camera_fov_deg is None else args.camera_fov_deg),
+                           yaw=_radians(args.camera_yaw_deg or 0.0), resolution=resolution)
+
+
+def _lighting_from_args(args, base):
+    """``--lighting`` (else ``base``, else the default lighting) with --sun-* applied."""
+    from jaxocean import shading
+    from jaxocean.fit.reedit import edit_lighting
+
+    light = _lighting_from_file(args.lighting) if args.lighting else base
+    light = shading.make_lighting() if light is None else light
+    return edit_lighting(light, sun_azimuth=_radians(args.sun_azimuth), sun_elevation=_radians(args.sun_elevation))
+
+
+def _check_frames(frames, n: int, where: str):
+    """``frames`` (or all ``n``) as a list, every index < n."""
+    if frames is None:
+        return list(range(n))
+    bad = [f for f in frames if f >= n]
+    if bad:
+        raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")
+    return list(frames)
+
+
+def _camera_dict(camera) -> dict:
+    return {"height": float(camera.height), "pitch": float(camera.pitch), "fov": float(camera.fov),
+            "yaw": float(camera.yaw), "pitch_deg": math.degrees(float(camera.pitch)),
+            "fov_deg": math.degrees(float(camera.fov)), "yaw_deg": math.degrees(float(camera.yaw)),
+            "resolution": list(camera.resolution)}
+
+
+def _finite_list(values):
+    """Floats, None where not finite (strict JSON has no NaN)."""
+    return [float(v) if math.isfinite(float(v)) else None for v in np.ravel(np.asarray(values, np.float64))]
+
+
+def _rgb(values) -> str:
+    return "(" + ", ".join(f"{float(v):.4g}" for v in np.asarray(values)) + ")"
 
 
 def cmd_render(args):
@@ -222,13 +463,207 @@ def cmd_demo(args):
     summary = {"frames": int(images.shape[0]), "resolution": list(args.res), "waves": args.waves,
                "render_s_with_compile": render_s, "outputs": {"frames": str(render_dir), "animation":
                                                              str(out / "animation.gif"), "contact_sheet": str(sheet)}}
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+    _write_json(out / "summary.json", summary)
     print(f"rendered in {render_s:.2f} s (compile included)\n  frames:        {render_dir}/frame_*.exr|png\n"
           f"  animation:     {out / 'animation.gif'}\n  contact sheet: {sheet}")
     return EXIT_OK
 
 
-COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, "demo": cmd_demo}
+def cmd_fit_lighting(args):
+    from jaxocean import fit
+    from jaxocean.io import read_frame, read_scene
+
+    frame = read_frame(args.frame)
+    if frame.normal is None:
+        raise ValueError(f"{args.frame}: the frame has no normal channels (normal.X/Y/Z, roughness, mask); "
+                         f"fit-lighting needs the geometry it was rendered with")
+    scene = read_scene(args.scene) if args.scene else None
+    if scene is not None and scene.camera is None:
+        raise ValueError(f"{args.scene}: the scene has no camera")
+    camera = _camera_from_args(args, None if scene is None else scene.camera, tuple(frame.image.shape[:2]),
+                               where=f"frame {args.frame}")
+    print(f"fitting the lighting of {args.frame} ({frame.image.shape[0]}x{frame.image.shape[1]}; "
+          f"compilation included)")
+    result = fit.lighting(frame.image, frame, camera, throw=False)
+    report = {**fit.fit_to_dict(result), "frame": str(args.frame), "camera": _camera_dict(camera)}
+    light = report["lighting"]
+    print(f"  sun azimuth   {light['sun_azimuth_deg']:8.3f} deg\n"
+          f"  sun elevation {light['sun_elevation_deg']:8.3f} deg\n"
+          f"  sun colour {_rgb(light['sun_color'])}  sky colour {_rgb(light['sky_color'])}  "
+          f"sea colour {_rgb(light['sea_color'])}\n"
+          f"  rms residual {report['rms_residual']:.3e} after {report['steps']} step(s), "
+          f"{report['wall_time_s']:.2f} s; success: {report['success']}")
+    if scene is not None and scene.lighting is not None:
+        err = fit.lighting_error(result.lighting, scene.lighting)
+        print(f"  vs the scene's lighting: sun direction off by {float(err['sun_angle_deg']):.3g} deg; largest "
+              f"relative colour errors sun {float(err['sun_color']):.2g}, sky {float(err['sky_color']):.2g}, "
+              f"sea {float(err['sea_color']):.2g}")
+    _write_json(args.out, report)
+    print(f"-> {args.out}")
+    if not report["success"]:
+        print("jaxocean: the lighting fit did not converge (or the sun's glitter is not in view); "
+              "see success/loss in the JSON", file=sys.stderr)
+        return EXIT_PROBLEMS
+    return EXIT_OK
+
+
+def cmd_reedit(args):
+    from jaxocean.fit import reedit_scene
+    from jaxocean.io import read_scene
+
+    scene = read_scene(args.scene)
+    n = 1 if scene.times is None else int(np.size(scene.times))
+    frames = _check_frames(args.frames, n, f"scene {args.scene}")
+    lighting = _lighting_from_file(args.lighting) if args.lighting else None
+    t0 = time.perf_counter()
+    out = reedit_scene(args.scene, args.out, camera_height=args.camera_height, camera_pitch_deg=args.camera_pitch_deg,
+                       camera_fov_deg=args.camera_fov_deg, camera_yaw_deg=args.camera_yaw_deg, resolution=args.res,
+                       sun_azimuth_deg=args.sun_azimuth, sun_elevation_deg=args.sun_elevation, lighting=lighting,
+                       frames=frames, half=not args.float32)
+    edited = read_scene(out)
+    print(f"re-rendered {len(frames)} frame(s) of {args.scene} in {time.perf_counter() - t0:.2f} s (compile "
+          f"included): camera height {float(edited.camera.height):.3g} m, pitch "
+          f"{math.degrees(float(edited.camera.pitch)):.3g} deg, {edited.camera.resolution[0]}x"
+          f"{edited.camera.resolution[1]}; sun azimuth {math.degrees(float(edited.lighting.sun_azimuth)):.3g} deg, "
+          f"elevation {math.degrees(float(edited.lighting.sun_elevation)):.3g} deg -> {out}")
+    return EXIT_OK
+
+
+def _read_geometry_frames(scene_dir: Path, frames, resolution):
+    """``(normals (T, H, W, 3), roughness (T, H, W))`` of the scene's frames, with a progress bar."""
+    from tqdm.auto import tqdm
+
+    from jaxocean.io import read_frame
+    from jaxocean.io.dataset import frame_name
+
+    normals, roughness = [], []
+    for f in tqdm(frames, desc="read", unit="frame"):
+        frame = read_frame(scene_dir / frame_name(f), expect_resolution=resolution)
+        if frame.normal is None:
+            raise ValueError(f"{scene_dir / frame_name(f)}: the frame has no normal / roughness channels; "
+                             f"fit-waves needs the geometry frames")
+        normals.append(frame.normal)
+        roughness.append(frame.roughness)
+    return np.stack(normals), np.stack(roughness)
+
+
+def _match_report(fitted, truth) -> dict:
+    from jaxocean.fit.waves import match
+
+    m = match(fitted, truth)
+    err = m.abs_error
+    worst = {} if m.true_index.size == 0 else {
+        "amplitude": float(np.max(err.amplitude)), "omega": float(np.max(err.omega)),
+        "theta_deg": math.degrees(float(np.max(err.theta))), "phase_deg": math.degrees(float(np.max(err.phase)))}
+    return {"true_waves": int(np.size(truth.omega)), "matched": int(m.true_index.size),
+            "missed": m.missed.tolist(), "spurious": m.spurious.tolist(), "max_abs_error": worst}
+
+
+def cmd_fit_waves(args):
+    from jaxocean.fit.waves import waves as fit_waves
+    from jaxocean.io import read_scene, scene_to_dict
+
+    if args.n_waves is not None and args.n_waves < 1:
+        raise ValueError(f"--n-waves must be >= 1; got {args.n_waves}")
+    if args.max_waves < 1:
+        raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
+    scene_dir = Path(args.scene)
+    scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
+    scene = read_scene(scene_dir)
+    missing = [name for name in ("camera", "times") if getattr(scene, name) is None]
+    if missing:
+        raise ValueError(f"{scene_dir}: the scene has no {' and '.join(missing)}; fit-waves needs both")
+    all_times = np.asarray(scene.times, np.float64)
+    frames = _check_frames(args.frames, all_times.size, f"scene {scene_dir}")
+    if len(frames) < 2:
+        raise ValueError(f"fit-waves needs at least two frames (the waves' frequencies come from their motion); "
+                         f"got {len(frames)}")
+    times = all_times[frames]
+    if not np.all(np.diff(times) > 0):
+        raise ValueError(f"the selected frames' times must increase; got {times.tolist()}")
+    normals, roughness = _read_geometry_frames(scene_dir, frames, scene.camera.resolution)
+    print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
+          f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
+    result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
+                       throw=False, verbose=args.verbose)
+    w = result.waves
+    finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
+    success = bool(result.success) and finite
+    report = {"source": str(scene_dir), "frames": frames, "n_waves": int(result.n_waves),
+              "loss": _finite_list(result.loss)[0],
+              "normal_error_deg": _finite_list(np.degrees(result.normal_error))[0],
+              "roughness_error": _finite_list(result.roughness_error)[0], "steps": int(result.steps),
+              "success": success, "time_s": _finite_list(result.time_s)[0],
+              "uncertainty": {name: _finite_list(leaf) for name, leaf in zip(w._fields, result.uncertainty)}}
+    print(f"  {report['n_waves']} wave(s); loss {float(result.loss):.3e}, mean normal error "
+          f"{float(np.degrees(result.normal_error)):.3g} deg, roughness error {float(result.roughness_error):.3g}; "
+          f"{report['steps']} step(s), {float(result.time_s):.1f} s; success: {success}")
+    if finite:
+        for h, om, th, ph in zip(*(np.asarray(leaf, np.float64) for leaf in w)):
+            print(f"    h {h:8.4f} m  omega {om:7.4f} rad/s  theta {math.degrees(th):8.2f} deg  "
+                  f"phi {math.degrees(ph):8.2f} deg")
+    if scene.waves is not None and finite:
+        report["match"] = m = _match_report(w, scene.waves)
+        worst = m["max_abs_error"]
+        print(f"  vs the scene's {m['true_waves']} true wave(s): {m['matched']} matched, {len(m['missed'])} missed, "
+              f"{len(m['spurious'])} spurious" + (f"; largest errors |dh| {worst['amplitude']:.3g} m, |domega| "
+                                                   f"{worst['omega']:.3g} rad/s, |dtheta| {worst['theta_deg']:.3g} "
+                                                   f"deg, |dphi| {worst['phase_deg']:.3g} deg" if worst else ""))
+    _write_json(args.out, scene_to_dict(waves=w if finite else None, camera=scene.camera, lighting=scene.lighting,
+                                        times=all_times, extra={"wave_fit": report}))
+    print(f"-> {args.out}")
+    if not success:
+        print("jaxocean: the wave fit did not converge; see extra.wave_fit in the JSON", file=sys.stderr)
+        return EXIT_PROBLEMS
+    return EXIT_OK
+
+
+def cmd_forecast(args):
+    import jax
+
+    from jaxocean.forecast import forecast, frame_times
+    from jaxocean.io import read_scene
+    from jaxocean.io.dataset import SceneSample
+
+    scene = read_scene(args.waves)
+    if scene.waves is None:
+        raise ValueError(f"{args.waves}: no waves to forecast (expected a fit-waves JSON or a scene.json)")
+    if args.fps is not None and args.times is not None:
+        raise ValueError("--fps applies to --frames; --times are already in seconds")
+    known = None if scene.times is None else np.asarray(scene.times, np.float64)
+    if args.times is not None:
+        times, frame_ids = np.asarray(args.times, np.float64), list(range(len(args.times)))
+    else:
+        frame_ids = list(args.frames)
+        if args.fps is not None:
+            t0 = 0.0 if known is None else float(known[0])
+            times = t0 + np.asarray(frame_ids, np.float64) / args.fps
+        elif known is not None and known.size >= 2:
+            times = frame_times(known, frame_ids)
+        else:
+            raise ValueError(f"{args.waves} holds no frame clock (two or more times); give --fps or --times")
+    camera = _camera_from_args(args, scene.camera, None, where=f"{args.waves}")
+    lighting = _lighting_from_args(args, scene.lighting)
+    print(f"forecasting {np.size(scene.waves.omega)} wave(s) at t = "
+          f"{', '.join(f'{t:.4g}' for t in times)} s ({camera.resolution[0]}x{camera.resolution[1]})")
+    t0 = time.perf_counter()
+    result = jax.device_get(forecast(scene.waves, times, camera, lighting))
+    render_s = time.perf_counter() - t0
+    sample = SceneSample(scene.waves, None, camera, lighting, times)
+    _write_sequence(Path(args.out), sample, result.image, result.geometry, half=not args.float32,
+                    frame_ids=frame_ids,
+                    extra={"forecast_frames": frame_ids if args.times is None else None,
+                           "forecast_from": str(args.waves)})
+    print(f"rendered {len(times)} frame(s) in {render_s:.2f} s (compile included) -> {args.out}")
+    for i, (f, t) in enumerate(zip(frame_ids, times)):
+        label = f"frame {f}, " if args.times is None else ""
+        print(f"  frame_{i:05d}.exr/png: {label}t = {t:.4g} s")
+    return EXIT_OK
+
+
+COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, "demo": cmd_demo,
+            "fit-lighting": cmd_fit_lighting, "reedit": cmd_reedit, "fit-waves": cmd_fit_waves,
+            "forecast": cmd_forecast}
 
 
 def main(argv=None) -> int:

@@ -1,11 +1,14 @@
 import json
+import math
 
+import numpy as np
 import pytest
 
 from jaxocean import cli
 
 
-@pytest.mark.parametrize("command", ["render", "simulate", "check", "demo"])
+@pytest.mark.parametrize("command", ["render", "simulate", "check", "demo", "fit-lighting", "reedit", "fit-waves",
+                                     "forecast"])
 def test_every_subcommand_has_help(command, capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main([command, "--help"])
@@ -50,3 +53,159 @@ def test_simulate_then_check_exit_codes(tmp_path, capsys):
     (root / "scene_00001" / "frame_00000.exr").write_bytes(b"garbage")
     assert cli.main(["check", str(root)]) == 1
     assert "scene_00001/frame_00000.exr" in capsys.readouterr().out
+
+
+# ----------------------------------------------------------------------------- fits, re-editing, forecasts
+# One tiny scene (16 x 16 pixels, 3 frames, 2 waves) rendered once with `render`; the sun is
+# in front of the camera so that its glitter is in view.
+
+SUN_AZIMUTH, SUN_ELEVATION = 0.4, 0.8  # rad
+
+
+@pytest.fixture(scope="module")
+def tiny_scene(tmp_path_factory):
+    from jaxocean import camera, io, shading
+    from jaxocean.waves import make_waves
+
+    root = tmp_path_factory.mktemp("cli_scene")
+    waves = make_waves([0.03, 0.02], [2.8, 3.6], [0.4, 2.1], [0.5, 4.0])
+    cam = camera.make_camera(height=6.0, pitch=0.9, fov=0.8, yaw=0.4, resolution=(16, 16))
+    light = shading.make_lighting(sun_azimuth=SUN_AZIMUTH, sun_elevation=SUN_ELEVATION)
+    io.write_scene(root / "spec", io.scene_to_dict(waves=waves, camera=cam, lighting=light, times=[0.0, 0.15, 0.3]))
+    assert cli.main(["render", str(root / "spec"), "--out", str(root / "scene")]) == 0
+    return root / "scene"
+
+
+def test_fit_lighting_recovers_the_sun(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "fit.json"
+    assert cli.main(["fit-lighting", str(tiny_scene / "frame_00000.exr"), "--scene", str(tiny_scene),
+                     "--out", str(out)]) == 0
+    fit = json.loads(out.read_text())
+    assert fit["success"] is True and fit["rms_residual"] < 1e-3
+    # 16 x 16 pixels of half-float geometry hold little glitter: the sun is found to a few degrees
+    assert abs(fit["lighting"]["sun_elevation_deg"] - math.degrees(SUN_ELEVATION)) < 3.0
+    assert abs(fit["lighting"]["sun_azimuth_deg"] - math.degrees(SUN_AZIMUTH)) < 3.0
+    assert fit["lighting"]["sky_color"] == pytest.approx([0.35, 0.55, 0.9], rel=1e-2)
+    assert fit["camera"]["resolution"] == [16, 16]
+    text = capsys.readouterr().out
+    assert "sun elevation" in text and "vs the scene's lighting" in text
+    # the same camera given by options (same shapes: no recompilation)
+    again = tmp_path / "again.json"
+    assert cli.main(["fit-lighting", str(tiny_scene / "frame_00000.exr"), "--camera-height", "6",
+                     "--camera-pitch-deg", repr(math.degrees(0.9)), "--camera-fov-deg", repr(math.degrees(0.8)),
+                     "--camera-yaw-deg", repr(math.degrees(0.4)), "--out", str(again)]) == 0
+    light, first = json.loads(again.read_text())["lighting"], fit["lighting"]
+    assert [light["sun_azimuth"], light["sun_elevation"]] == pytest.approx([first["sun_azimuth"],
+                                                                            first["sun_elevation"]], abs=1e-4)
+
+
+def test_fit_lighting_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
+    from jaxocean import io
+
+    frame = str(tiny_scene / "frame_00000.exr")
+    assert cli.main(["fit-lighting", frame, "--out", str(tmp_path / "a.json")]) == 2
+    assert "has no camera: give --camera-height and --camera-pitch-deg" in capsys.readouterr().err
+    io.write_frame(tmp_path / "rgb.exr", np.ones((16, 16, 3), np.float32))  # no geometry channels
+    assert cli.main(["fit-lighting", str(tmp_path / "rgb.exr"), "--scene", str(tiny_scene),
+                     "--out", str(tmp_path / "b.json")]) == 2
+    assert "no normal channels" in capsys.readouterr().err
+    assert not list(tmp_path.glob("*.json"))
+
+
+def test_reedit_with_new_camera_and_sun(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "edited"
+    light = {"lighting": {"sun_azimuth": 1.0, "sun_elevation": 1.0, "sun_color": [5.0, 5.0, 4.0],
+                          "sky_color": [0.2, 0.3, 0.4], "sea_color": [0.01, 0.02, 0.03]}}  # fit-lighting's layout
+    (tmp_path / "light.json").write_text(json.dumps(light))
+    # the sun moved behind the camera (which looks towards 23 deg)
+    assert cli.main(["reedit", str(tiny_scene), "--lighting", str(tmp_path / "light.json"), "--camera-height", "5",
+                     "--sun-elevation", "20", "--sun-azimuth", "203", "--frames", "0,2", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.glob("frame_*")) == ["frame_00000.exr", "frame_00000.png", "frame_00001.exr",
+                                                           "frame_00001.png"]
+    scene = json.loads((out / "scene.json").read_text())
+    assert scene["camera"]["height"] == 5.0 and scene["camera"]["pitch"] == pytest.approx(0.9)
+    assert scene["lighting"]["sun_elevation"] == pytest.approx(math.radians(20))
+    assert scene["lighting"]["sun_azimuth"] == pytest.approx(math.radians(203))
+    assert scene["lighting"]["sky_color"] == pytest.approx([0.2, 0.3, 0.4])
+    assert scene["times"] == pytest.approx([0.0, 0.3])
+    # no glitter in view: the lighting fit reports failure with exit code 1 and still writes its JSON
+    fit = tmp_path / "fit.json"
+    assert cli.main(["fit-lighting", str(out / "frame_00000.exr"), "--scene", str(out), "--out", str(fit)]) == 1
+    assert json.loads(fit.read_text())["success"] is False
+    assert "did not converge" in capsys.readouterr().err
+
+
+def test_reedit_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "edited"
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "0,7", "--out", str(out)]) == 2
+    assert "no frame 7" in capsys.readouterr().err
+    assert cli.main(["reedit", str(tiny_scene), "--camera-height", "-1", "--out", str(out)]) == 2
+    assert "under the sea" in capsys.readouterr().err
+    (tmp_path / "broken.json").write_text("{")
+    assert cli.main(["reedit", str(tiny_scene), "--lighting", str(tmp_path / "broken.json"), "--out", str(out)]) == 2
+    assert "broken.json" in capsys.readouterr().err
+    assert not out.exists()
+
+
+def test_forecast_renders_requested_frames(tiny_scene, tmp_path, capsys):
+    from jaxocean import io
+
+    out = tmp_path / "fc"
+    assert cli.main(["forecast", str(tiny_scene / "scene.json"), "--frames", "0,100,500", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.glob("frame_*.exr")) == ["frame_00000.exr", "frame_00001.exr",
+                                                               "frame_00002.exr"]
+    assert len(list(out.glob("frame_*.png"))) == 3
+    scene = json.loads((out / "scene.json").read_text())
+    assert scene["times"] == pytest.approx([0.0, 15.0, 75.0])  # the scene's clock: 0.15 s per frame
+    assert scene["extra"]["forecast_frames"] == [0, 100, 500]
+    last = io.read_frame(out / "frame_00002.exr")
+    assert last.meta["frame"] == 500 and last.meta["time"] == pytest.approx(75.0)
+    # frame 0 of the forecast is the rendered frame 0 (same waves, camera, light)
+    np.testing.assert_allclose(io.read_frame(out / "frame_00000.exr").image,
+                               io.read_frame(tiny_scene / "frame_00000.exr").image, rtol=2e-3, atol=1e-4)
+    assert "frame_00002.exr/png: frame 500, t = 75 s" in capsys.readouterr().out
+
+
+def test_forecast_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
+    from jaxocean import io
+
+    io.write_scene(tmp_path / "nowaves.json", io.scene_to_dict(times=[0.0, 0.1]))
+    out = tmp_path / "fc"
+    assert cli.main(["forecast", str(tmp_path / "nowaves.json"), "--frames", "0,1", "--out", str(out)]) == 2
+    assert "no waves to forecast" in capsys.readouterr().err
+    scene = json.loads((tiny_scene / "scene.json").read_text())
+    scene["times"] = None
+    (tmp_path / "noclock.json").write_text(json.dumps(scene))
+    assert cli.main(["forecast", str(tmp_path / "noclock.json"), "--frames", "0,1", "--out", str(out)]) == 2
+    assert "give --fps or --times" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["forecast", str(tiny_scene / "scene.json"), "--frames", "0,-1", "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert not out.exists()
+
+
+def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "waves.json"
+    assert cli.main(["fit-waves", str(tiny_scene), "--frames", "1", "--out", str(out)]) == 2
+    assert "at least two frames" in capsys.readouterr().err
+    assert cli.main(["fit-waves", str(tiny_scene), "--frames", "0,3", "--out", str(out)]) == 2
+    assert "no frame 3" in capsys.readouterr().err
+    assert cli.main(["fit-waves", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
+    assert not out.exists()
+
+
+@pytest.mark.slow  # the wave fit compiles for about a minute on a CPU
+def test_fit_waves_then_forecast(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "waves.json"
+    assert cli.main(["fit-waves", str(tiny_scene), "--n-waves", "2", "--out", str(out)]) == 0
+    data = json.loads(out.read_text())
+    report = data["extra"]["wave_fit"]
+    assert report["success"] is True and report["n_waves"] == 2 and report["frames"] == [0, 1, 2]
+    assert report["normal_error_deg"] < 0.5
+    assert report["match"]["matched"] == 2 and report["match"]["max_abs_error"]["omega"] < 1e-2
+    assert len(data["waves"]["omega"]) == 2 and data["camera"]["resolution"] == [16, 16]
+    assert "2 matched" in capsys.readouterr().out
+    # the fitted waves forecast like any scene
+    assert cli.main(["forecast", str(out), "--frames", "0,10", "--fps", "5", "--camera-height", "8",
+                     "--out", str(tmp_path / "fc")]) == 0
+    assert json.loads((tmp_path / "fc" / "scene.json").read_text())["times"] == pytest.approx([0.0, 2.0])
