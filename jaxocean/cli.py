@@ -250,39 +250,6 @@ def _scene_from_file(path):
     return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
 
 
-def _write_sequence(out: Path, scene, images, geo, *, half=True, seed=None, progress=True, frame_ids=None,
-                    extra=None):
-    """EXR + PNG per frame, normal / roughness PNGs and scene.json; returns PNG paths.
-
-    Files are numbered 0, 1, ... in order; ``frame_ids`` (default the same numbers) go into
-    each EXR's ``frame`` metadata. Sequences with radiance beyond the half-float range
-    (bright glints) are written as float32 with a note.
-    """
-    import imageio.v3 as iio
-    from tqdm.auto import tqdm
-
-    from jaxocean import plots
-    from jaxocean.io import save_png, scene_to_dict, write_frame, write_scene
-    from jaxocean.io.dataset import frame_name
-
-    if half and not np.abs(images).max() < 65504:
-        print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
-        half = False
-    frame_ids = range(images.shape[0]) if frame_ids is None else frame_ids
-    out.mkdir(parents=True, exist_ok=True)
-    pngs = []
-    for f in tqdm(range(images.shape[0]), desc="write", unit="frame", disable=not progress):
-        g = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f]}
-        meta = {"frame": int(frame_ids[f]), "time": float(scene.times[f])}
-        write_frame(out / frame_name(f), images[f], g, meta, half=half)
-        pngs.append(save_png(out / frame_name(f).replace(".exr", ".png"), images[f]))
-    iio.imwrite(out / "normal_00000.png", plots.normal_to_rgb(geo.normal[0], geo.mask[0]))
-    iio.imwrite(out / "roughness_00000.png", plots.roughness_to_rgb(geo.roughness[0], geo.mask[0]))
-    write_scene(out, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
-                                   spectrum=scene.spectrum, times=scene.times, seed=seed, extra=extra))
-    return pngs
-
-
 def _json_safe(data):
     """``data`` with every non-finite float replaced by None (strict JSON has no NaN / inf):
     a failed fit's NaN parameters are written as null."""
@@ -400,7 +367,8 @@ def cmd_render(args):
     t0 = time.perf_counter()
     images, geo = jax.device_get(render_scene(scene))
     render_s = time.perf_counter() - t0
-    _write_sequence(Path(args.out), scene, images, geo, half=not args.float32,
+    from jaxocean.io import write_sequence
+    write_sequence(Path(args.out), scene, images, geo, half=not args.float32,
                     seed=None if args.scene else args.seed)
     print(f"rendered {images.shape[0]} frame(s) of {images.shape[1]}x{images.shape[2]} in {render_s:.2f} s "
           f"(compile included) -> {args.out}")
@@ -450,7 +418,8 @@ def cmd_demo(args):
     images, geo = jax.device_get(render_scene(scene))
     render_s = time.perf_counter() - t0
     render_dir = out / "render"
-    _write_sequence(render_dir, scene, images, geo, seed=args.seed)
+    from jaxocean.io import write_sequence
+    write_sequence(render_dir, scene, images, geo, seed=args.seed)
     frames = [plots.display(img) for img in images]
     iio.imwrite(out / "animation.gif", np.stack(frames), duration=int(1000 * args.dt), loop=0)
     picks = sorted({0, len(frames) // 2, len(frames) - 1})
@@ -650,7 +619,8 @@ def cmd_forecast(args):
     result = jax.device_get(forecast(scene.waves, times, camera, lighting))
     render_s = time.perf_counter() - t0
     sample = SceneSample(scene.waves, None, camera, lighting, times)
-    _write_sequence(Path(args.out), sample, result.image, result.geometry, half=not args.float32,
+    from jaxocean.io import write_sequence
+    write_sequence(Path(args.out), sample, result.image, result.geometry, half=not args.float32,
                     frame_ids=frame_ids,
                     extra={"forecast_frames": frame_ids if args.times is None else None,
                            "forecast_from": str(args.waves)})

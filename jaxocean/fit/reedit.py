@@ -82,7 +82,8 @@ def reedit(waves, camera: cam.Camera, lighting: Lighting, times, *, camera_heigh
 
 def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=None, camera_fov_deg=None,
                  camera_yaw_deg=None, resolution=None, sun_azimuth_deg=None, sun_elevation_deg=None,
-                 lighting: Lighting | None = None, frames=None, exposure=1.0, half: bool = True) -> Path:
+                 lighting: Lighting | None = None, frames=None, exposure=1.0, half: bool = True,
+                 progress: bool = True) -> Path:
     """Re-render a scene directory with edits; write ``out_dir/frame_XXXXX.exr`` (+ ``.png``) and
     ``out_dir/scene.json``.
 
@@ -94,10 +95,12 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
             ``sun_azimuth_deg``, ``sun_elevation_deg``: degrees; ``resolution``: ``(H, W)``.
         lighting: a lighting to use instead of the scene's (e.g. a fit's), edits apply on top.
         frames: indices of the scene's times to render (default all).
-        exposure: of the PNG previews; ``half``: EXR pixel type.
+        exposure: of the PNG previews; ``half``: EXR pixel type (float32 where the radiance
+            exceeds the half range); ``progress``: a progress bar while writing.
 
     Returns:
-        ``out_dir`` as a Path. Every file is written atomically.
+        ``out_dir`` as a Path. Written by :func:`jaxocean.io.write_sequence` (atomic files,
+        the same layout as ``jaxocean render``).
     """
     from jaxocean import io  # host-side I/O, imported on use
 
@@ -115,21 +118,18 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
     camera = edit_camera(scene.camera, height=camera_height, pitch=rad(camera_pitch_deg), fov=rad(camera_fov_deg),
                          yaw=rad(camera_yaw_deg), resolution=resolution)
     light = edit_lighting(light, sun_azimuth=rad(sun_azimuth_deg), sun_elevation=rad(sun_elevation_deg))
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
     plan = render.plan(scene.waves, camera, float(times[0]))
-    for i, t in enumerate(times):
+    geos, images = [], []
+    for t in times:  # one frame at a time: the plan is static, the kernels compile once
         geo = render.geometry(scene.waves, camera, float(t), plan=plan)
-        image = render.shade(geo.normal, geo.roughness, camera, light, slope_variance=geo.slope_variance)
-        name = f"frame_{i:05d}"
-        pixels = np.asarray(image, np.float32)
-        fits_half = bool(np.abs(pixels).max() < 65504)  # bright glints can exceed half floats
-        io.write_frame(out / f"{name}.exr", pixels, geo, meta={"frame": i, "time": float(t)},
-                       half=half and fits_half)
-        io.save_png(out / f"{name}.png", np.asarray(image), exposure=exposure)
-    io.write_scene(out, io.scene_to_dict(waves=scene.waves, camera=camera, lighting=light, spectrum=scene.spectrum,
-                                         times=times, seed=scene.seed,
-                                         extra={"reedited_from": str(scene_dir)}))
+        geos.append(geo)
+        images.append(render.shade(geo.normal, geo.roughness, camera, light, slope_variance=geo.slope_variance))
+    geometry = jax.tree.map(lambda *x: np.stack([np.asarray(a) for a in x]), *geos)
+    edited = scene._replace(camera=camera, lighting=light, times=times)
+    out = Path(out_dir)
+    io.write_sequence(out, edited, np.stack([np.asarray(i) for i in images]), geometry, half=half,
+                      seed=scene.seed, progress=progress, exposure=exposure,
+                      extra={"reedited_from": str(scene_dir)})
     return out
 
 

@@ -11,6 +11,8 @@ A rendered or observed sequence is a directory::
   protocol, and :func:`atomic_write`, through which every writer here goes.
 * :mod:`jaxocean.io.scene`   -- :func:`scene_to_dict` / :func:`scene_from_dict`,
   :func:`write_scene` / :func:`read_scene`.
+* :mod:`jaxocean.io.sequence` -- :func:`write_sequence`: a rendered sequence (EXR + PNG
+  per frame, geometry previews, ``scene.json``) in one call.
 * :mod:`jaxocean.io.images`  -- :func:`load_image` / :func:`load_video` (display-referred
   pixels back to linear radiance) and :func:`save_png` previews.
 
@@ -20,7 +22,7 @@ resumes by skipping the files that exist. Reading errors name the file
 return NumPy arrays (frames, images) or JAX pytrees (scenes); nothing here is jitted.
 """
 
-from jaxocean.io import exr, images, scene
+from jaxocean.io import exr, images, scene, sequence
 from jaxocean.io.exr import (
     COMPRESSIONS,
     GEOMETRY_CHANNELS,
@@ -46,11 +48,13 @@ from jaxocean.io.scene import (
     scene_to_dict,
     write_scene,
 )
+from jaxocean.io.sequence import HALF_MAX, frame_name, write_sequence
 
 __all__ = [
     "exr",
     "images",
     "scene",
+    "sequence",
     # frames
     "RGB_CHANNELS",
     "NORMAL_CHANNELS",
@@ -74,6 +78,10 @@ __all__ = [
     "scene_from_dict",
     "write_scene",
     "read_scene",
+    # sequences
+    "HALF_MAX",
+    "frame_name",
+    "write_sequence",
     # images and video
     "VIDEO_SUFFIXES",
     "load_image",

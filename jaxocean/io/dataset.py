@@ -52,6 +52,7 @@ from jaxocean import render, shading, spectrum
 from jaxocean.errors import InvalidValueError
 from jaxocean.io.exr import FileFormatError, atomic_write, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
+from jaxocean.io.sequence import frame_name
 
 __all__ = [
     "SceneRanges",
@@ -167,10 +168,6 @@ def _render_frames(waves, camera, lighting, times, plan):
         return img, geo
 
     return jax.lax.map(one, times)
-
-
-def frame_name(index: int) -> str:
-    return f"frame_{index:05d}.exr"
 
 
 def scene_dir(root, index: int) -> Path:
