@@ -15,7 +15,8 @@ Per wave, with k = w^2/g, k^ = (cos theta, sin theta) and phase psi = w t - k k^
 * ``slope_variance(waves, weights=None) -> (sigma_x^2, sigma_y^2)`` of the waves the weights
   send to roughness: sigma_x^2 = sum cos^2 theta (1 - sqrt(1 - k^2 h^2)).
 * ``on_grid(waves, x (W,), y (H,), times (T,), weights=None) -> GridSurface``: the same on a
-  regular grid (row i at y[i], column j at x[j]) by the separable rank-N product.
+  regular grid (row i at y[i], column j at x[j]) by the separable rank-N product, with a
+  hand-written linear tangent rule so that gradients (either mode) cost a few more products.
 
 ``weights`` is a per-wave factor ``(..., N)`` broadcast against the points (a
 :class:`jaxocean.hierarchy.WaveWeights` picks the level each function uses), so the
@@ -32,7 +33,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxocean._math import materialize, safe_normalize, safe_sqrt
+from jaxocean._math import materialize, safe_normalize, safe_sqrt, tiny
 from jaxocean.hierarchy import WaveWeights
 from jaxocean.waves import Waves, validate, wavenumber
 
@@ -225,9 +226,13 @@ def on_grid(waves: Waves, x, y, times, weights=None) -> GridSurface:
     """Displacement, normal and slope variance on the grid ``y (H,) x x (W,)`` at ``times (T,)``.
 
     Separable rank-N product: with a = w t + phi - k_y y (per t, row, wave) and b = -k_x x
-    (per column, wave), all eight wave sums are ONE matrix product of ``(T*H*8, 2N)`` by
-    ``(2N, W)`` -- no per-pixel sin/cos. ``weights`` must be per-wave ``(N,)`` (a regular
-    grid has one footprint).
+    (per column, wave), e^{i psi} = e^{i a} e^{i b} and all eight wave sums are ONE matrix
+    product of ``L = [cos a, sin a]`` ``(T*H, 2N)`` by a right factor ``(2N, 8*W)`` that
+    carries the per-channel coefficients -- no per-pixel sin/cos. ``weights`` must be
+    per-wave ``(N,)`` (a regular grid has one footprint).
+
+    Differentiable in both modes through a hand-written linear tangent rule (see
+    :func:`_grid_surface`): reverse mode costs three products of the forward's size.
     """
     _check(waves)
     x, y, times = jnp.asarray(x), jnp.asarray(y), jnp.atleast_1d(jnp.asarray(times))
@@ -236,20 +241,135 @@ def on_grid(waves: Waves, x, y, times, weights=None) -> GridSurface:
     n = waves.omega.shape[-1]
     _check_weight_shape(weights, (n,), "on_grid (per-wave)")
 
-    k = wavenumber(waves)
-    kx, ky = k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)
-    a = (waves.omega * times[:, None] + waves.phase)[:, None, :] - y[None, :, None] * ky  # (T, H, N)
-    b = -x[:, None] * kx  # (W, N)
-    rhs = jnp.concatenate([jnp.cos(b), jnp.sin(b)], axis=-1).T  # (2N, W)
-    lhs = _separable_lhs(*_channel_coeffs(waves, weights), jnp.cos(a), jnp.sin(a))  # (T, H, 8, 2N)
-    # keep the matmul's natural (T, H, 8, W) layout: a channel-major output costs a transpose
-    # that was measured 5x slower than the product itself
-    sums = jnp.einsum("thcm,mw->thcw", lhs, rhs)
-    disp, nrm = _surface_from_sums(sums[:, :, c] for c in range(8))
+    a, b = _grid_phases(waves, x, y, times)
+    disp, nrm = _grid_surface(*_channel_coeffs(waves, weights), a, b)
     sx2, sy2 = slope_variance(waves, _level(weights, "roughness") if weights is not None
                               else jnp.zeros_like(waves.amplitude))
     slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2]), disp.shape[:-1] + (2,))
     return GridSurface(displacement=disp, normal=nrm, slope_variance=slope_var)
+
+
+def _grid_phases(waves: Waves, x, y, times):
+    """The two phase factors of a regular grid: a ``(T, H, N)`` and b ``(W, N)``, psi = a + b."""
+    k = wavenumber(waves)
+    # per-wave, computed once: XLA would otherwise re-evaluate sin(theta) in every element of a
+    kx, ky = materialize(k * jnp.cos(waves.theta), k * jnp.sin(waves.theta))
+    a = (waves.omega * times[:, None] + waves.phase)[:, None, :] - y[None, :, None] * ky  # (T, H, N)
+    b = -x[:, None] * kx  # (W, N)
+    return a, b
+
+
+def _grid_right_factor(cos_coeffs, sin_coeffs, cos_b, sin_b):
+    """Right factor ``R (2N, 8, W)`` of the wide product: sums[th, c, w] = [cos a, sin a][th] . R[:, c, w].
+
+    Channel c of the cos group (A_xx, A_xy, A_yy, d_z; coefficients C) needs
+    sum C cos(a + b) = cos a . (C cos b) + sin a . (-C sin b); channel c of the sin group
+    (B_x, B_y, d_x, d_y; coefficients S) needs sum S sin(a + b) = cos a . (S sin b) + sin a . (S cos b).
+    Bilinear in (coefficients, [cos b, sin b]); ``(4, N)`` coefficients, ``(W, N)`` factors.
+    """
+    cb, sb = cos_b.T[:, None, :], sin_b.T[:, None, :]  # (N, 1, W)
+    cc, sc = cos_coeffs.T[:, :, None], sin_coeffs.T[:, :, None]  # (N, 4, 1)
+    with_cos_a = jnp.concatenate([cc * cb, sc * sb], axis=1)  # (N, 8, W)
+    with_sin_a = jnp.concatenate([-cc * sb, sc * cb], axis=1)
+    return jnp.concatenate([with_cos_a, with_sin_a], axis=0)
+
+
+def _grid_sums(cos_coeffs, sin_coeffs, a, b):
+    """The eight wave sums ``(T, H, 8, W)`` (channel-major per row, the product's natural layout)
+    and the factors they were built from: ``L (T*H, 2N)``, ``R (2N, 8, W)``, cos b, sin b."""
+    t, h, n = a.shape
+    w = b.shape[0]
+    lhs = jnp.concatenate([jnp.cos(a), jnp.sin(a)], axis=-1).reshape(t * h, 2 * n)  # each sine once
+    cos_b, sin_b = materialize(jnp.cos(b), jnp.sin(b))  # read by all eight channels of R
+    rhs = _grid_right_factor(cos_coeffs, sin_coeffs, cos_b, sin_b)
+    sums = jnp.dot(lhs, rhs.reshape(2 * n, 8 * w)).reshape(t, h, 8, w)
+    return sums, lhs, rhs, cos_b, sin_b
+
+
+def _grid_jacobian_cross(a_xx, a_xy, a_yy, b_x, b_y):
+    """The unnormalised normal m = dp/dx x dp/dy as three arrays (see :func:`normal_from_sums`)."""
+    return (-a_xy * b_y - b_x * (1.0 - a_yy),
+            -b_x * a_xy - (1.0 - a_xx) * b_y,
+            (1.0 - a_xx) * (1.0 - a_yy) - a_xy * a_xy)
+
+
+def _grid_outputs(sums):
+    """Displacement, unit normal ``(T, H, W, 3)`` and 1/|m| ``(T, H, W)`` from the sums ``(T, H, 8, W)``.
+
+    The same formula as :func:`normal_from_sums` (+z and a zero 1/|m| at a cusp), written per
+    component so that XLA does one pass instead of stacking m first.
+    """
+    a_xx, a_xy, a_yy, d_z, b_x, b_y, d_x, d_y = (sums[:, :, c] for c in range(8))
+    m0, m1, m2 = _grid_jacobian_cross(a_xx, a_xy, a_yy, b_x, b_y)
+    sq = m0 * m0 + m1 * m1 + m2 * m2
+    ok = sq > tiny(sq)
+    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    nrm = jnp.stack([jnp.where(ok, m0 * inv, 0.0), jnp.where(ok, m1 * inv, 0.0), jnp.where(ok, m2 * inv, 1.0)], -1)
+    return jnp.stack([d_x, d_y, d_z], axis=-1), nrm, inv
+
+
+@jax.custom_jvp
+def _grid_surface(cos_coeffs, sin_coeffs, a, b):
+    """(displacement, normal) ``(T, H, W, 3)`` from channel coefficients ``(4, N)`` x 2 and phases
+    a ``(T, H, N)``, b ``(W, N)``. The core of :func:`on_grid`; see its tangent rule below."""
+    disp, nrm, _ = _grid_outputs(_grid_sums(cos_coeffs, sin_coeffs, a, b)[0])
+    return disp, nrm
+
+
+@_grid_surface.defjvp
+def _grid_surface_jvp(primals, tangents):
+    """Linear tangent rule whose transpose (reverse mode) is cheap.
+
+    Plain autodiff of the product stored and re-read several ``(T, H, 8, W)`` intermediates
+    (channel slices transpose to pads that are summed) and transposed the whole cotangent for
+    the second product (measured 10.9 ns per wave x pixel x frame against 1.7 forward). Here
+    the tangent of each channel is its own pair of products, ds_c = dL R_c + L dR_c, with
+    dL = [-sin a, cos a] da and dR the tangent of the bilinear right factor, so the transpose
+    JAX derives is dL* = sum_c G_c R_c^T and dR_c* = L^T G_c: the per-axis factor tables
+    reused, two GEMMs of the forward's size in all, and each channel's cotangent G_c an
+    elementwise expression of the saved sums, 1/|m| and the output cotangents (no concatenated
+    or transposed ``(T, H, 8, W)`` array). The normal's tangent is dn = (dm - n (n . dm)) / |m|,
+    zero at a cusp (where the normal is the constant +z).
+
+    Being a linear jvp (not a custom_vjp), it serves forward mode (jvp, jacfwd) and higher
+    orders as well; tests check it against autodiff of :func:`_on_grid_reference` to 1e-10.
+    """
+    cos_coeffs, sin_coeffs, a, b = primals
+    d_cos_coeffs, d_sin_coeffs, d_a, d_b = tangents
+    t, h, n = a.shape
+    w = b.shape[0]
+    sums, lhs, rhs, cos_b, sin_b = _grid_sums(cos_coeffs, sin_coeffs, a, b)
+    disp, nrm, inv = _grid_outputs(sums)
+
+    cos_a, sin_a = lhs[:, :n].reshape(a.shape), lhs[:, n:].reshape(a.shape)
+    d_lhs = jnp.concatenate([-sin_a * d_a, cos_a * d_a], axis=-1).reshape(t * h, 2 * n)
+    d_rhs = (_grid_right_factor(d_cos_coeffs, d_sin_coeffs, cos_b, sin_b)
+             + _grid_right_factor(cos_coeffs, sin_coeffs, -sin_b * d_b, cos_b * d_b))
+    d_sums = [(jnp.dot(d_lhs, rhs[:, c]) + jnp.dot(lhs, d_rhs[:, c])).reshape(t, h, w) for c in range(8)]
+
+    a_xx, a_xy, a_yy, _, b_x, b_y, _, _ = (sums[:, :, c] for c in range(8))
+    da_xx, da_xy, da_yy, dd_z, db_x, db_y, dd_x, dd_y = d_sums
+    dm0 = -(da_xy * b_y + a_xy * db_y) - (db_x * (1.0 - a_yy) - b_x * da_yy)
+    dm1 = -(db_x * a_xy + b_x * da_xy) - ((1.0 - a_xx) * db_y - da_xx * b_y)
+    dm2 = -da_xx * (1.0 - a_yy) - (1.0 - a_xx) * da_yy - 2.0 * a_xy * da_xy
+    n0, n1, n2 = nrm[..., 0], nrm[..., 1], nrm[..., 2]
+    proj = n0 * dm0 + n1 * dm1 + n2 * dm2
+    d_nrm = jnp.stack([(dm0 - n0 * proj) * inv, (dm1 - n1 * proj) * inv, (dm2 - n2 * proj) * inv], axis=-1)
+    return (disp, nrm), (jnp.stack([dd_x, dd_y, dd_z], axis=-1), d_nrm)
+
+
+def _on_grid_reference(waves: Waves, x, y, times, weights=None):
+    """(displacement, normal) of :func:`on_grid` by plain autodiff-able code: the previous
+    ``(T*H*8, 2N) @ (2N, W)`` product and :func:`normal_from_sums`. For tests only."""
+    x, y, times = jnp.asarray(x), jnp.asarray(y), jnp.atleast_1d(jnp.asarray(times))
+    k = wavenumber(waves)
+    kx, ky = k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)
+    a = (waves.omega * times[:, None] + waves.phase)[:, None, :] - y[None, :, None] * ky
+    b = -x[:, None] * kx
+    rhs = jnp.concatenate([jnp.cos(b), jnp.sin(b)], axis=-1).T
+    lhs = _separable_lhs(*_channel_coeffs(waves, weights), jnp.cos(a), jnp.sin(a))
+    sums = jnp.einsum("thcm,mw->thcw", lhs, rhs)
+    return _surface_from_sums(sums[:, :, c] for c in range(8))
 
 
 def _power_table(start, angle, count: int):

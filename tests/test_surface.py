@@ -217,12 +217,71 @@ def test_slope_variance_gradients_match_finite_differences(x64):
 def test_on_grid_gradients_match_finite_differences(x64):
     waves, _ = _grad_case()
 
-    def f(amp, omega, theta, phase):
-        g = surface.on_grid(Waves(amp, omega, theta, phase), jnp.linspace(0, 3, 4), jnp.linspace(0, 2, 3),
-                            jnp.array([0.0, 0.5]))
+    def f(amp, omega, theta, phase, x, t):
+        w = Waves(amp, omega, theta, phase)
+        # footprint 1 m / grid cell 1.6 m put some of these waves (lambda 1.5 .. 19 m) on the filter ramp
+        weights = hierarchy.weights(w, jnp.asarray(1.0), grid_cell=jnp.asarray(1.6))
+        g = surface.on_grid(w, x, jnp.linspace(0, 2, 3), t, weights)
         return g.displacement, g.normal
 
-    check_grads(jax.jit(f), tuple(waves), order=1, modes=("rev",), eps=1e-6, atol=1e-5, rtol=1e-5)
+    # both modes: on_grid's core has a custom (linear, transposable) tangent rule
+    check_grads(jax.jit(f), (*waves, jnp.linspace(0, 3, 4), jnp.array([0.0, 0.5])), order=1, modes=("fwd", "rev"),
+                eps=1e-6, atol=1e-5, rtol=1e-5)
+
+
+def _on_grid_losses():
+    """A scalar loss of on_grid's displacement and normal, by the fast path and by plain autodiff
+    of the straightforward product, with hierarchy weights on their ramp; and its arguments."""
+    waves = random_waves(11, 9, np.float64, max_steepness=0.6)
+    x, y, times = jnp.linspace(-6, 7, 11), jnp.linspace(-4, 5, 6), jnp.array([0.0, 0.37, 2.0])
+    probe_d, probe_n = np.random.default_rng(12).normal(size=(2, 3, 6, 11, 3))
+
+    def loss(fn):
+        def f(amp, omega, theta, phase, x, y, times):
+            w = Waves(amp, omega, theta, phase)
+            weights = hierarchy.weights(w, jnp.asarray(3.5), grid_cell=jnp.asarray(4.0))
+            d, n = fn(w, x, y, times, weights)
+            return jnp.sum(jnp.sin(d) * probe_d) + jnp.sum(n * probe_n) + jnp.sum(n[..., :2] ** 2)
+        return f
+
+    weights = hierarchy.weights(waves, jnp.asarray(3.5), grid_cell=jnp.asarray(4.0))
+    for w in (weights.normal, weights.displacement):  # the filter acts, and its ramp is differentiated
+        assert np.any((w > 0) & (w < 1))
+    fast = loss(lambda *a: tuple(surface.on_grid(*a)[:2]))
+    return fast, loss(surface._on_grid_reference), (*waves, x, y, times)
+
+
+def _close(got, want):
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * float(jnp.max(jnp.abs(want))))
+
+
+def test_on_grid_custom_derivatives_equal_autodiff_of_the_plain_product(x64):
+    """on_grid's hand-written tangent rule (forward mode, and transposed, reverse mode) equals
+    plain autodiff of the straightforward product to 1e-10, wrt waves, grid and times."""
+    fast, plain, args = _on_grid_losses()
+    np.testing.assert_allclose(jax.jit(fast)(*args), jax.jit(plain)(*args), rtol=1e-12)
+    argnums = tuple(range(len(args)))
+    for g_fast, g_plain in zip(jax.jit(jax.grad(fast, argnums))(*args), jax.jit(jax.grad(plain, argnums))(*args)):
+        _close(g_fast, g_plain)
+    rng = np.random.default_rng(13)
+    tangents = tuple(jnp.asarray(rng.normal(size=np.shape(a))) for a in args)
+    _close(*(jax.jit(lambda a, t, f=f: jax.jvp(f, a, t)[1])(args, tangents) for f in (fast, plain)))
+    check_grads(jax.jit(fast), args, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-5, rtol=1e-5)
+
+
+@pytest.mark.slow  # compiles two forward-over-reverse programs (~10 s)
+def test_on_grid_second_derivatives_equal_autodiff_of_the_plain_product(x64):
+    """Forward over reverse differentiates the tangent rule itself (Hessian-vector products)."""
+    fast, plain, args = _on_grid_losses()
+    rng = np.random.default_rng(14)
+    tangents = tuple(jnp.asarray(rng.normal(size=np.shape(a))) for a in args)
+
+    def hvp(f):
+        grad = jax.grad(f, tuple(range(len(args))))
+        return jax.jit(lambda a, t: jax.jvp(lambda *z: grad(*z), a, t)[1])
+
+    for h_fast, h_plain in zip(hvp(fast)(args, tangents), hvp(plain)(args, tangents)):
+        _close(h_fast, h_plain)
 
 
 @given(
