@@ -158,10 +158,16 @@ def build_parser():
     p.add_argument("directory")
     p.add_argument("--quick", action="store_true", help="hashes and scene files only, do not decode frames")
 
-    p = sub.add_parser("demo", help="the main job: render a default scene with maps and a contact sheet",
+    p = sub.add_parser("demo", help="the main job: render a scene, fit its lighting, fit waves and forecast",
                        description="Render a default JONSWAP scene: an animation (EXR + PNG + GIF), normal and "
-                                   "roughness maps and a contact sheet.")
+                                   "roughness maps and a contact sheet; then fit the lighting of its first frame "
+                                   "from a random start and re-edit it (lighting_fit.png); then fit the waves of "
+                                   "a small swell from its geometry and forecast it (wave_fit.png, "
+                                   "forecast_strip.png). Summary in summary.json.")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
+    p.add_argument("--stages", default="render,lighting,waves",
+                   help="comma-separated stages: render (always), lighting (fit -> re-render -> error map -> "
+                        "re-edited views), waves (wave fit of a small swell -> recovered waves -> forecast strip)")
     _add_scene_options(p)
 
     p = sub.add_parser("fit-lighting", help="fit sun direction and colours to one EXR frame",
@@ -410,6 +416,10 @@ def cmd_demo(args):
     from jaxocean import plots
     from jaxocean.io.dataset import render_scene
 
+    stages = {s.strip() for s in args.stages.split(",") if s.strip()}
+    unknown = stages - {"render", "lighting", "waves"}
+    if unknown:
+        raise ValueError(f"unknown demo stages {sorted(unknown)}; choose from render, lighting, waves")
     out = Path(args.out)
     scene = _scene_from_args(args)
     print(f"demo: {args.waves} waves from JONSWAP(Hs={args.hs} m, Tp={args.tp} s, gamma={args.gamma}), "
@@ -432,9 +442,31 @@ def cmd_demo(args):
     summary = {"frames": int(images.shape[0]), "resolution": list(args.res), "waves": args.waves,
                "render_s_with_compile": render_s, "outputs": {"frames": str(render_dir), "animation":
                                                              str(out / "animation.gif"), "contact_sheet": str(sheet)}}
-    _write_json(out / "summary.json", summary)
     print(f"rendered in {render_s:.2f} s (compile included)\n  frames:        {render_dir}/frame_*.exr|png\n"
           f"  animation:     {out / 'animation.gif'}\n  contact sheet: {sheet}")
+    _write_json(out / "summary.json", summary)  # what is done is kept if a later stage fails
+    from jaxocean import demo
+
+    if "lighting" in stages:
+        print("lighting: fit sun and colours to frame 0 from a random start, re-render, re-edit ...", flush=True)
+        frame0 = jax.tree.map(lambda x: x[0], geo)
+        summary["lighting_fit"] = r = demo.lighting_stage(out, scene, images[0], frame0)
+        print(f"  {'converged' if r['success'] else 'FAILED'} in {r['steps']} steps "
+              f"({r['wall_s_with_compile']:.1f} s with compile): sun {r['sun_error_deg']:.2e} deg off, "
+              f"max display error {r['max_display_error']:.1e}\n  figure:        {r['figure']}")
+        _write_json(out / "summary.json", summary)
+    if "waves" in stages:
+        print("waves: fit a 4-wave swell from 8 frames of its geometry, then forecast frames 0, 100, 500 ...",
+              flush=True)
+        summary["wave_fit"] = r = demo.waves_stage(out)
+        err = r["max_abs_error"]
+        print(f"  {r['n_fitted']} waves fitted for {r['n_true']} true ({r['matched']} matched; "
+              f"{r['wall_s_with_compile']:.1f} s with compile); max |error| h {err['amplitude']:.1e} m, "
+              f"omega {err['omega']:.1e} rad/s, theta {err['theta']:.1e} rad\n  forecast normal error "
+              + ", ".join(f"frame {f}: {e:.3f} deg" for f, e in zip(r["forecast_frames"],
+                                                                      r["forecast_normal_error_deg"]))
+              + "\n  figures:       " + ", ".join(r["figures"]))
+        _write_json(out / "summary.json", summary)
     return EXIT_OK
 
 

@@ -209,3 +209,27 @@ def test_fit_waves_then_forecast(tiny_scene, tmp_path, capsys):
     assert cli.main(["forecast", str(out), "--frames", "0,10", "--fps", "5", "--camera-height", "8",
                      "--out", str(tmp_path / "fc")]) == 0
     assert json.loads((tmp_path / "fc" / "scene.json").read_text())["times"] == pytest.approx([0.0, 2.0])
+
+
+def test_demo_render_stage_and_bad_stage(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out), "--stages", "render", "--frames", "2", "--res", "8x12",
+                     "--waves", "4"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["frames"] == 2 and "lighting_fit" not in summary
+    assert (out / "contact_sheet.png").exists() and (out / "animation.gif").exists()
+    assert cli.main(["demo", "--out", str(tmp_path / "d2"), "--stages", "render,paint", "--frames", "1",
+                     "--res", "8", "--waves", "4"]) == 2
+    assert "unknown demo stages ['paint']" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # fits compile for minutes on a CPU; `make demo` runs the same code
+def test_demo_fit_stages(tmp_path, capsys):
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(out), "--frames", "2", "--res", "48x64", "--waves", "12"]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["lighting_fit"]["success"] and summary["lighting_fit"]["sun_error_deg"] < 0.01
+    assert summary["wave_fit"]["matched"] == 4
+    assert max(summary["wave_fit"]["forecast_normal_error_deg"]) < 0.5
+    for name in ("lighting_fit.png", "wave_fit.png", "forecast_strip.png"):
+        assert (out / name).exists()
