@@ -100,7 +100,8 @@ def waves_stage(out: Path, *, n_waves: int = 4, seed: int = 0, resolution: int =
     times = np.arange(frames) * 0.12
     normals, roughness = waves_fit.predict(truth, camera, times)
     t0 = time.perf_counter()
-    result = fit.waves(normals, roughness, camera, times)
+    # prune: drop waves the Wald statistic calls insignificant (refit, kept if the BIC agrees)
+    result = fit.waves(normals, roughness, camera, times, prune=True)
     wall = time.perf_counter() - t0
     match = fit.match(result.waves, truth)
     f_times = jnp.asarray(fc.frame_times(times, forecast_frames), normals.dtype)
@@ -135,8 +136,9 @@ def _wave_chart(path: Path, truth, fitted) -> Path:
 
     fig = plt.figure(figsize=(9, 4))
     ax = fig.add_subplot(1, 2, 1, projection="polar")
+    scale = float(np.max(np.asarray(truth.amplitude)))
     for w, marker, label in ((truth, "o", "true"), (fitted, "x", "fitted")):
-        ax.scatter(np.asarray(w.theta), np.asarray(w.omega), s=4e4 * np.asarray(w.amplitude) ** 1.0 + 10,
+        ax.scatter(np.asarray(w.theta), np.asarray(w.omega), s=200 * np.asarray(w.amplitude) / scale + 8,
                    marker=marker, label=label, alpha=0.8)
     ax.set_title("direction (angle) and omega [rad/s] (radius);\nsize ~ amplitude", fontsize=9)
     ax.legend(fontsize=8, loc="lower left")
