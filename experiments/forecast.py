@@ -1,0 +1,110 @@
+"""Forecast: how long fitted waves keep predicting the ocean (the paper's Fig. 13).
+
+For each scene of ``experiments/results/wave_fit.json`` (section ``table2``: dataset scenes,
+128^2, 10 observed frames, waves fitted by ``fit.waves``; or, with ``--fit``, scenes fitted
+here), the fitted waves are advanced to frames 0 ... 500 on the observed clock
+(:func:`jaxocean.forecast.frame_times`) and their geometry re-rendered with the scene's
+camera; the true geometry at the same times comes from the true 60 waves. Metric: the mean
+normal angle over sea pixels (:func:`jaxocean.forecast.geometry_error`). Target (issue):
+the error at frames 100 and 500 within 2x of frame 0. Baselines: *persistence* (the
+observed frame 0 reused for every later frame) shows how fast the sea decorrelates, so a
+flat forecast curve means something.
+
+Usage: ``python experiments/forecast.py [--frames 0,10,50,100,200,500] [--fit --scenes N]``;
+writes ``experiments/results/forecast.json`` and ``forecast.png``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+sys.path.insert(0, __file__.rsplit("/", 1)[0])
+import benchutil  # noqa: E402
+import wave_fit  # noqa: E402
+
+from jaxocean import fit  # noqa: E402
+from jaxocean import forecast as fc  # noqa: E402
+from jaxocean.waves import Waves  # noqa: E402
+
+TARGET_RATIO = 2.0
+
+
+def scene_rows(args):
+    if not args.fit:
+        path = benchutil.RESULTS / "wave_fit.json"
+        rows = json.loads(path.read_text())["rows"]["table2"]["scenes"] if path.exists() else []
+        rows = [r for r in rows if "fitted_waves" in r]
+        if rows:
+            return rows[: args.scenes or None]
+        print("no fitted waves in wave_fit.json: fitting here")
+    rows = []
+    for seed in range(args.scenes or 2):
+        scene, geo = wave_fit.dataset_scene(seed, args.resolution)
+        r = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times)
+        rows.append(dict(seed=seed, resolution=args.resolution,
+                         fitted_waves={f: np.asarray(getattr(r.waves, f), float).tolist() for f in r.waves._fields}))
+    return rows
+
+
+def one_scene(row, frames):
+    scene, geo = wave_fit.dataset_scene(row["seed"], row["resolution"])
+    fitted = Waves(*(jnp.asarray(row["fitted_waves"][f], jnp.float32) for f in Waves._fields))
+    times = jnp.asarray(fc.frame_times(np.asarray(scene.times), frames), jnp.float32)
+    truth = fc.forecast(scene.waves, times, scene.camera).geometry
+    pred = fc.forecast(fitted, times, scene.camera).geometry
+    err = fc.geometry_error(pred, truth)
+    frame0 = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), truth)
+    persistence = fc.geometry_error(frame0, truth)
+    normal = np.asarray(err.normal, float)
+    return dict(seed=row["seed"], frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
+                normal_error_rad=normal.tolist(), roughness_error=np.asarray(err.roughness, float).tolist(),
+                ratio_to_frame0=(normal / normal[0]).tolist(),
+                persistence_rad=np.asarray(persistence.normal, float).tolist())
+
+
+def plot(rows):
+    plt = benchutil.pyplot()
+
+    fig, ax = plt.subplots(figsize=(7, 4.2))
+    for i, r in enumerate(rows):
+        f = np.maximum(np.asarray(r["frames"]), 0.5)
+        ax.plot(f, np.degrees(r["normal_error_rad"]), "o-", color=f"C{i}", label=f"forecast, scene {r['seed']}")
+        ax.plot(f[1:], np.degrees(r["persistence_rad"][1:]), "x:", color=f"C{i}", label=f"persistence, scene {r['seed']}")
+    ax.set(xscale="log", xlabel="frame (frame 0 plotted at 0.5)", ylabel="mean normal error [deg]",
+           title="forecast error against horizon (Fig. 13 redone)")
+    ax.legend(fontsize=7)
+    benchutil.save_figure(fig, "forecast")
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--frames", default="0,10,50,100,200,500")
+    parser.add_argument("--fit", action="store_true", help="fit the scenes here instead of reading wave_fit.json")
+    parser.add_argument("--scenes", type=int, default=0)
+    parser.add_argument("--resolution", type=int, default=128)
+    args = parser.parse_args(argv)
+    frames = [int(f) for f in args.frames.split(",")]
+    if frames[0] != 0:
+        parser.error("--frames must start with 0 (the reference frame)")
+    rows = [one_scene(r, frames) for r in scene_rows(args)]
+    for r in rows:
+        benchutil.print_table([dict(seed=r["seed"], frame=f, err_deg=float(np.degrees(e)), ratio=q,
+                                    persistence_deg=float(np.degrees(p)))
+                               for f, e, q, p in zip(r["frames"], r["normal_error_rad"], r["ratio_to_frame0"],
+                                                     r["persistence_rad"])],
+                              ["seed", "frame", "err_deg", "ratio", "persistence_deg"])
+    worst = {f: max(r["ratio_to_frame0"][r["frames"].index(f)] for r in rows) for f in (100, 500) if f in frames}
+    summary = dict(worst_ratio=worst, met={str(f): v <= TARGET_RATIO for f, v in worst.items()})
+    print(summary)
+    benchutil.save("forecast", dict(scenes=rows, summary=summary), meta=dict(target_ratio=TARGET_RATIO))
+    plot(rows)
+
+
+if __name__ == "__main__":
+    main()
