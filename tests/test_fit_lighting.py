@@ -153,6 +153,27 @@ def test_solver_out_of_steps_is_a_failure(x64):
     assert not bool(out.success) and int(out.steps) == 2
 
 
+def test_dense_jacobian_of_many_parameters_is_right_under_jit():
+    """float32, 11 parameters, 4096 pixels: the shape of the lighting fit's display-space
+    refinement. A jitted vmap of 9+ JVPs here miscompiles on XLA:CPU (jax 0.10.2, YNNPACK
+    fusion): zero columns came out O(1). The Jacobian is built in blocks of 8 (solvers)."""
+    v = jax.random.normal(jax.random.key(0), (4096, 3), jnp.float32)
+    v = v / jnp.linalg.norm(v, axis=-1, keepdims=True)
+
+    def residual(y, args):
+        light = jnp.stack([jnp.sin(y[0]), jnp.sin(y[1]), jnp.cos(y[0])])
+        half = light + args
+        half = half / jnp.sqrt(jnp.sum(half * half, -1, keepdims=True))
+        return (jnp.sum(args * half, -1) ** 3) * jnp.exp(y[8])
+
+    y = jnp.zeros(11, jnp.float32).at[0].set(0.3).at[1].set(0.1)
+    bound = fit.solvers.dense_jacobian(residual)
+    jac = jax.jit(lambda y, a: jax.jacfwd(bound)(y, a))(y, v)
+    ref = np.stack([np.asarray(jax.jvp(lambda z: residual(z, v), (y,), (e,))[1]) for e in np.eye(11, dtype=np.float32)], -1)
+    np.testing.assert_allclose(np.asarray(jac), ref, atol=1e-5)
+    assert np.abs(np.asarray(jac)[:, [2, 3, 4, 5, 6, 7, 9, 10]]).max() == 0.0
+
+
 def test_unknown_solver_and_bad_steps_are_structural_errors():
     with pytest.raises(ValueError, match="unknown solver"):
         fit.get_solver("newton")

@@ -155,10 +155,27 @@ def dense_jacobian(residual_fn):
     return wrapped
 
 
+# Forward-mode Jacobian columns are computed in vmapped blocks of at most this many basis
+# vectors. Work-around for an XLA:CPU miscompilation (jax/jaxlib 0.10.2): in float32, a
+# jitted vmap of 9 or more JVPs through this library's pixel pipelines is fused into one
+# YNNPACK kernel ("__ynn_fusion") that returns wrong tangents -- columns that must be zero
+# come out O(1) (reproduced on a 20-line function: a normalised half vector, a dot and a
+# power, 4096 pixels; 8 columns or fewer, float64, or
+# XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= are all correct). It broke every float32
+# fit with more than 8 parameters (the lighting fit's display-space refinement and "plain"
+# structure, joint camera + lighting fits). Blocks of 8 compile to the correct kernels.
+_JACOBIAN_BLOCK = 8
+
+
 def _value_and_jacfwd(fn, y, args):
-    basis = jnp.eye(y.shape[0], dtype=y.dtype)
-    r, cols = jax.vmap(lambda v: jax.jvp(lambda z: fn(z, args), (y,), (v,)), out_axes=(None, -1))(basis)
-    return r, cols
+    n = y.shape[0]
+    basis = jnp.eye(n, dtype=y.dtype)
+    blocks = []
+    for lo in range(0, n, _JACOBIAN_BLOCK):
+        r, cols = jax.vmap(lambda v: jax.jvp(lambda z: fn(z, args), (y,), (v,)), out_axes=(None, -1))(
+            basis[lo:lo + _JACOBIAN_BLOCK])
+        blocks.append(cols)
+    return r, blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks, axis=-1)
 
 
 def _finite(x):
