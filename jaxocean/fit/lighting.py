@@ -349,9 +349,35 @@ def _project_colors(data: _Data, direction, fixed: dict, free: tuple, cols=None)
     gram = jnp.einsum("pc,pi,pj->cij", w2, a, a)
     rhs = jnp.einsum("pc,pi,pc->ci", w2, a, y)
     x = nnls_small(gram, rhs)  # (3 channels, k)
+    # One step of iterative refinement: the normal equations square the condition of the
+    # columns (sky and sea terms are nearly collinear: cond(gram) up to 2e6), which in
+    # float32 costs the colours 1e-5..7e-5 relative even at the exact sun direction; the
+    # correction from the residual computed pixel by pixel brings that to 4e-7..6e-6
+    # (measured on the 128^2 accuracy problems).
+    r = y - jnp.einsum("pi,ci->pc", a, x)
+    x = _refine_on_support(gram, x, jnp.einsum("pc,pi,pc->ci", w2, a, r))
     for i, n in enumerate(free):
         colors[n] = x[:, i]
     return colors
+
+
+def _refine_on_support(gram, x, correction_rhs, ridge=None):
+    """``max(x + G_S^-1 b_S, 0)`` on the support ``S`` of ``x`` (``x > 0``): one step of
+    iterative refinement of a non-negative least-squares solution, ``b = A^T W (y - A x)``
+    the gradient of the residual computed from the pixels. Columns scaled as in
+    :func:`nnls_small`."""
+    k = gram.shape[-1]
+    dtype = gram.dtype
+    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
+    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
+    ok = diag > jnp.finfo(dtype).tiny
+    d = jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0)
+    m = (x > 0).astype(dtype)
+    eye = jnp.eye(k, dtype=dtype)
+    g = gram / (d[..., :, None] * d[..., None, :]) * m[..., :, None] * m[..., None, :] + eye * (1 - m)[..., :, None] \
+        + ridge * eye
+    dx = _small_solve(g, correction_rhs / d * m) * m / d
+    return jnp.maximum(x + dx, 0.0)
 
 
 def _varpro_residual(pq, args):
