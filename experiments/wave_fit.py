@@ -150,9 +150,6 @@ def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
     ms = fw.match(result.waves, sep_truth)
     mae_sep = {f: float(np.mean(np.abs(np.asarray(getattr(ms.abs_error, f))))) if ms.true_index.size
                else float("nan") for f in ("amplitude", "omega", "theta")}
-    sea = fit.spectrum(result.waves, camera=scene.camera, roughness=geo.roughness)
-    # the same estimator given the 60 true waves: what any fit from waves can reach
-    oracle = fit.spectrum(truth_all)
     true_sea = fit.sea_state(truth_all)
     row = dict(seed=seed, resolution=resolution, camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
@@ -162,21 +159,44 @@ def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
                normal_error_rad=float(result.normal_error), time_s=wall,
                mae_amplitude=mae["amplitude"], mae_omega=mae["omega"], mae_theta=mae["theta"],
                mae_phase=mae["phase"], mae_amplitude_incl_missed=h_all,
-               fit_hs=float(sea.spectrum.hs), fit_tp=float(sea.spectrum.tp),
-               fit_theta_mean=float(sea.spectrum.theta_mean), peak_observed=bool(sea.peak_observed),
                true_theta_mean=float(scene.spectrum.theta_mean), sampled_hs=float(true_sea.hs),
                n_separable=int(sep.sum()), n_separable_matched=int(ms.true_index.size),
                mae_amplitude_separable=mae_sep["amplitude"], mae_omega_separable=mae_sep["omega"],
-               mae_theta_separable=mae_sep["theta"], oracle_hs=float(oracle.spectrum.hs),
-               oracle_tp=float(oracle.spectrum.tp), oracle_theta_mean=float(oracle.spectrum.theta_mean))
-    # the fitted waves themselves, for experiments/forecast.py
+               mae_theta_separable=mae_sep["theta"])
+    # the fitted waves themselves, for experiments/forecast.py and --rescore
     row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
-    row["hs_rel_error"] = abs(row["fit_hs"] / row["hs"] - 1)
-    row["tp_rel_error"] = abs(row["fit_tp"] / row["tp"] - 1)
-    row["dir_error_deg"] = wrap_deg(row["fit_theta_mean"] - row["true_theta_mean"])
-    row["oracle_dir_error_deg"] = wrap_deg(row["oracle_theta_mean"] - row["true_theta_mean"])
-    row["oracle_tp_rel_error"] = abs(row["oracle_tp"] / row["tp"] - 1)
+    row.update(score_sea(result.waves, scene, geo))
     return row
+
+
+def score_sea(fitted, scene, geo) -> dict:
+    """Sea state from the fitted waves (``fit.spectrum`` with the roughness) and, as the
+    reference of what any estimate from waves can reach, from the 60 true waves."""
+    sea = fit.spectrum(fitted, camera=scene.camera, roughness=geo.roughness)
+    oracle = fit.spectrum(scene.waves)
+    hs, tp, th = float(scene.spectrum.hs), float(scene.spectrum.tp), float(scene.spectrum.theta_mean)
+    return dict(fit_hs=float(sea.spectrum.hs), fit_tp=float(sea.spectrum.tp),
+                fit_theta_mean=float(sea.spectrum.theta_mean), peak_observed=bool(sea.peak_observed),
+                oracle_hs=float(oracle.spectrum.hs), oracle_tp=float(oracle.spectrum.tp),
+                oracle_theta_mean=float(oracle.spectrum.theta_mean),
+                hs_rel_error=abs(float(sea.spectrum.hs) / hs - 1), tp_rel_error=abs(float(sea.spectrum.tp) / tp - 1),
+                dir_error_deg=wrap_deg(float(sea.spectrum.theta_mean) - th),
+                oracle_dir_error_deg=wrap_deg(float(oracle.spectrum.theta_mean) - th),
+                oracle_tp_rel_error=abs(float(oracle.spectrum.tp) / tp - 1))
+
+
+def rescore(out) -> None:
+    """Recompute the sea-state columns of saved Table 2 scenes from their fitted waves
+    (after a change to ``fit.spectrum``; the wave fits themselves are not rerun)."""
+    from jaxocean.waves import Waves
+
+    rows = out["table2"]["scenes"]
+    for row in rows:
+        scene, geo = dataset_scene(row["seed"], row["resolution"])
+        fitted = Waves(*(jnp.asarray(row["fitted_waves"][f], jnp.float32) for f in Waves._fields))
+        row.update(score_sea(fitted, scene, geo))
+    out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
+    print(json.dumps(out["table2"]["summary"], indent=1))
 
 
 def section_table2(args, out):
@@ -396,6 +416,8 @@ def main(argv=None):
     parser.add_argument("--scenes", type=int, default=0, help="table2: scenes (default 6; 2 with --quick)")
     parser.add_argument("--resume", action="store_true", help="table2: keep scenes already in the results file")
     parser.add_argument("--verbose", action="store_true")
+    parser.add_argument("--rescore", action="store_true",
+                        help="recompute the sea-state columns of the saved table2 scenes, then run --only")
     parser.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated subset of {SECTIONS}")
     args = parser.parse_args(argv)
     args.scenes = args.scenes or (2 if args.quick else 6)
@@ -406,6 +428,9 @@ def main(argv=None):
     if bad:
         parser.error(f"unknown sections {sorted(bad)}; choose from {SECTIONS}")
     out = load_results()
+    if args.rescore:
+        rescore(out)
+        save(out, args)
     for name in only:
         print(f"== {name}", flush=True)
         globals()[f"section_{name}"](args, out)

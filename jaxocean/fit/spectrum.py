@@ -28,8 +28,13 @@ observed roughness of the sub-pixel tail:
   ``(0.5, 8) x wp``). Rows at the renderer's floor carry no information and are skipped.
 * **Directions** (theta_mean, s_max): maximum likelihood of the reliable waves'
   directions under the Mitsuyasu spreading ``D(theta; w_i)`` of their own frequency
-  (each sampled wave is one draw), by a grid over ``theta_mean`` x ``s_max`` refined by a
-  parabola in each.
+  (each sampled wave is one draw), each wave's log-likelihood weighted by its energy
+  ``h^2`` (normalised to mean 1), by a grid over ``theta_mean`` x ``s_max`` refined by a
+  parabola in each. The weights depend on the wave's amplitude, not its direction, so the
+  estimate stays consistent; they keep the many small waves a fit adds for what it cannot
+  resolve (their directions are not draws from the spreading) from deciding the mean
+  direction. Measured on four dataset scenes fitted by ``fit.waves``
+  (``experiments/WAVES.md``): mean-direction errors 2-11 deg weighted, 18-52 deg unweighted.
 
 Only the peak makes Hs and Tp separately identifiable: if the fitted waves stop above the
 peak (the camera sees a patch shorter than the peak wavelength), the tail fixes only the
@@ -273,7 +278,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     g_fit = float(y[2])
     wp = 2 * math.pi / tp_fit
 
-    theta_mean, s_max = _direction_mle(om, th, wp)
+    theta_mean, s_max = _direction_mle(om, th, wp, weight=h * h)
     fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
                            gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
                            s_max=jnp.asarray(s_max, dtype))
@@ -297,8 +302,11 @@ def _fitted_roughness(waves, fp_row, n_min, n_max):
     return w_r @ (kh2 / (1 + np.sqrt(1 - kh2)))
 
 
-def _direction_mle(om, th, wp):
-    """Maximum-likelihood (theta_mean, s_max) of directions under Mitsuyasu spreading."""
+def _direction_mle(om, th, wp, weight=None):
+    """Maximum-likelihood (theta_mean, s_max) of directions under Mitsuyasu spreading, each
+    wave's log-likelihood scaled by ``weight`` (normalised to mean 1; default 1)."""
+    weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
+    weight = weight * (weight.size / max(float(np.sum(weight)), 1e-300))
     th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
     s_grid = np.geomspace(0.5, 150.0, 48)
     x = om / wp
@@ -306,7 +314,7 @@ def _direction_mle(om, th, wp):
     s = s_grid[:, None] * shape[None, :]  # (S, n)
     log_q = _lgamma(s + 1) - _lgamma(s + 0.5) - math.log(2 * math.sqrt(math.pi))
     c2 = 0.5 * (1 + np.cos(th[None, None, :] - th_grid[:, None, None]))  # (T, 1, n)
-    ll = np.sum(log_q[None] + s[None] * np.log(np.maximum(c2, 1e-300)), axis=-1)  # (T, S)
+    ll = np.sum(weight * (log_q[None] + s[None] * np.log(np.maximum(c2, 1e-300))), axis=-1)  # (T, S)
     i, j = np.unravel_index(np.argmax(ll), ll.shape)
 
     def parabola(f_m, f_0, f_p):
