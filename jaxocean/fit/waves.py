@@ -818,7 +818,11 @@ def _maybe_throw(res: WaveFit, throw: bool, max_steps):
 
 
 def _dense_jtj(residual, y):
-    J = jax.jacfwd(lambda yy: residual(yy, None))(y)
+    # the solvers' blocked forward-mode Jacobian: jax.jacfwd's single vmap of 4N JVPs hits
+    # the XLA:CPU float32 miscompile described in jaxocean.fit.solvers
+    from jaxocean.fit.solvers import _value_and_jacfwd
+
+    _, J = _value_and_jacfwd(residual, y, None)
     return J.T @ J
 
 
