@@ -35,10 +35,11 @@ import benchutil  # noqa: E402
 
 from jaxocean import camera as cam  # noqa: E402
 from jaxocean import fit, spectrum  # noqa: E402
+from jaxocean.errors import InvalidValueError  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
 from jaxocean.waves import GRAVITY, make_waves  # noqa: E402
 
-AXES = ("waves", "frames", "noise", "resolution", "nyquist")
+AXES = ("nyquist", "frames", "noise", "waves", "resolution")
 SEA = spectrum.Spectrum(hs=0.6, tp=4.0, gamma=3.3, theta_mean=0.4, s_max=15.0)
 NAME = "stability_waves"
 
@@ -65,7 +66,12 @@ def score(truth, camera, normals, rough, times, noise=None):
     ok = np.asarray(fw.resolvable(truth, camera))
     visible = jax.tree.map(lambda x: x[ok], truth)
     t0 = time.perf_counter()
-    r = fit.waves(normals, rough, camera, times, noise=noise)
+    try:
+        r = fit.waves(normals, rough, camera, times, noise=noise)
+    except InvalidValueError as exc:  # e.g. "no wave found": a measured failure, not a crash
+        return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_fitted=0, found=0.0, spurious=0,
+                    success=False, mae_amplitude=float("nan"), mae_omega=float("nan"), mae_theta=float("nan"),
+                    normal_error_rad=float("nan"), time_s=time.perf_counter() - t0, error=str(exc))
     wall = time.perf_counter() - t0
     m = fw.match(r.waves, visible)
     mae = {f: float(np.mean(np.abs(getattr(m.abs_error, f)))) if m.true_index.size else float("nan")
@@ -100,7 +106,7 @@ def nyquist_problem(seed, ratio, res):
     return row
 
 
-def run_axis(axis, values, seeds, quick, res):
+def run_axis(axis, values, seeds, quick, res, on_row=None):
     rows = []
     for v in values:
         for seed in range(seeds):
@@ -118,6 +124,8 @@ def run_axis(axis, values, seeds, quick, res):
             rows.append(row)
             benchutil.print_table([row], ["axis", "value", "seed", "n_resolvable", "n_fitted", "found", "spurious",
                                           "mae_amplitude", "mae_omega", "mae_theta", "time_s"])
+            if on_row is not None:
+                on_row(rows)  # nothing lost if a later problem crashes or the run is stopped
     return rows
 
 
@@ -163,11 +171,16 @@ def main(argv=None):
     path = benchutil.RESULTS / f"{NAME}.json"
     out = json.loads(path.read_text())["rows"] if path.exists() else {}
     res = 32 if args.quick else 64
+    meta = dict(quick=args.quick, seeds=seeds, sea={k: float(v) for k, v in SEA._asdict().items()})
+
+    def save(axis, rows):
+        out[axis] = list(rows)
+        benchutil.save(NAME, out, meta=meta)
+
     for a in only:
         print(f"== {a}", flush=True)
-        out[a] = run_axis(a, (QUICK if args.quick else VALUES)[a], seeds, args.quick, res)
-        benchutil.save(NAME, out, meta=dict(quick=args.quick, seeds=seeds, sea=SEA._asdict() if hasattr(SEA, "_asdict")
-                                            else str(SEA)))
+        save(a, run_axis(a, (QUICK if args.quick else VALUES)[a], seeds, args.quick, res,
+                         on_row=lambda rows, a=a: save(a, rows)))
         plot(out)
 
 
