@@ -422,6 +422,20 @@ def _glint_pq(data: _Data, dtype):
     return sun_to_pq(az, el).astype(dtype)
 
 
+_RAY_ELEVATIONS = np.radians(np.geomspace(0.2, 60.0, 16))
+
+
+def _glint_ray(glint_pq, dtype):
+    """Candidates along the glint estimate's azimuth (16 elevations, 0.2 to 60 deg,
+    geometric). The glint's azimuth is accurate but its elevation is biased for a low sun
+    (measured at 1 deg: estimates of 2.4-4.2 deg), where the glitter is a band a few pixels
+    high at the horizon and the loss is flat until within ~0.5 deg of the sun; no cell of
+    the sky grid lies that close to the horizon."""
+    az, _ = pq_to_sun(glint_pq)
+    el = jnp.asarray(_RAY_ELEVATIONS, dtype)
+    return sun_to_pq(jnp.broadcast_to(az, el.shape), el).astype(dtype)
+
+
 def _grid_pq(n: int, dtype):
     """A square ``n x n`` grid of (p, q) over the upper hemisphere (cells of pi / n rad)."""
     c = (np.arange(n) + 0.5) / n * math.pi - _HALF_PI
@@ -447,7 +461,9 @@ def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool
     small = _subsample(data, stride)
     cands = [init_pq[None]]
     if glint:
-        cands.append(_glint_pq(data, dtype)[None])
+        g = _glint_pq(data, dtype)
+        cands.append(g[None])
+        cands.append(_glint_ray(g, dtype))
     if grid > 0:
         cands.append(_grid_pq(grid, dtype))
     cands = jnp.concatenate(cands, 0)
