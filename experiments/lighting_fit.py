@@ -21,8 +21,13 @@ elevation 5-35 deg, colours log-uniform in ``fit.COLOR_RANGES``; initial guesses
 4. ``noise``: sigma = 0.01 and 0.03 added to the tone-mapped [0, 1] image (Bruneton curve),
    clipped, brought back to linear radiance and fitted with ``fit.tonemap_weights``; 100
    noise draws per resolution (32, 64, 128): mean and spread of the parameter errors.
+   The draws are fitted under one ``vmap`` with ``batching="sequential"``;
+   ``--draws`` / ``--draws-128`` reduce the draws (all points / the 128^2 ones).
 5. ``demo``: fit -> re-render -> error map -> re-edited views (camera height 5 m, sun
-   elevation 20 deg), like the paper's Fig. 10 and 15.
+   elevation 20 deg), like the paper's Fig. 10 and 15; and the camera fit (alone / joint).
+6. ``precision``: float32, the accuracy section's 100 problems: the default fit against the
+   colours solved at the *exact* true sun direction (the float32 floor of the method), and
+   its ``success`` flag against the tight bar (false successes).
 
 Usage: ``python experiments/lighting_fit.py [--quick | --full] [--only accuracy,noise,...]``
 (default about 10 min per section on the shared 2-core machine; ``--full`` runs the accuracy

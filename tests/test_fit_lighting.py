@@ -169,7 +169,8 @@ def test_dense_jacobian_of_many_parameters_is_right_under_jit():
     y = jnp.zeros(11, jnp.float32).at[0].set(0.3).at[1].set(0.1)
     bound = fit.solvers.dense_jacobian(residual)
     jac = jax.jit(lambda y, a: jax.jacfwd(bound)(y, a))(y, v)
-    ref = np.stack([np.asarray(jax.jvp(lambda z: residual(z, v), (y,), (e,))[1]) for e in np.eye(11, dtype=np.float32)], -1)
+    ref = np.stack([np.asarray(jax.jvp(lambda z: residual(z, v), (y,), (e,))[1])
+                    for e in np.eye(11, dtype=np.float32)], -1)
     np.testing.assert_allclose(np.asarray(jac), ref, atol=1e-5)
     assert np.abs(np.asarray(jac)[:, [2, 3, 4, 5, 6, 7, 9, 10]]).max() == 0.0
 
