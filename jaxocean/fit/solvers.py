@@ -163,7 +163,7 @@ def dense_jacobian(residual_fn):
 # power, 4096 pixels; 8 columns or fewer, float64, or
 # XLA_FLAGS=--xla_cpu_experimental_ynn_fusion_type= are all correct). It broke every float32
 # fit with more than 8 parameters (the lighting fit's display-space refinement and "plain"
-# structure, joint camera + lighting fits). Blocks of 8 compile to the correct kernels.
+# structure: 11; camera fits have at most 5). Blocks of 8 compile to the correct kernels.
 _JACOBIAN_BLOCK = 8
 
 
