@@ -60,20 +60,26 @@ def lighting_stage(out: Path, scene, image, geometry, *, seed: int = 5) -> dict:
     truth, fitted = _lighting_summary(scene.lighting), _lighting_summary(result.lighting)
     sun_error = float(fit.lighting_error(result.lighting, scene.lighting)["sun_angle_deg"])
     row_fit = [plots.display(image), plots.display(model), _error_rgb(error)]
+    edit_titles = ", ".join(e for e, _ in edits)
     row_edit = [plots.display(v) for _, v in views]
     path = plots.contact_sheet(out / "lighting_fit.png", [row_fit, row_edit],
-                               col_titles=["observed", "re-rendered with the fit", "|display error| (x100)"],
+                               col_titles=["observed", "re-rendered with the fit",
+                                           "|display error|, log10 from -6 to -1"],
                                row_titles=["fit", "re-edited"],
                                title=f"lighting fit from a random start: {int(result.steps)} LM steps, sun "
-                                     f"{sun_error:.1e} deg off; re-edits: " + ", ".join(e for e, _ in edits))
+                                     f"{sun_error:.1e} deg off\nre-edited views: {edit_titles}")
     return dict(success=bool(result.success), steps=int(result.steps), loss=float(result.loss),
                 wall_s_with_compile=wall, sun_error_deg=sun_error, max_display_error=float(error.max()),
                 fitted=fitted, truth=truth, figure=str(path))
 
 
-def _error_rgb(error, scale=100.0):
-    e = np.clip(np.asarray(error) * scale, 0.0, 1.0)
-    return (np.stack([e, e * 0.4, 1.0 - e], -1) * 255).astype(np.uint8)
+def _error_rgb(error, lo=1e-6, hi=1e-1):
+    """A log-scaled colour map of a per-pixel error (magma: black at ``lo``, white at ``hi``)."""
+    import matplotlib
+
+    e = np.log10(np.clip(np.asarray(error, np.float64), lo, hi))
+    t = (e - math.log10(lo)) / (math.log10(hi) - math.log10(lo))
+    return (matplotlib.colormaps["magma"](t)[..., :3] * 255 + 0.5).astype(np.uint8)
 
 
 def _swell(n_waves: int, seed: int):
