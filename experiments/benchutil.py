@@ -43,9 +43,20 @@ def time_jitted(fn, *args, repeats: int = 5, min_time: float = 0.0):
 
 
 def machine_info() -> dict:
+    """The machine, and its 1/5/15-minute load average when the results are saved (the
+    development machine is shared: loaded runs are slower)."""
     return dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
                 jax=jax.__version__, backend=jax.default_backend(),
-                devices=[str(d) for d in jax.devices()])
+                devices=[str(d) for d in jax.devices()], load_average=list(os.getloadavg()))
+
+
+def load_rows(name: str, default=None):
+    """The ``rows`` of a saved ``experiments/results/NAME.json`` (sections accumulate across
+    runs), or ``default`` when there is no such file."""
+    path = RESULTS / f"{name}.json"
+    if not path.exists():
+        return default
+    return json.loads(path.read_text()).get("rows", default)
 
 
 def save(name: str, rows, meta: dict | None = None) -> Path:

@@ -17,7 +17,6 @@ writes ``experiments/results/forecast.json`` and ``forecast.png``.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import jax
@@ -37,8 +36,7 @@ TARGET_RATIO = 2.0
 
 def scene_rows(args):
     if not args.fit:
-        path = benchutil.RESULTS / "wave_fit.json"
-        rows = json.loads(path.read_text())["rows"]["table2"]["scenes"] if path.exists() else []
+        rows = benchutil.load_rows("wave_fit", {}).get("table2", {}).get("scenes", [])
         rows = [r for r in rows if "fitted_waves" in r]
         if rows:
             return rows[: args.scenes or None]

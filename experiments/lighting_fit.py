@@ -632,11 +632,7 @@ def main(argv=None):
         parser.error(f"unknown section(s) {unknown}; expected {SECTIONS}")
     name = "lighting_fit_quick" if args.quick else "lighting_fit"
     path = benchutil.RESULTS / f"{name}.json"
-    out = {}
-    if path.exists():  # sections accumulate across runs
-        import json
-
-        out = json.loads(path.read_text()).get("rows", {})
+    out = benchutil.load_rows(name, {})  # sections accumulate across runs
     t0 = time.perf_counter()
     for section in only:
         globals()[f"section_{section}"](args, out)

@@ -21,7 +21,6 @@ Usage: ``python experiments/stability_waves.py [--quick] [--only waves,frames,..
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 import warnings
@@ -168,8 +167,7 @@ def main(argv=None):
     bad = set(only) - set(AXES)
     if bad:
         parser.error(f"unknown axes {sorted(bad)}; choose from {AXES}")
-    path = benchutil.RESULTS / f"{NAME}.json"
-    out = json.loads(path.read_text())["rows"] if path.exists() else {}
+    out = benchutil.load_rows(NAME, {})
     res = 32 if args.quick else 64
     meta = dict(quick=args.quick, seeds=seeds, sea={k: float(v) for k, v in SEA._asdict().items()})
 

@@ -54,25 +54,8 @@ TARGET = dict(amplitude=5e-4, omega=0.013, theta=0.023, hs_rel=0.05, tp_rel=0.05
 NAME = "wave_fit"
 
 
-def load_results() -> dict:
-    path = benchutil.RESULTS / f"{NAME}.json"
-    if path.exists():
-        return json.loads(path.read_text()).get("rows", {})
-    return {}
-
-
 def save(out: dict, args) -> None:
-    benchutil.save(NAME, out, meta=dict(quick=args.quick, paper_table2=PAPER, targets=TARGET,
-                                        load_average=list(np_loadavg())))
-
-
-def np_loadavg():
-    try:
-        import os
-
-        return os.getloadavg()
-    except OSError:  # pragma: no cover
-        return (float("nan"),) * 3
+    benchutil.save(NAME, out, meta=dict(quick=args.quick, paper_table2=PAPER, targets=TARGET))
 
 
 def dataset_scene(seed: int, resolution: int, n_frames: int = 10):
@@ -427,7 +410,7 @@ def main(argv=None):
     bad = set(only) - set(SECTIONS)
     if bad:
         parser.error(f"unknown sections {sorted(bad)}; choose from {SECTIONS}")
-    out = load_results()
+    out = benchutil.load_rows(NAME, {})
     if args.rescore:
         rescore(out)
         save(out, args)
