@@ -238,17 +238,11 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     Returns:
         :class:`CameraFit`.
     """
-    image = jnp.asarray(image)
-    if image.ndim != 3 or image.shape[-1] != 3:
-        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
-    if not jnp.issubdtype(image.dtype, jnp.floating):
-        image = image.astype(jnp.zeros(()).dtype)
+    image = lf._check_image(image, init)
     dtype = image.dtype
-    cam.validate_camera(init)
     if init.projection != "perspective":
         raise ValueError("camera fits need a perspective camera (an orthographic one has no height or pitch to see)")
-    if tuple(image.shape[:2]) != tuple(init.resolution):
-        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {init.resolution}")
+    lf._check_resolution(image, init)
     if isinstance(fit, str):
         fit = (fit,)
     unknown = [f for f in fit if f not in CAMERA_FIELDS]
@@ -271,10 +265,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
     weight = lf._weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
     traced = not is_concrete(image, weight, waves, init, lighting, t)
-    if traced and throw:
-        raise ValueError("fit.camera under jit/vmap cannot raise on failure: pass throw=False and read .success")
-    if traced and not spec.traceable:
-        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
+    lf._check_tracing("fit.camera", traced, throw, spec, solver)
     used = lf._weights("uniform", mask, image.shape[:2], dtype)
     lf._validate_values(image, weight, None, init, ("sun_direction",), used)
     if not traced:
@@ -288,11 +279,8 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         plan = render.RenderPlan(active=tuple(range(waves.omega.shape[0])), refine=int(refine))
     elif plan is not None:
         plan = render.RenderPlan(active=tuple(int(i) for i in plan.active), refine=int(plan.refine))
-    if max_steps is None:
-        max_steps = lf._DEFAULT_MAX_STEPS.get(solver, 50)
-    d_rtol, d_atol = lf._DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
-    st = _Static(fit=fit, fit_lighting=bool(fit_lighting), solver=solver, max_steps=int(max_steps),
-                 rtol=float(d_rtol if rtol is None else rtol), atol=float(d_atol if atol is None else atol),
+    max_steps, rtol, atol = lf._solver_limits(solver, dtype, max_steps, rtol, atol)
+    st = _Static(fit=fit, fit_lighting=bool(fit_lighting), solver=solver, max_steps=max_steps, rtol=rtol, atol=atol,
                  search=tuple(int(n) for n in search), height_span=float(height_span), pitch_span=float(pitch_span),
                  n_starts=int(n_starts), grid=int(grid), history=bool(history),
                  options=tuple(sorted((options or {}).items())), plan=plan)

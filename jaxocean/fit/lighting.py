@@ -190,10 +190,7 @@ def nnls_small(gram, rhs, ridge=None):
     gram, rhs = jnp.asarray(gram), jnp.asarray(rhs)
     k = gram.shape[-1]
     dtype = gram.dtype
-    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
-    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
-    ok = diag > jnp.finfo(dtype).tiny
-    d = jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0)
+    d, ridge = _column_scale(gram, ridge)
     gn = gram / (d[..., :, None] * d[..., None, :])
     bn = rhs / d
     masks = np.array([[(s >> i) & 1 for i in range(k)] for s in range(2**k)], dtype=bool)  # (2^k, k)
@@ -361,6 +358,16 @@ def _project_colors(data: _Data, direction, fixed: dict, free: tuple, cols=None)
     return colors
 
 
+def _column_scale(gram, ridge=None):
+    """Column norms ``d`` of a Gram matrix ``(..., k, k)`` (1 for empty columns) and the
+    ridge (default ``8 eps``) of the unit-norm problem: the scaling of :func:`nnls_small`."""
+    dtype = gram.dtype
+    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
+    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
+    ok = diag > jnp.finfo(dtype).tiny
+    return jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0), ridge
+
+
 def _refine_on_support(gram, x, correction_rhs, ridge=None):
     """``max(x + G_S^-1 b_S, 0)`` on the support ``S`` of ``x`` (``x > 0``): one step of
     iterative refinement of a non-negative least-squares solution, ``b = A^T W (y - A x)``
@@ -368,10 +375,7 @@ def _refine_on_support(gram, x, correction_rhs, ridge=None):
     :func:`nnls_small`."""
     k = gram.shape[-1]
     dtype = gram.dtype
-    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
-    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
-    ok = diag > jnp.finfo(dtype).tiny
-    d = jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0)
+    d, ridge = _column_scale(gram, ridge)
     m = (x > 0).astype(dtype)
     eye = jnp.eye(k, dtype=dtype)
     g = gram / (d[..., :, None] * d[..., None, :]) * m[..., :, None] * m[..., None, :] + eye * (1 - m)[..., :, None] \
@@ -752,6 +756,40 @@ def _geometry_fields(geometry, resolution, dtype):
     return normal, slope_var, mask
 
 
+def _check_image(image, camera):
+    """``image`` as a floating ``(H, W, 3)`` array matching the validated ``camera``'s
+    resolution (integers become the default float dtype). Shared by every image fit."""
+    image = jnp.asarray(image)
+    if image.ndim != 3 or image.shape[-1] != 3:
+        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
+    if not jnp.issubdtype(image.dtype, jnp.floating):
+        image = image.astype(jnp.zeros(()).dtype)
+    cam.validate_camera(camera)
+    return image
+
+
+def _check_resolution(image, camera) -> None:
+    if tuple(image.shape[:2]) != tuple(camera.resolution):
+        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {camera.resolution}")
+
+
+def _check_tracing(name: str, traced: bool, throw: bool, spec, solver: str) -> None:
+    """Under jit/vmap a fit can neither raise on failure nor use a host solver."""
+    if traced and throw:
+        raise ValueError(f"{name} under jit/vmap cannot raise on failure: pass throw=False and read .success")
+    if traced and not spec.traceable:
+        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
+
+
+def _solver_limits(solver: str, dtype, max_steps, rtol, atol) -> tuple[int, float, float]:
+    """``(max_steps, rtol, atol)`` with the defaults of ``solver`` and the working precision
+    filled in (50 steps, 400 for Adam; tolerances 1e-6 in float32, 1e-10 in float64)."""
+    if max_steps is None:
+        max_steps = _DEFAULT_MAX_STEPS.get(solver, 50)
+    d_rtol, d_atol = _DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
+    return int(max_steps), float(d_rtol if rtol is None else rtol), float(d_atol if atol is None else atol)
+
+
 def _check_fit_names(fit) -> tuple:
     if isinstance(fit, str):
         fit = (fit,)
@@ -877,15 +915,9 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     Returns:
         :class:`LightingFit`.
     """
-    image = jnp.asarray(image)
-    if image.ndim != 3 or image.shape[-1] != 3:
-        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
-    if not jnp.issubdtype(image.dtype, jnp.floating):
-        image = image.astype(jnp.zeros(()).dtype)
+    image = _check_image(image, camera)
     dtype = image.dtype
-    cam.validate_camera(camera)
-    if tuple(image.shape[:2]) != tuple(camera.resolution):
-        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {camera.resolution}")
+    _check_resolution(image, camera)
     fit = _check_fit_names(fit)
     spec = solvers.get_solver(solver)
     if structure not in STRUCTURES:
@@ -901,20 +933,14 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     shading.validate_lighting(init)
     init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
     traced = not is_concrete(image, normal, slope_var, weight, init, camera)
-    if traced and throw:
-        raise ValueError("fit.lighting under jit/vmap cannot raise on failure: pass throw=False and read .success")
-    if traced and not spec.traceable:
-        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
+    _check_tracing("fit.lighting", traced, throw, spec, solver)
     _validate_values(image, weight, geo_mask, camera, fit, used)
     # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN)
     image = jnp.where(used > 0, image, 0.0) if not traced else image
 
-    if max_steps is None:
-        max_steps = _DEFAULT_MAX_STEPS.get(solver, 50)
-    d_rtol, d_atol = _DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
+    max_steps, rtol, atol = _solver_limits(solver, dtype, max_steps, rtol, atol)
     free = tuple(n for n in COLOR_FIELDS if n in fit)
-    st = _Static(fit=fit, free=free, solver=solver, structure=structure, max_steps=int(max_steps),
-                 rtol=float(d_rtol if rtol is None else rtol), atol=float(d_atol if atol is None else atol),
+    st = _Static(fit=fit, free=free, solver=solver, structure=structure, max_steps=max_steps, rtol=rtol, atol=atol,
                  grid=int(grid), n_starts=int(n_starts), glint=bool(glint), history=bool(history),
                  options=tuple(sorted((options or {}).items())), space=space, exposure=float(exposure),
                  tonemap=str(tonemap))
