@@ -59,24 +59,23 @@ def _resolution(text: str):
     return tuple(parts)
 
 
-def _index_list(text: str):
+def _parse_list(text: str, convert, valid, expected: str):
+    """Comma- or space-separated values: ``convert`` each; all must pass ``valid``."""
     try:
-        values = [int(p) for p in text.replace(",", " ").split()]
+        values = [convert(p) for p in text.replace(",", " ").split()]
     except ValueError:
         values = []
-    if not values or min(values) < 0:
-        raise argparse.ArgumentTypeError(f"expected comma-separated frame indices >= 0, e.g. 0,1,5; got {text!r}")
+    if not values or not all(valid(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}")
     return tuple(values)
+
+
+def _index_list(text: str):
+    return _parse_list(text, int, lambda v: v >= 0, "comma-separated frame indices >= 0, e.g. 0,1,5")
 
 
 def _number_list(text: str):
-    try:
-        values = [float(p) for p in text.replace(",", " ").split()]
-    except ValueError:
-        values = []
-    if not values or not all(math.isfinite(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected comma-separated finite numbers, e.g. 0,1.5,10; got {text!r}")
-    return tuple(values)
+    return _parse_list(text, float, math.isfinite, "comma-separated finite numbers, e.g. 0,1.5,10")
 
 
 def _positive(text: str):
