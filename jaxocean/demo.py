@@ -32,14 +32,6 @@ from jaxocean import plots, render, shading
 __all__ = ["lighting_stage", "waves_stage"]
 
 
-def _lighting_summary(light) -> dict:
-    return dict(sun_azimuth_deg=math.degrees(float(light.sun_azimuth)),
-                sun_elevation_deg=math.degrees(float(light.sun_elevation)),
-                sun_color=np.asarray(light.sun_color, float).tolist(),
-                sky_color=np.asarray(light.sky_color, float).tolist(),
-                sea_color=np.asarray(light.sea_color, float).tolist())
-
-
 def lighting_stage(out: Path, scene, image, geometry, *, seed: int = 5) -> dict:
     """Fit the lighting of ``image (H, W, 3)`` (frame 0 of ``scene``) given its ``geometry``
     (a :class:`jaxocean.render.Geometry` of that frame); write ``lighting_fit.png``."""
@@ -57,7 +49,7 @@ def lighting_stage(out: Path, scene, image, geometry, *, seed: int = 5) -> dict:
              ("view 8 deg below horizon", dict(camera_pitch=math.radians(8.0))),
              ("sun elevation 8 deg", dict(sun_elevation=math.radians(8.0)))]
     views = [(label, fit.reedit(scene.waves, scene.camera, result.lighting, t, **kw)) for label, kw in edits]
-    truth, fitted = _lighting_summary(scene.lighting), _lighting_summary(result.lighting)
+    truth, fitted = fit.lighting_to_dict(scene.lighting), fit.lighting_to_dict(result.lighting)
     sun_error = float(fit.lighting_error(result.lighting, scene.lighting)["sun_angle_deg"])
     row_fit = [plots.display(image), plots.display(model), _error_rgb(error)]
     edit_titles = ", ".join(e for e, _ in edits)

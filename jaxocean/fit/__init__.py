@@ -42,6 +42,7 @@ from jaxocean.fit.lighting import (
     lighting,
     lighting_error,
     lighting_from_dict,
+    lighting_to_dict,
     nnls_small,
     pq_to_direction,
     pq_to_sun,
@@ -96,6 +97,7 @@ __all__ = [
     "nnls_small",
     "fit_to_dict",
     "lighting_from_dict",
+    "lighting_to_dict",
     # camera
     "CAMERA_FIELDS",
     "CameraFit",

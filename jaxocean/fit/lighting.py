@@ -101,6 +101,7 @@ __all__ = [
     "pq_to_direction",
     "nnls_small",
     "fit_to_dict",
+    "lighting_to_dict",
     "lighting_from_dict",
 ]
 
@@ -1018,19 +1019,24 @@ def lighting_error(fitted: Lighting, truth: Lighting) -> dict:
     return out
 
 
+def lighting_to_dict(light: Lighting) -> dict:
+    """A JSON-safe dict of a (single) :class:`Lighting`: sun angles in radians and degrees,
+    colours as lists (the inverse of :func:`lighting_from_dict`)."""
+    return {
+        "sun_azimuth": float(light.sun_azimuth),
+        "sun_elevation": float(light.sun_elevation),
+        "sun_azimuth_deg": math.degrees(float(light.sun_azimuth)),
+        "sun_elevation_deg": math.degrees(float(light.sun_elevation)),
+        "sun_color": [float(x) for x in np.asarray(light.sun_color)],
+        "sky_color": [float(x) for x in np.asarray(light.sky_color)],
+        "sea_color": [float(x) for x in np.asarray(light.sea_color)],
+    }
+
+
 def fit_to_dict(result) -> dict:
     """A JSON-safe dict of a (single) fit result: the lighting, loss, steps, success, time."""
-    light = result.lighting
     out = {
-        "lighting": {
-            "sun_azimuth": float(light.sun_azimuth),
-            "sun_elevation": float(light.sun_elevation),
-            "sun_azimuth_deg": math.degrees(float(light.sun_azimuth)),
-            "sun_elevation_deg": math.degrees(float(light.sun_elevation)),
-            "sun_color": [float(x) for x in np.asarray(light.sun_color)],
-            "sky_color": [float(x) for x in np.asarray(light.sky_color)],
-            "sea_color": [float(x) for x in np.asarray(light.sea_color)],
-        },
+        "lighting": lighting_to_dict(result.lighting),
         "loss": float(result.loss),
         "rms_residual": float(np.sqrt(max(float(result.loss), 0.0))),
         "steps": int(result.steps),
