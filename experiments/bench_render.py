@@ -41,7 +41,7 @@ def measure(n, res, repeats, camera_kw=None):
     camera = cam.make_camera(**(camera_kw or dict(height=10.0, pitch=0.5, fov=0.8)), resolution=(res, res))
     light = shading.make_lighting()
     rows = []
-    plan = render.RenderPlan(active=tuple(range(n)), refine=0)  # every wave evaluated: a fair comparison
+    plan = render.full_plan(n)  # every wave evaluated: a fair comparison
 
     def fwd(waves, light):
         return render.render(waves, camera, light, 0.5, plan=plan)
@@ -77,7 +77,7 @@ def skip_saving(repeats):
     camera = cam.make_camera(height=150.0, pitch=0.25, fov=0.5, resolution=(256, 256))
     light = shading.make_lighting()
     plan = render.plan(waves, camera, refine=0)
-    full = render.RenderPlan(active=tuple(range(240)), refine=0)
+    full = render.full_plan(240)
     out = {}
     for name, p in (("skip", plan), ("all_waves", full)):
         r = benchutil.time_jitted(lambda w, l: render.render(w, camera, l, 0.5, plan=p), waves, light,

@@ -105,7 +105,7 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
         return Forecast(times, advanced)
     cam.validate_camera(camera)
     if isinstance(plan, str) and plan == "rows":
-        plan = render.RenderPlan(active=tuple(range(waves.omega.shape[0])), refine=0)
+        plan = render.full_plan(waves.omega.shape[0])
     elif isinstance(plan, str) and plan == "auto":
         plan = render.plan(waves, camera, times[0], n_min=n_min, n_max=n_max) if is_concrete(waves, camera) else None
     elif plan is not None and not isinstance(plan, render.RenderPlan):

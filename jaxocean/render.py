@@ -49,7 +49,7 @@ from jaxocean import hierarchy, shading, surface
 from jaxocean.errors import check_finite, is_concrete
 from jaxocean.waves import Waves, validate, wavenumber
 
-__all__ = ["Geometry", "RenderPlan", "plan", "geometry", "shade", "render", "refine_hits", "hit_residual",
+__all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "geometry", "shade", "render", "refine_hits", "hit_residual",
            "DEFAULT_REFINE_TOLERANCE", "MAX_REFINE_ITERATIONS"]
 
 DEFAULT_REFINE_TOLERANCE = 1e-4  # m: how close the refined hit must be to the surface
@@ -73,6 +73,13 @@ class RenderPlan(NamedTuple):
 
     active: tuple
     refine: int
+
+
+def full_plan(n_waves: int, refine: int = 0) -> RenderPlan:
+    """Every one of ``n_waves`` waves evaluated (no skipping) with ``refine`` hit-refinement
+    iterations: one static plan for every scene of that size, so the kernels compile once
+    (datasets, fits, forecasts, benchmarks)."""
+    return RenderPlan(active=tuple(range(int(n_waves))), refine=int(refine))
 
 
 def _check_inputs(waves: Waves, camera):

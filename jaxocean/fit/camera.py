@@ -276,7 +276,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         if traced:
             raise ValueError("plan='auto' needs concrete inputs; under jit/vmap pass plan=RenderPlan(...) or None")
         refine = render.plan(waves, init, t).refine
-        plan = render.RenderPlan(active=tuple(range(waves.omega.shape[0])), refine=int(refine))
+        plan = render.full_plan(waves.omega.shape[0], refine)
     elif plan is not None:
         plan = render.RenderPlan(active=tuple(int(i) for i in plan.active), refine=int(plan.refine))
     max_steps, rtol, atol = lf._solver_limits(solver, dtype, max_steps, rtol, atol)

@@ -323,7 +323,7 @@ def _pad_waves(w: Waves, n_pad: int):
 
 
 def _plan(n):
-    return render.RenderPlan(active=tuple(range(n)), refine=0)
+    return render.full_plan(n)
 
 
 def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX):

@@ -156,7 +156,7 @@ def render_scene(scene: SceneSample, plan=None):
     dataset, so the whole dataset compiles once (a per-scene plan would recompile per scene).
     """
     if plan is None:
-        plan = render.RenderPlan(active=tuple(range(scene.waves.omega.shape[-1])), refine=0)
+        plan = render.full_plan(scene.waves.omega.shape[-1])
     return _render_frames(scene.waves, scene.camera, scene.lighting, scene.times, plan)
 
 
