@@ -251,15 +251,23 @@ def geometry(waves: Waves, camera, t, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
 @functools.partial(jax.jit, static_argnames=("max_distance",))
 def _shade(normal, slope_var, camera, lighting, horizon_gradient, *, max_distance):
     hit = cam.intersect_sea(camera, max_distance=max_distance)
-    up = jnp.zeros(3, normal.dtype).at[2].set(1.0)
-    mask = hit.mask[..., None]
-    # double where: sky pixels are shaded as a flat sea seen from the zenith, then discarded
-    view = jnp.where(mask, hit.view, up)
-    normal = jnp.where(mask, normal, up)
-    sea = shading.shade_pixel(normal, slope_var[..., 0], slope_var[..., 1], view, lighting,
-                              horizon_gradient=horizon_gradient)
-    sky = shading.sky_pixel(hit.direction, lighting, horizon_gradient=horizon_gradient)
-    return jnp.where(mask, sea, sky)
+    mask = hit.mask
+    # per-pixel components (see shading.pixel_terms): one elementwise pass for the whole
+    # pixel model. Double where: sky pixels are shaded as a flat sea seen from the zenith,
+    # then discarded.
+    up = (0.0, 0.0, 1.0)
+    view = tuple(jnp.where(mask, hit.view[..., i], up[i]) for i in range(3))
+    nrm = tuple(jnp.where(mask, normal[..., i], up[i]) for i in range(3))
+    sun, fresnel, reflected = shading.pixel_terms(nrm, slope_var[..., 0], slope_var[..., 1], view, lighting,
+                                                  horizon_gradient)
+    # image = sun_color * B_sun + F_mean sky(R) + (1 - F_mean) sea_color on the sea, sky(D) on
+    # the sky: linear in the three colours, so one (H W, 3) x (3, 3) product with per-pixel
+    # coefficients (a dot also makes XLA compute the pixel model once, not once per channel)
+    coeffs = jnp.stack([jnp.where(mask, sun, 0.0),
+                        jnp.where(mask, fresnel * reflected, shading.sky_weight(hit.direction[..., 2], horizon_gradient)),
+                        jnp.where(mask, 1.0 - fresnel, 0.0)], axis=-1)
+    colors = jnp.stack([lighting.sun_color, lighting.sky_color, lighting.sea_color])
+    return jnp.dot(coeffs, colors)
 
 
 def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_gradient=0.0,

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import dot_last, materialize, safe_normalize, smoothstep, tiny
+from jaxocean._math import dot_last, smoothstep, tiny
 from jaxocean.errors import check_values, is_concrete
 
 __all__ = [
@@ -84,8 +84,10 @@ __all__ = [
     "sun_radiance_factor",
     "mean_fresnel",
     "sky_radiance",
+    "sky_weight",
     "sky_pixel",
     "shade_components",
+    "pixel_terms",
     "shade_pixel",
     "tonemap",
     "inverse_tonemap",
@@ -230,7 +232,34 @@ def sun_direction(lighting: Lighting):
 # --------------------------------------------------------------------------- geometry
 
 
-_dot = dot_last
+# Per-pixel vectors are handled internally as tuples of three ``(...)`` component arrays
+# (structure of arrays): XLA:CPU then evaluates the whole pixel model as one elementwise
+# loop in which every per-pixel value is computed once, instead of strided ``(..., 3)``
+# arrays whose slices re-derive their producers per component (measured: shading forward
+# 3-4x, its gradient ~10x faster). The public functions stack / unstack at the boundary.
+
+
+def _split(v):
+    """``(..., 3)`` array -> tuple of its three components."""
+    v = jnp.asarray(v)
+    return v[..., 0], v[..., 1], v[..., 2]
+
+
+def _join(v):
+    """Tuple of three components -> ``(..., 3)`` array."""
+    return jnp.stack(jnp.broadcast_arrays(*v), axis=-1)
+
+
+def _vdot(a, b):
+    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+
+def _vnormalize(v, fallback):
+    """:func:`jaxocean._math.safe_normalize` on component tuples (``fallback`` a tuple too)."""
+    sq = _vdot(v, v)
+    ok = sq > tiny(sq)
+    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    return tuple(jnp.where(ok, c * inv, f) for c, f in zip(v, fallback))
 
 
 def _check_vectors(**vectors) -> None:
@@ -242,7 +271,7 @@ def _check_vectors(**vectors) -> None:
 def reflect(direction, normal):
     """Mirror ``direction`` about ``normal``: ``2 (N.d) N - d`` (both point away from the surface)."""
     direction, normal = jnp.asarray(direction), jnp.asarray(normal)
-    return 2.0 * _dot(normal, direction)[..., None] * normal - direction
+    return 2.0 * dot_last(normal, direction)[..., None] * normal - direction
 
 
 def tangent_frame(normal):
@@ -254,11 +283,14 @@ def tangent_frame(normal):
     Where ``N`` is parallel to ``e_x`` the projection vanishes and ``T_x`` falls back to
     ``e_y`` (any tangent will do; the frame is necessarily discontinuous there).
     """
-    normal = jnp.asarray(normal)
-    e_x = jnp.zeros(3, normal.dtype).at[0].set(1)
-    e_y = jnp.zeros(3, normal.dtype).at[1].set(1)
-    t_x = safe_normalize(e_x - normal[..., :1] * normal, fallback=e_y)
-    t_y = jnp.cross(normal, t_x)
+    t_x, t_y = _tangent_frame(_split(normal))
+    return _join(t_x), _join(t_y)
+
+
+def _tangent_frame(n):
+    # tangent_frame on component tuples
+    t_x = _vnormalize((1.0 - n[0] * n[0], -n[0] * n[1], -n[0] * n[2]), fallback=(0.0, 1.0, 0.0))
+    t_y = (n[1] * t_x[2] - n[2] * t_x[1], n[2] * t_x[0] - n[0] * t_x[2], n[0] * t_x[1] - n[1] * t_x[0])
     return t_x, t_y
 
 
@@ -269,13 +301,13 @@ def projected_variance(direction, normal, sigma2_x, sigma2_y):
     the anisotropic Gaussian slope distribution. Where ``d`` is parallel to ``N`` the azimuth
     is undefined and the mean ``(sigma2_x + sigma2_y) / 2`` is used. No clamping here.
     """
-    return _projected_variance(jnp.asarray(direction), *tangent_frame(normal), sigma2_x, sigma2_y)
+    return _projected_variance(_split(direction), *_tangent_frame(_split(normal)), sigma2_x, sigma2_y)
 
 
 def _projected_variance(direction, t_x, t_y, sigma2_x, sigma2_y):
-    # the formula of projected_variance, for callers that already hold the tangent frame
-    a2 = _dot(direction, t_x) ** 2
-    b2 = _dot(direction, t_y) ** 2
+    # the formula of projected_variance, on component tuples, for callers holding the frame
+    a2 = _vdot(direction, t_x) ** 2
+    b2 = _vdot(direction, t_y) ** 2
     total = a2 + b2
     ok = total > tiny(total)
     projected = (sigma2_x * a2 + sigma2_y * b2) / jnp.where(ok, total, 1.0)
@@ -283,6 +315,12 @@ def _projected_variance(direction, t_x, t_y, sigma2_x, sigma2_y):
 
 
 # --------------------------------------------------------------------------- BRDF terms
+
+
+def _erfc_scaled(a):
+    """``erfc(a) exp(a^2)`` of Bruneton's approximation for ``a >= 0``: the exponential is
+    left to the caller, which shares it (Smith's Lambda needs ``exp(-v^2)`` twice)."""
+    return 2.0 / (2.319 * a + jnp.sqrt(4.0 + 1.52 * a * a))
 
 
 def erfc_approx(x):
@@ -294,7 +332,7 @@ def erfc_approx(x):
     """
     x = jnp.asarray(x)
     a = jnp.where(x >= 0, x, -x)  # |x| with slope 1 (not 0) at x = 0
-    upper = 2.0 * jnp.exp(-a * a) / (2.319 * a + jnp.sqrt(4.0 + 1.52 * a * a))
+    upper = jnp.exp(-a * a) * _erfc_scaled(a)
     return jnp.where(x >= 0, upper, 2.0 - upper)
 
 
@@ -317,7 +355,8 @@ def smith_lambda(cos_theta, sigma2):
     # and the switch to V_MAX is continuous.
     below_cap = den * _SMITH_V_MAX**2 > c * c
     v = jnp.where(below_cap, c / jnp.sqrt(jnp.where(below_cap, den, 1.0)), _SMITH_V_MAX)
-    lam = (jnp.exp(-v * v) - v * _SQRT_PI * erfc_approx(v)) / (2.0 * v * _SQRT_PI)
+    # v > 0, so erfc(v) = exp(-v^2) erfc_scaled(v): one exponential for both terms
+    lam = jnp.exp(-v * v) * (1.0 - v * _SQRT_PI * _erfc_scaled(v)) / (2.0 * v * _SQRT_PI)
     return jnp.maximum(lam, 0.0)
 
 
@@ -339,21 +378,23 @@ def ocean_brdf(normal, sigma2_x, sigma2_y, view, light):
     below the tangent plane then has huge slopes and ``p = 0``, instead of a spurious
     glint from a sign flip. Slope variances are clamped per axis.
     """
+    n = _split(normal)
     sigma2_x, sigma2_y = _clamp_variances(sigma2_x, sigma2_y)
-    normal, view, light = jnp.asarray(normal), jnp.asarray(view), jnp.asarray(light)
-    t_x, t_y = tangent_frame(normal)
-    half = safe_normalize(light + view, fallback=normal)
-    # per-pixel frame computed once, not re-derived inside every consumer (see materialize)
-    t_x, t_y, half = materialize(*jnp.broadcast_arrays(t_x, t_y, half))
-    h_n = jnp.maximum(_dot(half, normal), MIN_COSINE)
-    zeta_x = _dot(half, t_x) / h_n
-    zeta_y = _dot(half, t_y) / h_n
+    return _ocean_brdf(n, *_tangent_frame(n), sigma2_x, sigma2_y, _split(view), _split(light))
+
+
+def _ocean_brdf(n, t_x, t_y, sigma2_x, sigma2_y, view, light):
+    # ocean_brdf on component tuples, frame given, variances clamped
+    half = _vnormalize(tuple(a + b for a, b in zip(light, view)), fallback=n)
+    h_n = jnp.maximum(_vdot(half, n), MIN_COSINE)
+    zeta_x = _vdot(half, t_x) / h_n
+    zeta_y = _vdot(half, t_y) / h_n
     slope_pdf = jnp.exp(-0.5 * (zeta_x**2 / sigma2_x + zeta_y**2 / sigma2_y)) / (
         2.0 * jnp.pi * jnp.sqrt(sigma2_x * sigma2_y)
     )
-    fresnel = FRESNEL_NORMAL + (1.0 - FRESNEL_NORMAL) * jnp.clip(1.0 - _dot(view, half), 0.0, 1.0) ** 5
-    z_light = jnp.maximum(_dot(light, normal), MIN_COSINE)
-    z_view = jnp.maximum(_dot(view, normal), MIN_COSINE)
+    fresnel = FRESNEL_NORMAL + (1.0 - FRESNEL_NORMAL) * jnp.clip(1.0 - _vdot(view, half), 0.0, 1.0) ** 5
+    z_light = jnp.maximum(_vdot(light, n), MIN_COSINE)
+    z_view = jnp.maximum(_vdot(view, n), MIN_COSINE)
     shadowing = (1.0 + smith_lambda(z_light, _projected_variance(light, t_x, t_y, sigma2_x, sigma2_y))
                  + smith_lambda(z_view, _projected_variance(view, t_x, t_y, sigma2_x, sigma2_y)))
     return fresnel * slope_pdf / (4.0 * z_light * z_view * h_n**4 * shadowing)
@@ -367,10 +408,16 @@ def sun_radiance_factor(normal, sigma2_x, sigma2_y, view, light):
     ``smoothstep(0, SUN_HORIZON_FADE, L_z)``: zero once the sun is below the horizon, with a
     C1 fade (finite gradients in the elevation) while the sun disk sets.
     """
-    normal, light = jnp.asarray(normal), jnp.asarray(light)
-    z_light = jnp.maximum(_dot(light, normal), MIN_COSINE)
-    above_horizon = smoothstep(0.0, SUN_HORIZON_FADE, light[..., 2])
-    return ocean_brdf(normal, sigma2_x, sigma2_y, view, light) * z_light * above_horizon
+    n = _split(normal)
+    sigma2_x, sigma2_y = _clamp_variances(sigma2_x, sigma2_y)
+    return _sun_radiance_factor(n, *_tangent_frame(n), sigma2_x, sigma2_y, _split(view), _split(light))
+
+
+def _sun_radiance_factor(n, t_x, t_y, sigma2_x, sigma2_y, view, light):
+    # sun_radiance_factor on component tuples, frame given, variances clamped
+    z_light = jnp.maximum(_vdot(light, n), MIN_COSINE)
+    above_horizon = smoothstep(0.0, SUN_HORIZON_FADE, light[2])
+    return _ocean_brdf(n, t_x, t_y, sigma2_x, sigma2_y, view, light) * z_light * above_horizon
 
 
 def _safe_power(base, exponent):
@@ -394,8 +441,9 @@ def mean_fresnel(cos_theta_v, sigma2_v):
     sigma2_v = jnp.maximum(sigma2_v, MIN_SLOPE_VARIANCE_AXIS)
     sigma_v = jnp.sqrt(sigma2_v)
     exponent = 5.0 * jnp.exp(-2.69 * sigma_v)
+    # sigma_V^1.5 = sigma_V sqrt(sigma_V): a square root instead of a general power (log + exp)
     return FRESNEL_NORMAL + (1.0 - FRESNEL_NORMAL) * _safe_power(1.0 - c, exponent) / (
-        1.0 + 22.7 * sigma2_v**0.75
+        1.0 + 22.7 * sigma_v * jnp.sqrt(sigma_v)
     )
 
 
@@ -408,10 +456,14 @@ def _check_horizon_gradient(horizon_gradient) -> None:
                      "horizon_gradient must be >= -1 (sky radiance must stay >= 0)", horizon_gradient)
 
 
+def sky_weight(d_z, horizon_gradient):
+    """Sky radiance per unit ``sky_color`` towards a direction whose z component is ``d_z``
+    (:func:`sky_radiance` without the colour), ``(...)``."""
+    return 1.0 + horizon_gradient * (1.0 - jnp.clip(d_z, 0.0, 1.0))
+
+
 def _sky(direction, lighting: Lighting, horizon_gradient):
-    mu = jnp.clip(direction[..., 2], 0.0, 1.0)
-    weight = 1.0 + horizon_gradient * (1.0 - mu)
-    return weight[..., None] * lighting.sky_color
+    return sky_weight(direction[..., 2], horizon_gradient)[..., None] * lighting.sky_color
 
 
 def sky_radiance(direction, lighting: Lighting, *, horizon_gradient=0.0):
@@ -469,14 +521,27 @@ def shade_components(normal, sigma2_x, sigma2_y, view, lighting: Lighting, *, ho
     _check_vectors(normal=normal, view=view)
     validate_lighting(lighting)
     _check_horizon_gradient(horizon_gradient)
-    normal = safe_normalize(jnp.asarray(normal))
-    view = safe_normalize(jnp.asarray(view))
-    normal, view = materialize(*jnp.broadcast_arrays(normal, view))  # computed once (see materialize)
+    sun, fresnel, reflected = pixel_terms(_split(normal), sigma2_x, sigma2_y, _split(view), lighting,
+                                          horizon_gradient)
+    return ShadingTerms(sun, fresnel, reflected[..., None] * lighting.sky_color)
+
+
+def pixel_terms(normal, sigma2_x, sigma2_y, view, lighting: Lighting, horizon_gradient):
+    """:func:`shade_components` on component tuples, for callers that hold the geometry as
+    separate arrays (the renderer): ``normal`` and ``view`` are tuples of three ``(...)``
+    arrays, normalised here; returns ``(sun, fresnel, reflected)``, each ``(...)``, with the
+    reflected sky per unit ``sky_color`` (:func:`sky_weight` of the mirror direction). No validation (the callers did it)."""
+    up = (0.0, 0.0, 1.0)
+    n = _vnormalize(normal, fallback=up)
+    view = _vnormalize(view, fallback=up)
     sigma2_x, sigma2_y = _clamp_variances(sigma2_x, sigma2_y)
-    sun = sun_radiance_factor(normal, sigma2_x, sigma2_y, view, sun_direction(lighting))
-    fresnel = mean_fresnel(_dot(view, normal), projected_variance(view, normal, sigma2_x, sigma2_y))
-    reflected = _sky(reflect(view, normal), lighting, horizon_gradient)
-    return ShadingTerms(sun, fresnel, reflected)
+    t_x, t_y = _tangent_frame(n)
+    sun = _sun_radiance_factor(n, t_x, t_y, sigma2_x, sigma2_y, view, _split(sun_direction(lighting)))
+    n_v = _vdot(view, n)
+    fresnel = mean_fresnel(n_v, _projected_variance(view, t_x, t_y, sigma2_x, sigma2_y))
+    # z of the mirror direction R = 2 (N.V) N - V (see reflect)
+    reflected = sky_weight(2.0 * n_v * n[2] - view[2], horizon_gradient)
+    return sun, fresnel, reflected
 
 
 def shade_pixel(normal, sigma2_x, sigma2_y, view, lighting: Lighting, *, horizon_gradient=0.0):
