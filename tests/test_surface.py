@@ -284,6 +284,40 @@ def test_on_grid_second_derivatives_equal_autodiff_of_the_plain_product(x64):
         _close(h_fast, h_plain)
 
 
+def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64):
+    """on_rows' hand-written tangent rule (forward mode, and transposed, reverse mode) equals
+    plain autodiff of the same tables and product to 1e-10, wrt waves, row origins and steps,
+    time and the per-row footprints (hierarchy weights on their ramp); a ragged last block."""
+    waves = random_waves(21, 9, np.float64, max_steepness=0.6)
+    rng = np.random.default_rng(22)
+    rows, n_cols, block = 5, 13, 4
+    origin, step = rng.uniform(-5, 5, (rows, 2)), rng.uniform(-0.4, 0.4, (rows, 2))
+    footprint = rng.uniform(1.5, 4.0, rows)
+    probe_d, probe_n = rng.normal(size=(2, rows, n_cols, 3))
+
+    def loss(fn):
+        def f(amp, omega, theta, phase, origin, step, t, footprint):
+            w = Waves(amp, omega, theta, phase)
+            weights = hierarchy.weights(w, footprint, grid_cell=footprint * 1.3)
+            d, n = fn(w, origin, step, n_cols, t, weights, block=block)
+            return jnp.sum(jnp.sin(d) * probe_d) + jnp.sum(n * probe_n) + jnp.sum(n[..., :2] ** 2)
+        return f
+
+    weights = hierarchy.weights(waves, jnp.asarray(footprint), grid_cell=jnp.asarray(footprint * 1.3))
+    for w in (weights.normal, weights.displacement):  # the filter acts, and its ramp is differentiated
+        assert np.any((w > 0) & (w < 1))
+    fast = loss(lambda *a, **k: tuple(surface.on_rows(*a, **k)[:2]))
+    plain = loss(surface._on_rows_reference)
+    args = (*waves, jnp.asarray(origin), jnp.asarray(step), jnp.asarray(0.37), jnp.asarray(footprint))
+    np.testing.assert_allclose(jax.jit(fast)(*args), jax.jit(plain)(*args), rtol=1e-12)
+    argnums = tuple(range(len(args)))
+    for g_fast, g_plain in zip(jax.jit(jax.grad(fast, argnums))(*args), jax.jit(jax.grad(plain, argnums))(*args)):
+        _close(g_fast, g_plain)
+    tangents = tuple(jnp.asarray(rng.normal(size=np.shape(a))) for a in args)
+    _close(*(jax.jit(lambda a, t, f=f: jax.jvp(f, a, t)[1])(args, tangents) for f in (fast, plain)))
+    check_grads(jax.jit(fast), args, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-5, rtol=1e-5)
+
+
 @given(
     kh=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
     omega=st.lists(st.floats(0.3, 8.0), min_size=3, max_size=3),
