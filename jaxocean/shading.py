@@ -55,7 +55,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import dot_last, smoothstep, tiny
+from jaxocean._math import dot_last, inv_sqrt, smoothstep, tiny
 from jaxocean.errors import check_values, is_concrete
 
 __all__ = [
@@ -258,7 +258,7 @@ def _vnormalize(v, fallback):
     """:func:`jaxocean._math.safe_normalize` on component tuples (``fallback`` a tuple too)."""
     sq = _vdot(v, v)
     ok = sq > tiny(sq)
-    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
     return tuple(jnp.where(ok, c * inv, f) for c, f in zip(v, fallback))
 
 

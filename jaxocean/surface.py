@@ -36,7 +36,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxocean._math import materialize, safe_normalize, safe_sqrt, tiny
+from jaxocean._math import inv_sqrt, materialize, safe_normalize, safe_sqrt, sincos, tiny
 from jaxocean.hierarchy import WaveWeights
 from jaxocean.waves import Waves, validate, wavenumber
 
@@ -93,8 +93,7 @@ def _normal_coeffs(waves: Waves):
 
 
 def _weighted_trig(waves, xy, t, w):
-    psi = phase(waves, xy, t)
-    cos_psi, sin_psi = jnp.cos(psi), jnp.sin(psi)
+    sin_psi, cos_psi = sincos(phase(waves, xy, t))
     if w is not None:
         cos_psi, sin_psi = cos_psi * w, sin_psi * w
     return materialize(cos_psi, sin_psi)  # each sine once, not once per reduced channel
@@ -282,8 +281,10 @@ def _grid_sums(cos_coeffs, sin_coeffs, a, b):
     and the factors they were built from: ``L (T*H, 2N)``, ``R (2N, 8, W)``, cos b, sin b."""
     t, h, n = a.shape
     w = b.shape[0]
-    lhs = jnp.concatenate([jnp.cos(a), jnp.sin(a)], axis=-1).reshape(t * h, 2 * n)  # each sine once
-    cos_b, sin_b = materialize(jnp.cos(b), jnp.sin(b))  # read by all eight channels of R
+    sin_a, cos_a = sincos(a)
+    lhs = jnp.concatenate([cos_a, sin_a], axis=-1).reshape(t * h, 2 * n)  # each sine once
+    sin_b, cos_b = sincos(b)
+    cos_b, sin_b = materialize(cos_b, sin_b)  # read by all eight channels of R
     rhs = _grid_right_factor(cos_coeffs, sin_coeffs, cos_b, sin_b)
     sums = jnp.dot(lhs, rhs.reshape(2 * n, 8 * w)).reshape(t, h, 8, w)
     return sums, lhs, rhs, cos_b, sin_b
@@ -306,7 +307,7 @@ def _grid_outputs(sums):
     m0, m1, m2 = _grid_jacobian_cross(a_xx, a_xy, a_yy, b_x, b_y)
     sq = m0 * m0 + m1 * m1 + m2 * m2
     ok = sq > tiny(sq)
-    inv = jnp.where(ok, 1.0 / jnp.sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
     nrm = jnp.stack([jnp.where(ok, m0 * inv, 0.0), jnp.where(ok, m1 * inv, 0.0), jnp.where(ok, m2 * inv, 1.0)], -1)
     return jnp.stack([d_x, d_y, d_z], axis=-1), nrm, inv
 
@@ -382,25 +383,6 @@ def _on_grid_reference(waves: Waves, x, y, times, weights=None):
     return _surface_from_sums(sums[:, :, c] for c in range(8))
 
 
-def _power_table(start, angle, count: int):
-    """(cos, sin) of start_phase + m * angle for m = 0 .. count-1, stacked on axis -2.
-
-    ``start`` is the pair (cos, sin) of the start phase, ``angle`` ``(..., N)``. Built by
-    doubling -- the table so far, rotated by 2^level * angle, is appended -- so only the two
-    sines of ``angle`` are evaluated and there is no sequential loop; rounding grows with
-    log2(count) (<= 1e-6 in float32 for the sizes used here).
-    """
-    step_cos, step_sin = materialize(jnp.cos(angle), jnp.sin(angle))
-    table_cos, table_sin = start[0][..., None, :], start[1][..., None, :]
-    while table_cos.shape[-2] < count:
-        rot_cos, rot_sin = step_cos[..., None, :], step_sin[..., None, :]
-        table_cos, table_sin = (jnp.concatenate([table_cos, table_cos * rot_cos - table_sin * rot_sin], -2),
-                                jnp.concatenate([table_sin, table_sin * rot_cos + table_cos * rot_sin], -2))
-        step_cos, step_sin = step_cos * step_cos - step_sin * step_sin, 2.0 * step_sin * step_cos
-    # the finished table is read by every channel of the product: computed once (materialize)
-    return materialize(table_cos[..., :count, :], table_sin[..., :count, :])
-
-
 def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: int | None = None) -> GridSurface:
     """The surface at points that are evenly spaced along each row: X = origin[r] + j * step[r].
 
@@ -412,7 +394,8 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     image row the hit points are affine in the column and the footprint is constant. The
     phase is psi = alpha_r + j beta_r; splitting j = B a + b (B ~ 2 sqrt(n_cols)) gives
     e^{i psi} = e^{i(alpha + B a beta)} e^{i b beta}, so per row the eight wave sums are a
-    product of ``(8 A, 2N)`` by ``(2N, B)`` and only R (A + B) N sines are evaluated.
+    product of ``(8 A, 2N)`` by ``(2N, B)`` and only R (A + B) N sines are evaluated
+    (instead of R A B N).
 
     Differentiable in both modes through a hand-written linear tangent rule (see
     :func:`_row_surface_jvp`): the tables are differentiated in closed form and reverse mode
@@ -450,9 +433,13 @@ def _row_inputs(waves: Waves, origin, step, t, weights):
 
 def _row_tables(alpha, beta, block: int, n_blocks: int):
     """(cos, sin) of the coarse phases alpha + B a beta ``(R, A, N)`` and of the fine phases
-    b beta ``(R, B, N)`` (power tables: 3 R N sines instead of R (A + B) N)."""
-    coarse_cos, coarse_sin = _power_table((jnp.cos(alpha), jnp.sin(alpha)), block * beta, n_blocks)
-    fine_cos, fine_sin = _power_table((jnp.ones_like(beta), jnp.zeros_like(beta)), beta, block)
+    b beta ``(R, B, N)``: R (A + B) N sines by :func:`jaxocean._math.sincos` (fused polynomials:
+    measured 1.6x faster for the whole geometry than power tables built by doubling from 3 R N
+    library sines, whose concatenations are memory passes)."""
+    dtype = alpha.dtype
+    coarse = alpha[:, None, :] + (block * jnp.arange(n_blocks, dtype=dtype))[None, :, None] * beta[:, None, :]
+    coarse_sin, coarse_cos = sincos(coarse)
+    fine_sin, fine_cos = sincos(jnp.arange(block, dtype=dtype)[None, :, None] * beta[:, None, :])
     return coarse_cos, coarse_sin, fine_cos, fine_sin
 
 
@@ -479,9 +466,8 @@ def _row_surface(cos_coeffs, sin_coeffs, alpha, beta, block: int, n_blocks: int)
 def _row_surface_jvp(block, n_blocks, primals, tangents):
     """Linear tangent rule, the per-row counterpart of :func:`_grid_surface_jvp`.
 
-    Plain autodiff differentiated through the doubling steps of the power tables (every level
-    of the table a saved intermediate) and transposed the batched product's concatenated
-    factors (measured 5x the forward). Here the tables are differentiated in closed form --
+    Plain autodiff saved the tables' intermediates and transposed the batched product's
+    concatenated factors (measured 5x the forward, with the earlier doubling tables). Here the tables are differentiated in closed form --
     d(e^{i phi}) = i e^{i phi} dphi with the linear phase tangents dalpha + B a dbeta and b dbeta
     -- so the tangent of the sums is two batched products of the forward's size,
     ds = dlhs rhs + lhs drhs, whose transpose (reverse mode) is two more, and the outputs'

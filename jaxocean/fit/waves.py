@@ -88,7 +88,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
-from jaxocean._math import safe_sqrt, smoothstep
+from jaxocean._math import safe_sqrt, sincos, smoothstep
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.surface import normal_from_sums
 from jaxocean.waves import GRAVITY, Waves, validate
@@ -425,7 +425,7 @@ def _jacobian(P, act, s: _Samples, n_min, n_max):
     dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max)) * act
     proj = s.xy[:, :1] * c + s.xy[:, 1:] * sn  # (S, N)
     psi0 = om * s.t[:, None] - k * proj
-    cp, sp = jnp.cos(psi0), jnp.sin(psi0)
+    sp, cp = sincos(psi0)
     wk = w * k
     cn, snn = a * cp - b * sp, a * sp + b * cp
     C, S = wk * cn, wk * snn
@@ -875,7 +875,8 @@ def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
         gram, rhs = carry
         t, st, wt = inp
         psi0 = omega * t - jnp.einsum("hwd,nd->hwn", xy, k[:, None] * khat)  # (H, W, N)
-        sn, cs = jnp.sin(psi0) * amp[:, None, :], jnp.cos(psi0) * amp[:, None, :]
+        sn, cs = sincos(psi0)
+        sn, cs = sn * amp[:, None, :], cs * amp[:, None, :]
         # design (H, W, 2 comps, 2N): column i -> k_hat_i * amp * sin, column N+i -> * cos
         U = jnp.concatenate([sn[..., None, :] * khat.T[None, None], cs[..., None, :] * khat.T[None, None]], -1)
         U = U * jnp.sqrt(wt)[..., None, None]
@@ -1106,7 +1107,7 @@ def _single_wave_stats(om, th, s: _Samples, n_min, n_max):
     amp = smoothstep(n_min, n_max, (2 * jnp.pi / k) / s.fp) * k
     psi0 = om * s.t - k * (c * s.xy[:, 0] + sn * s.xy[:, 1])
     rk = s.target[:, 0] * c + s.target[:, 1] * sn
-    sp, cp = jnp.sin(psi0), jnp.cos(psi0)
+    sp, cp = sincos(psi0)
     wa = s.sw * s.sw * amp
     wa2 = wa * amp
     return (jnp.sum(wa * sp * rk), jnp.sum(wa * cp * rk), jnp.sum(wa2 * sp * sp), jnp.sum(wa2 * cp * cp),
@@ -1148,7 +1149,7 @@ def _single_wave_jac(p, s: _Samples, n_min, n_max):
     dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max))
     proj = c * s.xy[:, 0] + sn * s.xy[:, 1]
     psi0 = om * s.t - k * proj
-    sp, cp = jnp.sin(psi0), jnp.cos(psi0)
+    sp, cp = sincos(psi0)
     amp = w * k
     lin = a * sp + b * cp
     dlin = a * cp - b * sp  # d lin / d psi0
@@ -1212,7 +1213,8 @@ def _joint_ab(omega, theta, valid, s: _Samples, n_min, n_max):
     amp = smoothstep(n_min, n_max, (2 * jnp.pi / k)[None, :] / s.fp[:, None]) * k * valid  # (S, B)
     psi0 = omega * s.t[:, None] - (s.xy @ (k[:, None] * khat).T)  # (S, B)
     sw = s.sw[:, None, None]
-    U = jnp.concatenate([(amp * jnp.sin(psi0))[:, None, :] * khat.T[None], (amp * jnp.cos(psi0))[:, None, :]
+    sp, cp = sincos(psi0)
+    U = jnp.concatenate([(amp * sp)[:, None, :] * khat.T[None], (amp * cp)[:, None, :]
                          * khat.T[None]], -1) * sw  # (S, 2, 2B)
     U = U.reshape(-1, 2 * B)
     r = (s.target * s.sw[:, None]).reshape(-1)

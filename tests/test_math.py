@@ -1,0 +1,63 @@
+"""The shared numerical helpers of jaxocean._math: fast float32 sincos and inv_sqrt."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+from jax.test_util import check_grads
+
+from jaxocean._math import inv_sqrt, sincos
+
+
+def test_float32_sincos_is_within_a_few_ulp_of_the_exact_values():
+    # every phase the renderer and the fits produce: |x| up to 1e4 rad
+    x = jnp.linspace(-1e4, 1e4, 400_001, dtype=jnp.float32)
+    s, c = sincos(x)
+    exact = np.asarray(x, np.float64)
+    assert s.dtype == c.dtype == jnp.float32
+    assert np.max(np.abs(np.asarray(s) - np.sin(exact))) < 2e-7
+    assert np.max(np.abs(np.asarray(c) - np.cos(exact))) < 2e-7
+    # quadrant boundaries and exact points
+    q = jnp.asarray([0.0, np.pi / 2, np.pi, -np.pi / 2, 3 * np.pi / 4, -np.pi / 4], jnp.float32)
+    s, c = sincos(q)
+    np.testing.assert_allclose(s, np.sin(np.asarray(q, np.float64)), atol=1e-7)
+    np.testing.assert_allclose(c, np.cos(np.asarray(q, np.float64)), atol=1e-7)
+
+
+@given(st.floats(-3000.0, 3000.0))
+def test_float32_sincos_matches_numpy_and_stays_on_the_unit_circle(x):
+    s, c = sincos(jnp.float32(x))
+    x64 = float(np.float32(x))
+    assert abs(float(s) - np.sin(x64)) < 2e-7 and abs(float(c) - np.cos(x64)) < 2e-7
+    assert abs(float(s) ** 2 + float(c) ** 2 - 1.0) < 5e-7
+
+
+def test_sincos_float64_is_the_library_function_and_gradients_are_exact(x64):
+    x = jnp.linspace(-50.0, 50.0, 101)
+    s, c = sincos(x)
+    np.testing.assert_array_equal(s, jnp.sin(x))
+    np.testing.assert_array_equal(c, jnp.cos(x))
+    check_grads(lambda x: sincos(x)[0] * 2.0 + sincos(x)[1] ** 2, (x,), order=2, modes=("fwd", "rev"))
+
+
+def test_float32_sincos_derivative_is_cos_and_minus_sin():
+    x = jnp.linspace(-20.0, 20.0, 41, dtype=jnp.float32)
+    ds = jax.vmap(jax.grad(lambda x: sincos(x)[0]))(x)
+    dc = jax.vmap(jax.grad(lambda x: sincos(x)[1]))(x)
+    s, c = sincos(x)
+    np.testing.assert_array_equal(ds, c)
+    np.testing.assert_array_equal(dc, -s)
+
+
+def test_sincos_propagates_non_finite_inputs():
+    s, c = sincos(jnp.asarray([jnp.inf, jnp.nan], jnp.float32))
+    assert np.all(np.isnan(s)) and np.all(np.isnan(c))
+
+
+def test_inv_sqrt_value_and_gradient(x64):
+    x = jnp.geomspace(1e-8, 1e8, 33)
+    np.testing.assert_allclose(inv_sqrt(x), 1.0 / np.sqrt(np.asarray(x)), rtol=1e-15)
+    check_grads(inv_sqrt, (jnp.linspace(0.1, 10.0, 7),), order=2, modes=("fwd", "rev"))
+    x32 = jnp.geomspace(1e-6, 1e6, 33, dtype=jnp.float32)
+    np.testing.assert_allclose(inv_sqrt(x32), 1.0 / np.sqrt(np.asarray(x32, np.float64)), rtol=3e-7)
