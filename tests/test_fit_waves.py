@@ -123,6 +123,17 @@ def test_a_fit_that_fails_says_so(ortho_scene):
     assert info.value.result is not None and not bool(info.value.result.success)
 
 
+def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
+    # three waves, room for two: the count was not selected, so the fit must not claim success
+    c, truth, normals, rough = ortho_scene
+    fit = fw.waves(normals, rough, c, TIMES, max_waves=2)
+    assert int(fit.n_waves) == 2 and not bool(fit.success)
+    with pytest.raises(FitError, match="max_waves=2"):
+        fw.waves(normals, rough, c, TIMES, max_waves=2, throw=True)
+    # a fixed count is the caller's choice, not a cap
+    assert bool(fw.waves(normals, rough, c, TIMES, n_waves=3).success)
+
+
 def test_refine_maps_over_scenes_with_vmap(ortho_scene):
     c, truth, normals, rough = ortho_scene
     init = truth._replace(amplitude=truth.amplitude * 0.95)

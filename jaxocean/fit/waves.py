@@ -133,7 +133,9 @@ class WaveFit(NamedTuple):
     * ``roughness_error`` mean absolute roughness difference.
     * ``steps``        solver steps of the final refinement (``waves``: summed over the whole
       pipeline).
-    * ``success``      the solver converged to its tolerances with a finite loss.
+    * ``success``      the solver converged to its tolerances with a finite loss (and, when
+      :func:`waves` selects the count, the selection stopped by itself: a fit stopped by
+      ``max_waves`` is reported failed -- the sea holds more than the cap allows).
     * ``n_waves``      number of fitted waves.
     * ``time_s``       wall time [s] of the eager call (NaN under tracing).
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
@@ -808,10 +810,14 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
     return _maybe_throw(res, throw, max_steps)
 
 
-def _maybe_throw(res: WaveFit, throw: bool, max_steps):
+def _maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False):
     if throw and is_concrete(res.success) and not bool(res.success):
         from jaxocean.fit.solvers import FitError
 
+        if capped:
+            raise FitError(f"wave fit stopped at max_waves={int(res.n_waves)} while the criterion still accepted "
+                           f"waves (normal error {float(res.normal_error):.3e} rad): raise max_waves; the result "
+                           "is attached as .result", res)
         raise FitError(f"wave fit did not converge within {max_steps} steps (loss {float(res.loss):.3e}, "
                        f"{int(res.n_waves)} waves); the result is attached as .result", res)
     return res
@@ -1575,8 +1581,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                      hist if history else None, rw, n_min, n_max, t0)
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
-    result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype))
-    _maybe_throw(result, throw, max_steps)
+    # the loop ran into the cap, not into the criterion: the count was not selected
+    capped = n_waves is None and init is None and n_fit >= max_waves
+    result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
+                             success=jnp.asarray(result.success) & (not capped))
+    _maybe_throw(result, throw, max_steps, capped)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
         return result, sel
