@@ -135,7 +135,7 @@ def main(argv=None):
         out = benchutil.save("bench_render", saved["rows"], saved["meta"])
         chart(saved["rows"], skip, out.with_suffix(".png"))
         return
-    reps = 2 if args.quick else 5
+    reps = 3 if args.quick else 21  # medians of 5 swung by 1.5x between quiet runs
     configs = [(60, 256)] + ([] if args.quick else [(60, r) for r in (64, 128, 512)] + [(n, 256) for n in (15, 240)])
     rows = []
     for n, res in configs:
