@@ -367,6 +367,8 @@ def test_camera_fit_reports_a_local_minimum_as_failure(x64):
         fit.camera(image, waves, 0.0, true_cam, lighting=light, levels=(2, 4))
     with pytest.raises(ValueError, match="noise"):
         fit.camera(image, waves, 0.0, true_cam, lighting=light, noise=-1.0)
+    with pytest.raises(ValueError, match="coarse_steps"):
+        fit.camera(image, waves, 0.0, true_cam, lighting=light, coarse_steps=0)
 
 
 @pytest.mark.slow
