@@ -350,6 +350,19 @@ def test_camera_fit_coarse_to_fine_from_an_offset_start(x64):
     assert res.history is None
 
 
+def test_camera_fit_jointly_with_the_lighting(x64):
+    # camera and lighting together from an offset camera and sun: both recovered, the
+    # colours solved in closed form at the fitted geometry
+    waves, light, true_cam, image = _jonswap_scene(16)
+    guess = light._replace(sun_azimuth=light.sun_azimuth + 0.1, sun_elevation=light.sun_elevation + 0.05)
+    res = fit.camera(image, waves, 0.0, _start(true_cam, 10.8, 0.33), lighting=guess, fit_lighting=True, plan=None)
+    assert bool(res.success) and float(res.loss) < 1e-20
+    np.testing.assert_allclose([float(res.camera.height), float(res.camera.pitch)], [10.0, 0.35], rtol=1e-8)
+    err = fit.lighting_error(res.lighting, light)
+    assert float(err["sun_angle_deg"]) < 1e-8
+    assert max(float(err[n]) for n in fit.COLOR_FIELDS) < 1e-8
+
+
 def test_camera_fit_reports_a_local_minimum_as_failure(x64):
     # the full model alone from 13% low converges (within the step limit) to a neighbouring
     # minimum at 8.11 m / 0.3499 rad, loss 8.8e-5: the solver's test passes, the loss bound

@@ -165,16 +165,19 @@ def _data(y, args, fit, plan, scale=1.0):
     return lf._prepare(image, geo.normal, geo.slope_variance, c, weight, hg)
 
 
+def _sun_and_colors(y, data, light, fit, fit_lighting):
+    """Sun direction and colours of parameters ``y``: with ``fit_lighting`` the sun's ``(p, q)``
+    after the camera fields and the colours projected at ``data``, else the known ``light``'s."""
+    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
+    if not fit_lighting:
+        return shading.sun_direction(light), fixed
+    direction = lf.pq_to_direction(y[len(fit):])
+    return direction, lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS)
+
+
 def _residual(y, args, fit, fit_lighting, plan, scale):
     data = _data(y, args, fit, plan, scale)
-    light = args[6]
-    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
-    if fit_lighting:
-        direction = lf.pq_to_direction(y[len(fit):])
-        colors = lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS)
-    else:
-        direction = shading.sun_direction(light)
-        colors = fixed
+    direction, colors = _sun_and_colors(y, data, args[6], fit, fit_lighting)
     return lf._residual_from_model(data, lf._model(data, direction, colors))
 
 
@@ -220,13 +223,10 @@ def _sun_start(y_cam, args, st: _Static):
 def _lighting_at(y, args, st: _Static, level: int):
     """The lighting of parameters ``y``: the known one, or the fitted sun with its projected
     colours at that level's geometry."""
-    light = args[6]
     if not st.fit_lighting:
-        return light
+        return args[6]
     data = _data(y, args, st.fit, st.plans[level], st.levels[level])
-    direction = lf.pq_to_direction(y[len(st.fit):])
-    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
-    return lf._finish(data, y[len(st.fit):], lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS))
+    return lf._finish(data, y[len(st.fit):], _sun_and_colors(y, data, args[6], st.fit, True)[1])
 
 
 def _score(fn, y, args):
