@@ -200,9 +200,11 @@ def _geometry(waves, camera, t, grid_cell, *, n_min, n_max, active, refine, max_
                         n_min=n_min, n_max=n_max, active=active, refine=refine)
 
 
-def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refine):
+def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refine, positions=True):
     """The body of :func:`geometry` given the camera's sea hits (shared with :func:`_shade_at`
-    inside :func:`render`'s single compiled function)."""
+    inside :func:`render`'s single compiled function). ``positions=False`` (the renderer,
+    which shades normals only): on the rows path the three displacement sums are not
+    computed (5 of the product's 8 channels) and ``position`` is None."""
     H, W = camera.resolution
     mask = hit.mask
     evaluated = waves if active is None else _select(waves, active)
@@ -214,7 +216,7 @@ def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refi
         ws = hierarchy.weights(evaluated, fp_row, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
         origin = hit.xy[:, 0]
         step = (hit.xy[:, -1] - hit.xy[:, 0]) / max(W - 1, 1)
-        rows = surface.on_rows(evaluated, origin, step, W, t, ws)
+        rows = surface.on_rows(evaluated, origin, step, W, t, ws, with_displacement=positions)
         sx2, sy2 = surface.slope_variance(waves, ws_all)
         slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[:, None, :], (H, W, 2))
         xy, disp, normal = hit.xy, rows.displacement, rows.normal
@@ -227,7 +229,7 @@ def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refi
         normal = surface.normal(evaluated, xy, t, ws)
         sx2, sy2 = surface.slope_variance(waves, ws_all)
         slope_var = jnp.stack([sx2, sy2], -1)
-    position = disp + jnp.concatenate([xy, jnp.zeros_like(xy[..., :1])], -1)
+    position = None if disp is None else disp + jnp.concatenate([xy, jnp.zeros_like(xy[..., :1])], -1)
     roughness = jnp.maximum(slope_var[..., 0] + slope_var[..., 1], shading.MIN_SLOPE_VARIANCE)
     return Geometry(normal=normal, roughness=roughness, slope_variance=slope_var, mask=mask, xy=xy,
                     position=position, footprint=hit.footprint)
@@ -278,13 +280,18 @@ def _shade_at(normal, slope_var, hit, lighting, horizon_gradient):
     sun, fresnel, reflected = shading.pixel_terms(nrm, slope_var[..., 0], slope_var[..., 1], view, lighting,
                                                   horizon_gradient)
     # image = sun_color * B_sun + F_mean sky(R) + (1 - F_mean) sea_color on the sea, sky(D) on
-    # the sky: linear in the three colours, so one (H W, 3) x (3, 3) product with per-pixel
-    # coefficients (a dot also makes XLA compute the pixel model once, not once per channel)
-    coeffs = jnp.stack([jnp.where(mask, sun, 0.0),
-                        jnp.where(mask, fresnel * reflected, shading.sky_weight(hit.direction[..., 2], horizon_gradient)),
-                        jnp.where(mask, 1.0 - fresnel, 0.0)], axis=-1)
-    colors = jnp.stack([lighting.sun_color, lighting.sky_color, lighting.sea_color])
-    return jnp.dot(coeffs, colors)
+    # the sky: linear in the three colours, so a sum of three rank-1 products (per-pixel
+    # coefficient x colour). Dots make XLA compute the pixel model once, not once per output
+    # channel; and separate (H W, 1) x (1, 3) dots, not one (H W, 3) x (3, 3) dot of stacked
+    # coefficients, since the stack's fusion re-evaluates the shared per-pixel terms (normal,
+    # tangent frame) in each of its three slices (measured 1.4 ms against 3.4 ms at 256^2)
+    coeffs = (jnp.where(mask, sun, 0.0),
+              jnp.where(mask, fresnel * reflected, shading.sky_weight(hit.direction[..., 2], horizon_gradient)),
+              jnp.where(mask, 1.0 - fresnel, 0.0))
+    colors = (lighting.sun_color, lighting.sky_color, lighting.sea_color)
+    H, W = mask.shape
+    image = sum(jnp.dot(c.reshape(H * W, 1), jnp.reshape(color, (1, 3))) for c, color in zip(coeffs, colors))
+    return image.reshape(H, W, 3)
 
 
 def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_gradient=0.0,
@@ -336,5 +343,6 @@ def render(waves: Waves, camera, lighting, t, *, horizon_gradient=0.0, n_min=hie
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "active", "refine", "max_distance"))
 def _render(waves, camera, lighting, t, horizon_gradient, grid_cell, *, n_min, n_max, active, refine, max_distance):
     hit = cam.intersect_sea(camera, max_distance=max_distance)
-    geo = _geometry_at(waves, camera, t, grid_cell, hit, n_min=n_min, n_max=n_max, active=active, refine=refine)
+    geo = _geometry_at(waves, camera, t, grid_cell, hit, n_min=n_min, n_max=n_max, active=active, refine=refine,
+                       positions=False)
     return _shade_at(geo.normal, geo.slope_variance, hit, lighting, horizon_gradient)

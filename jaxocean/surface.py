@@ -174,19 +174,23 @@ class GridSurface(NamedTuple):
         return jnp.sum(self.slope_variance, axis=-1)
 
 
-def _channel_coeffs(waves: Waves, weights):
+def _channel_coeffs(waves: Waves, weights, with_displacement: bool = True):
     """Coefficients of the eight wave sums, weighted per level: (cos (..., 4, N), sin (..., 4, N)).
 
     cos channels: A_xx, A_xy, A_yy, d_z; sin channels: B_x, B_y, d_x, d_y. Weight arrays
     ``(..., N)`` give per-row (or per-grid) coefficients with the same leading axes.
+    ``with_displacement=False``: the normal's five only, (cos (..., 3, N), sin (..., 2, N)).
     """
-    disp_sin, disp_cos = _displacement_coeffs(waves)
     norm_sin, norm_cos = _normal_coeffs(waves)
     w_disp, w_norm = _level(weights, "displacement"), _level(weights, "normal")
-    if w_disp is not None:
-        disp_sin, disp_cos = disp_sin * w_disp[..., None], disp_cos * w_disp[..., None]
     if w_norm is not None:
         norm_sin, norm_cos = norm_sin * w_norm[..., None], norm_cos * w_norm[..., None]
+    if not with_displacement:
+        channels = materialize(*(norm_cos[..., c] for c in range(3)), *(norm_sin[..., c] for c in range(2)))
+        return jnp.stack(channels[:3], -2), jnp.stack(channels[3:], -2)
+    disp_sin, disp_cos = _displacement_coeffs(waves)
+    if w_disp is not None:
+        disp_sin, disp_cos = disp_sin * w_disp[..., None], disp_cos * w_disp[..., None]
     lead = jnp.broadcast_shapes(norm_cos.shape[:-1], disp_cos.shape[:-1])  # (..., N)
 
     def join(a, b):
@@ -297,19 +301,30 @@ def _grid_jacobian_cross(a_xx, a_xy, a_yy, b_x, b_y):
             (1.0 - a_xx) * (1.0 - a_yy) - a_xy * a_xy)
 
 
+def _split_channels(channels):
+    """The Jacobian's five sums and the displacement ``(d_x, d_y, d_z)`` (None when only the
+    normal's five channels were computed) from the channel list: cos group then sin group,
+    8 channels (A_xx, A_xy, A_yy, d_z, B_x, B_y, d_x, d_y) or 5 (A_xx, A_xy, A_yy, B_x, B_y)."""
+    if len(channels) == 8:
+        a_xx, a_xy, a_yy, d_z, b_x, b_y, d_x, d_y = channels
+        return (a_xx, a_xy, a_yy, b_x, b_y), (d_x, d_y, d_z)
+    return tuple(channels), None
+
+
 def _grid_outputs(sums):
-    """Displacement, unit normal ``(T, H, W, 3)`` and 1/|m| ``(T, H, W)`` from the sums ``(T, H, 8, W)``.
+    """Displacement (None without its channels), unit normal ``(T, H, W, 3)`` and 1/|m|
+    ``(T, H, W)`` from the sums ``(T, H, C, W)``, C = 8 or 5 (see :func:`_split_channels`).
 
     The same formula as :func:`normal_from_sums` (+z and a zero 1/|m| at a cusp), written per
     component so that XLA does one pass instead of stacking m first.
     """
-    a_xx, a_xy, a_yy, d_z, b_x, b_y, d_x, d_y = (sums[:, :, c] for c in range(8))
+    (a_xx, a_xy, a_yy, b_x, b_y), disp = _split_channels([sums[:, :, c] for c in range(sums.shape[2])])
     m0, m1, m2 = _grid_jacobian_cross(a_xx, a_xy, a_yy, b_x, b_y)
     sq = m0 * m0 + m1 * m1 + m2 * m2
     ok = sq > tiny(sq)
     inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
     nrm = jnp.stack([jnp.where(ok, m0 * inv, 0.0), jnp.where(ok, m1 * inv, 0.0), jnp.where(ok, m2 * inv, 1.0)], -1)
-    return jnp.stack([d_x, d_y, d_z], axis=-1), nrm, inv
+    return None if disp is None else jnp.stack(disp, axis=-1), nrm, inv
 
 
 @jax.custom_jvp
@@ -355,18 +370,18 @@ def _grid_surface_jvp(primals, tangents):
 
 
 def _output_tangents(sums, nrm, inv, d_sums):
-    """Tangents of :func:`_grid_outputs` (displacement, unit normal): the sums ``(T, H, 8, W)``,
-    the normal and 1/|m| it returned, and the eight channel tangents ``d_sums``, each
-    ``(T, H, W)``. dn = (dm - n (n . dm)) / |m| (zero at a cusp: the normal is the constant +z)."""
-    a_xx, a_xy, a_yy, _, b_x, b_y, _, _ = (sums[:, :, c] for c in range(8))
-    da_xx, da_xy, da_yy, dd_z, db_x, db_y, dd_x, dd_y = d_sums
+    """Tangents of :func:`_grid_outputs` (displacement or None, unit normal): the sums
+    ``(T, H, C, W)``, the normal and 1/|m| it returned, and the C channel tangents ``d_sums``,
+    each ``(T, H, W)``. dn = (dm - n (n . dm)) / |m| (zero at a cusp: the normal is the constant +z)."""
+    (a_xx, a_xy, a_yy, b_x, b_y), _ = _split_channels([sums[:, :, c] for c in range(sums.shape[2])])
+    (da_xx, da_xy, da_yy, db_x, db_y), d_disp = _split_channels(d_sums)
     dm0 = -(da_xy * b_y + a_xy * db_y) - (db_x * (1.0 - a_yy) - b_x * da_yy)
     dm1 = -(db_x * a_xy + b_x * da_xy) - ((1.0 - a_xx) * db_y - da_xx * b_y)
     dm2 = -da_xx * (1.0 - a_yy) - (1.0 - a_xx) * da_yy - 2.0 * a_xy * da_xy
     n0, n1, n2 = nrm[..., 0], nrm[..., 1], nrm[..., 2]
     proj = n0 * dm0 + n1 * dm1 + n2 * dm2
     d_nrm = jnp.stack([(dm0 - n0 * proj) * inv, (dm1 - n1 * proj) * inv, (dm2 - n2 * proj) * inv], axis=-1)
-    return jnp.stack([dd_x, dd_y, dd_z], axis=-1), d_nrm
+    return None if d_disp is None else jnp.stack(d_disp, axis=-1), d_nrm
 
 
 def _on_grid_reference(waves: Waves, x, y, times, weights=None):
@@ -383,7 +398,8 @@ def _on_grid_reference(waves: Waves, x, y, times, weights=None):
     return _surface_from_sums(sums[:, :, c] for c in range(8))
 
 
-def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: int | None = None) -> GridSurface:
+def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: int | None = None,
+            with_displacement: bool = True) -> GridSurface:
     """The surface at points that are evenly spaced along each row: X = origin[r] + j * step[r].
 
     ``origin``, ``step``: ``(R, 2)`` [m]; ``n_cols`` static; ``t`` scalar. Per-row weights
@@ -400,6 +416,9 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     Differentiable in both modes through a hand-written linear tangent rule (see
     :func:`_row_surface_jvp`): the tables are differentiated in closed form and reverse mode
     costs two more batched products.
+
+    ``with_displacement=False`` computes the normal's five sums only (5/8 of the product;
+    for a renderer that does not need hit positions) and returns ``displacement=None``.
     """
     _check(waves)
     origin, step = jnp.asarray(origin), jnp.asarray(step)
@@ -412,22 +431,24 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     block = max(1, min(n_cols, int(round(2 * n_cols ** 0.5)))) if block is None else int(block)
     n_blocks = -(-n_cols // block)
 
-    disp, nrm = _row_surface(*_row_inputs(waves, origin, step, t, weights), block, n_blocks)  # (R, A, B, 3)
-    disp, nrm = (x.reshape(rows, n_blocks * block, 3)[:, :n_cols] for x in (disp, nrm))
+    disp, nrm = _row_surface(*_row_inputs(waves, origin, step, t, weights, with_displacement), block, n_blocks)
+    disp, nrm = (None if x is None else x.reshape(rows, n_blocks * block, 3)[:, :n_cols] for x in (disp, nrm))
     sx2, sy2 = slope_variance(waves, _level(weights, "roughness") if weights is not None
                               else jnp.zeros_like(waves.amplitude))
-    slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[..., None, :], disp.shape[:-1] + (2,))
+    slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[..., None, :], nrm.shape[:-1] + (2,))
     return GridSurface(displacement=disp, normal=nrm, slope_variance=slope_var)
 
 
-def _row_inputs(waves: Waves, origin, step, t, weights):
-    """Per-row channel coefficients ``(R, 4, N)`` x 2 and the phase psi = alpha + j beta of the
-    points X = origin + j step: alpha, beta ``(R, N)``."""
+def _row_inputs(waves: Waves, origin, step, t, weights, with_displacement: bool = True):
+    """Per-row channel coefficients ``(R, 4, N)`` x 2 (``(R, 3, N)``, ``(R, 2, N)`` without the
+    displacement) and the phase psi = alpha + j beta of the points X = origin + j step:
+    alpha, beta ``(R, N)``."""
     kvec = jnp.stack([wavenumber(waves) * jnp.cos(waves.theta), wavenumber(waves) * jnp.sin(waves.theta)])
     alpha = waves.omega * t + waves.phase - jnp.dot(origin, kvec)
     beta = -jnp.dot(step, kvec)
     rows = origin.shape[0]
-    cos_coeffs, sin_coeffs = (jnp.broadcast_to(c, (rows,) + c.shape[-2:]) for c in _channel_coeffs(waves, weights))
+    cos_coeffs, sin_coeffs = (jnp.broadcast_to(c, (rows,) + c.shape[-2:])
+                              for c in _channel_coeffs(waves, weights, with_displacement))
     return cos_coeffs, sin_coeffs, alpha, beta
 
 
@@ -444,8 +465,9 @@ def _row_tables(alpha, beta, block: int, n_blocks: int):
 
 
 def _row_sums(cos_coeffs, sin_coeffs, tables):
-    """The eight wave sums ``(R, A, 8, B)`` of every row (the on_grid layout with T = R, H = A,
-    W = B) and the factors: ``lhs (R, A, 8, 2N)`` carrying the coefficients, ``rhs (R, B, 2N)``."""
+    """The wave sums ``(R, A, C, B)`` of every row, C = 8 or 5 channels (the on_grid layout with
+    T = R, H = A, W = B) and the factors: ``lhs (R, A, C, 2N)`` carrying the coefficients,
+    ``rhs (R, B, 2N)``."""
     coarse_cos, coarse_sin, fine_cos, fine_sin = tables
     lhs = _separable_lhs(cos_coeffs[:, None], sin_coeffs[:, None], coarse_cos, coarse_sin)
     rhs = jnp.concatenate([fine_cos, fine_sin], axis=-1)
@@ -456,7 +478,8 @@ def _row_sums(cos_coeffs, sin_coeffs, tables):
 def _row_surface(cos_coeffs, sin_coeffs, alpha, beta, block: int, n_blocks: int):
     """(displacement, normal) ``(R, A, B, 3)`` of the points j = B a + b of every row, from the
     per-row channel coefficients ``(R, 4, N)`` x 2 and phases psi = alpha + j beta ``(R, N)``.
-    The core of :func:`on_rows`; see its tangent rule below."""
+    Coefficients of the normal's channels only (``(R, 3, N)``, ``(R, 2, N)``) give a None
+    displacement. The core of :func:`on_rows`; see its tangent rule below."""
     tables = _row_tables(alpha, beta, block, n_blocks)
     disp, nrm, _ = _grid_outputs(_row_sums(cos_coeffs, sin_coeffs, tables)[0])
     return disp, nrm
@@ -493,7 +516,7 @@ def _row_surface_jvp(block, n_blocks, primals, tangents):
              + _separable_lhs(cos_coeffs[:, None], sin_coeffs[:, None], -coarse_sin * d_coarse, coarse_cos * d_coarse))
     d_rhs = jnp.concatenate([-fine_sin * d_fine, fine_cos * d_fine], axis=-1)
     d_sums = jnp.einsum("racm,rbm->racb", d_lhs, rhs) + jnp.einsum("racm,rbm->racb", lhs, d_rhs)
-    return (disp, nrm), _output_tangents(sums, nrm, inv, [d_sums[:, :, c] for c in range(8)])
+    return (disp, nrm), _output_tangents(sums, nrm, inv, [d_sums[:, :, c] for c in range(sums.shape[2])])
 
 
 def _on_rows_reference(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: int):

@@ -151,6 +151,9 @@ def test_on_rows_equals_per_point_path_with_per_row_weights(n_cols):
     assert got.normal.shape == (rows, n_cols, 3)
     np.testing.assert_allclose(got.displacement, surface.displacement(waves, xy, 0.7, per_pixel), atol=1e-5)
     np.testing.assert_allclose(got.normal, surface.normal(waves, xy, 0.7, per_pixel), atol=1e-5)
+    normal_only = surface.on_rows(waves, origin, step, n_cols, 0.7, weights, with_displacement=False)
+    assert normal_only.displacement is None
+    np.testing.assert_allclose(normal_only.normal, got.normal, atol=1e-6)
     sx2, sy2 = surface.slope_variance(waves, per_pixel)
     np.testing.assert_allclose(got.slope_variance[..., 0], sx2, rtol=1e-5)
     np.testing.assert_allclose(got.slope_variance[..., 1], sy2, rtol=1e-5)
@@ -284,10 +287,12 @@ def test_on_grid_second_derivatives_equal_autodiff_of_the_plain_product(x64):
         _close(h_fast, h_plain)
 
 
-def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64):
+@pytest.mark.parametrize("with_displacement", [True, False])
+def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64, with_displacement):
     """on_rows' hand-written tangent rule (forward mode, and transposed, reverse mode) equals
     plain autodiff of the same tables and product to 1e-10, wrt waves, row origins and steps,
-    time and the per-row footprints (hierarchy weights on their ramp); a ragged last block."""
+    time and the per-row footprints (hierarchy weights on their ramp); a ragged last block;
+    also for the normal-only product (five channels, what the renderer uses)."""
     waves = random_waves(21, 9, np.float64, max_steepness=0.6)
     rng = np.random.default_rng(22)
     rows, n_cols, block = 5, 13, 4
@@ -300,13 +305,14 @@ def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64):
             w = Waves(amp, omega, theta, phase)
             weights = hierarchy.weights(w, footprint, grid_cell=footprint * 1.3)
             d, n = fn(w, origin, step, n_cols, t, weights, block=block)
-            return jnp.sum(jnp.sin(d) * probe_d) + jnp.sum(n * probe_n) + jnp.sum(n[..., :2] ** 2)
+            normal_terms = jnp.sum(n * probe_n) + jnp.sum(n[..., :2] ** 2)
+            return normal_terms + (jnp.sum(jnp.sin(d) * probe_d) if with_displacement else 0.0)
         return f
 
     weights = hierarchy.weights(waves, jnp.asarray(footprint), grid_cell=jnp.asarray(footprint * 1.3))
     for w in (weights.normal, weights.displacement):  # the filter acts, and its ramp is differentiated
         assert np.any((w > 0) & (w < 1))
-    fast = loss(lambda *a, **k: tuple(surface.on_rows(*a, **k)[:2]))
+    fast = loss(lambda *a, **k: tuple(surface.on_rows(*a, **k, with_displacement=with_displacement)[:2]))
     plain = loss(surface._on_rows_reference)
     args = (*waves, jnp.asarray(origin), jnp.asarray(step), jnp.asarray(0.37), jnp.asarray(footprint))
     np.testing.assert_allclose(jax.jit(fast)(*args), jax.jit(plain)(*args), rtol=1e-12)
