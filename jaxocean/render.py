@@ -46,6 +46,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading, surface
+from jaxocean._math import components, materialize
 from jaxocean.errors import check_finite, is_concrete
 from jaxocean.waves import Waves, validate, wavenumber
 
@@ -274,11 +275,11 @@ def _shade_at(normal, slope_var, hit, lighting, horizon_gradient):
     # per-pixel components (see shading.pixel_terms): one elementwise pass for the whole
     # pixel model. Double where: sky pixels are shaded as a flat sea seen from the zenith,
     # then discarded.
+    # (components: per-pixel vectors split so that reverse mode does not pad and add them)
     up = (0.0, 0.0, 1.0)
-    view = tuple(jnp.where(mask, hit.view[..., i], up[i]) for i in range(3))
-    nrm = tuple(jnp.where(mask, normal[..., i], up[i]) for i in range(3))
-    sun, fresnel, reflected = shading.pixel_terms(nrm, slope_var[..., 0], slope_var[..., 1], view, lighting,
-                                                  horizon_gradient)
+    view = tuple(jnp.where(mask, c, u) for c, u in zip(components(hit.view), up))
+    nrm = tuple(jnp.where(mask, c, u) for c, u in zip(components(normal), up))
+    sun, fresnel, reflected = shading.pixel_terms(nrm, *components(slope_var), view, lighting, horizon_gradient)
     # image = sun_color * B_sun + F_mean sky(R) + (1 - F_mean) sea_color on the sea, sky(D) on
     # the sky: linear in the three colours, so a sum of three rank-1 products (per-pixel
     # coefficient x colour). Dots make XLA compute the pixel model once, not once per output
@@ -345,4 +346,7 @@ def _render(waves, camera, lighting, t, horizon_gradient, grid_cell, *, n_min, n
     hit = cam.intersect_sea(camera, max_distance=max_distance)
     geo = _geometry_at(waves, camera, t, grid_cell, hit, n_min=n_min, n_max=n_max, active=active, refine=refine,
                        positions=False)
-    return _shade_at(geo.normal, geo.slope_variance, hit, lighting, horizon_gradient)
+    # the normal computed once -- and, in reverse mode, its cotangent: without this XLA:CPU
+    # fuses the whole shading gradient into each of the row product's per-channel cotangents
+    # (measured 120 ms against 41 ms for the 256^2, N=60 gradient)
+    return _shade_at(materialize(geo.normal), geo.slope_variance, hit, lighting, horizon_gradient)

@@ -55,7 +55,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import dot_last, inv_sqrt, smoothstep, tiny
+from jaxocean._math import components, dot_last, inv_sqrt, materialize, smoothstep, tiny
 from jaxocean.errors import check_values, is_concrete
 
 __all__ = [
@@ -240,9 +240,9 @@ def sun_direction(lighting: Lighting):
 
 
 def _split(v):
-    """``(..., 3)`` array -> tuple of its three components."""
-    v = jnp.asarray(v)
-    return v[..., 0], v[..., 1], v[..., 2]
+    """``(..., 3)`` array -> tuple of its three components (:func:`jaxocean._math.components`:
+    reverse mode without a pad-and-add fusion)."""
+    return components(jnp.asarray(v))
 
 
 def _join(v):
@@ -536,7 +536,8 @@ def pixel_terms(normal, sigma2_x, sigma2_y, view, lighting: Lighting, horizon_gr
     view = _vnormalize(view, fallback=up)
     sigma2_x, sigma2_y = _clamp_variances(sigma2_x, sigma2_y)
     t_x, t_y = _tangent_frame(n)
-    sun = _sun_radiance_factor(n, t_x, t_y, sigma2_x, sigma2_y, view, _split(sun_direction(lighting)))
+    # the sun's direction once: XLA:CPU otherwise re-evaluates its sines per pixel in the gradient
+    sun = _sun_radiance_factor(n, t_x, t_y, sigma2_x, sigma2_y, view, materialize(*_split(sun_direction(lighting))))
     n_v = _vdot(view, n)
     fresnel = mean_fresnel(n_v, _projected_variance(view, t_x, t_y, sigma2_x, sigma2_y))
     # z of the mirror direction R = 2 (N.V) N - V (see reflect)

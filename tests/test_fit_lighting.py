@@ -366,11 +366,13 @@ def test_camera_fit_jointly_with_the_lighting(x64):
 def test_camera_fit_reports_a_local_minimum_as_failure(x64):
     # the full model alone from 13% low converges (within the step limit) to a neighbouring
     # minimum at 8.11 m / 0.3499 rad, loss 8.8e-5: the solver's test passes, the loss bound
-    # (noise-free data) does not; told that the data are that noisy, the same answer passes
+    # (noise-free data) does not; told that the data are that noisy, the same answer passes.
+    # The solver's own test is met after 30-55 steps depending on float64 rounding of the
+    # Jacobian (the minimum is shallow), so the step limit is raised to see it converge.
     waves, light, true_cam, image = _jonswap_scene(16)
-    kw = dict(lighting=light, plan=None, levels=(1,), search=(1, 1), n_starts=1, throw=False)
+    kw = dict(lighting=light, plan=None, levels=(1,), search=(1, 1), n_starts=1, throw=False, max_steps=100)
     res = fit.camera(image, waves, 0.0, _start(true_cam, 8.7, 0.35), **kw)
-    assert int(res.steps) < 50 and not bool(res.success)
+    assert int(res.steps) < 100 and not bool(res.success)
     assert abs(float(res.camera.height) - 10.0) > 1.0 and 1e-6 < float(res.loss) < 1e-3
     with pytest.raises(fit.FitError, match="did not converge"):
         fit.camera(image, waves, 0.0, _start(true_cam, 8.7, 0.35), **{**kw, "throw": True})

@@ -1,4 +1,5 @@
-"""The shared numerical helpers of jaxocean._math: fast float32 sincos and inv_sqrt."""
+"""The shared numerical helpers of jaxocean._math: fast float32 sincos, inv_sqrt, and the
+component split and materialisation whose derivative rules shape what XLA compiles."""
 
 import jax
 import jax.numpy as jnp
@@ -7,7 +8,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 from jax.test_util import check_grads
 
-from jaxocean._math import inv_sqrt, sincos
+import pytest
+
+from jaxocean._math import components, inv_sqrt, materialize, sincos
 
 
 def test_float32_sincos_is_within_a_few_ulp_of_the_exact_values():
@@ -61,3 +64,32 @@ def test_inv_sqrt_value_and_gradient(x64):
     check_grads(inv_sqrt, (jnp.linspace(0.1, 10.0, 7),), order=2, modes=("fwd", "rev"))
     x32 = jnp.geomspace(1e-6, 1e6, 33, dtype=jnp.float32)
     np.testing.assert_allclose(inv_sqrt(x32), 1.0 / np.sqrt(np.asarray(x32, np.float64)), rtol=3e-7)
+
+
+def test_components_values_and_derivatives_equal_plain_slicing(x64):
+    x = jnp.asarray(np.random.default_rng(0).normal(size=(4, 5, 3)))
+    probe = jnp.asarray(np.random.default_rng(1).normal(size=(3, 4, 5)))
+
+    def loss(split):
+        # a nonlinear function of every component, so each cotangent is a different array
+        return lambda v: sum(jnp.sum(jnp.sin(c * (i + 1)) * probe[i]) for i, c in enumerate(split(v)))
+
+    plain = loss(lambda v: tuple(v[..., i] for i in range(3)))
+    fast = loss(components)
+    for got, want in zip(components(x), (x[..., 0], x[..., 1], x[..., 2])):
+        np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(jax.grad(fast)(x), jax.grad(plain)(x), rtol=1e-14)
+    tangent = jnp.ones_like(x)
+    np.testing.assert_allclose(jax.jvp(fast, (x,), (tangent,))[1], jax.jvp(plain, (x,), (tangent,))[1], rtol=1e-14)
+    check_grads(fast, (x,), order=2, modes=("fwd", "rev"))
+
+
+def test_materialize_is_the_identity_with_identity_derivatives(x64):
+    a, b = jnp.arange(6.0).reshape(2, 3), -jnp.arange(6.0).reshape(2, 3) ** 2
+    for got, want in zip(materialize(a, b), (a, b)):
+        np.testing.assert_array_equal(got, want)
+    v = jnp.asarray(np.random.default_rng(2).normal(size=(4, 5, 3)))
+    np.testing.assert_array_equal(materialize(v), v)
+    np.testing.assert_allclose(jax.grad(lambda v: jnp.sum(jnp.sin(materialize(v))))(v), jnp.cos(v), rtol=1e-14)
+    with pytest.raises(ValueError, match="at least two arrays"):
+        materialize(jnp.float64(1.0))
