@@ -408,10 +408,11 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
 
     This is the geometry of a pinhole camera without roll looking at the sea plane: along an
     image row the hit points are affine in the column and the footprint is constant. The
-    phase is psi = alpha_r + j beta_r; splitting j = B a + b (B ~ 2 sqrt(n_cols)) gives
-    e^{i psi} = e^{i(alpha + B a beta)} e^{i b beta}, so per row the eight wave sums are a
-    product of ``(8 A, 2N)`` by ``(2N, B)`` and only R (A + B) N sines are evaluated
-    (instead of R A B N).
+    phase is psi = alpha_r + j beta_r; splitting the columns into blocks of ``block`` (odd,
+    ~ 2 sqrt(n_cols)) around centres c_a, j = c_a + b with |b| < B, gives
+    e^{i psi} = e^{i(alpha + c_a beta)} e^{i b beta}; the offsets -b and +b share their
+    table (cos is even, sin odd), so per row the wave sums are products of ``(C A, N)`` by
+    ``(N, B)`` and only R (A + B) N sines are evaluated (instead of R A B N).
 
     Differentiable in both modes through a hand-written linear tangent rule (see
     :func:`_row_surface_jvp`): the tables are differentiated in closed form and reverse mode
@@ -426,13 +427,10 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
         raise ValueError(f"origin and step must both be (R, 2); got {origin.shape} and {step.shape}")
     rows, n = origin.shape[0], waves.omega.shape[-1]
     _check_weight_shape(weights, (rows, n), "on_rows (per-row)")
-    # B ~ 2 sqrt(W): the (R, W/B, 8, 2N) factor is built elementwise (memory-bound) and the
-    # (R, B, 2N) tables feed per-row GEMMs; this balance measured fastest at W = 128..256
-    block = max(1, min(n_cols, int(round(2 * n_cols ** 0.5)))) if block is None else int(block)
-    n_blocks = -(-n_cols // block)
-
-    disp, nrm = _row_surface(*_row_inputs(waves, origin, step, t, weights, with_displacement), block, n_blocks)
-    disp, nrm = (None if x is None else x.reshape(rows, n_blocks * block, 3)[:, :n_cols] for x in (disp, nrm))
+    half, n_blocks = _row_layout(n_cols, block)
+    width = 2 * half - 1
+    disp, nrm = _row_surface(*_row_inputs(waves, origin, step, t, weights, with_displacement), half, n_blocks)
+    disp, nrm = (None if x is None else x.reshape(rows, n_blocks * width, 3)[:, :n_cols] for x in (disp, nrm))
     sx2, sy2 = slope_variance(waves, _level(weights, "roughness") if weights is not None
                               else jnp.zeros_like(waves.amplitude))
     slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[..., None, :], nrm.shape[:-1] + (2,))
@@ -452,17 +450,37 @@ def _row_inputs(waves: Waves, origin, step, t, weights, with_displacement: bool 
     return cos_coeffs, sin_coeffs, alpha, beta
 
 
-def _row_tables(alpha, beta, block: int, n_blocks: int):
-    """(cos, sin) of the coarse phases alpha + B a beta ``(R, A, N)`` and of the fine phases
-    b beta ``(R, B, N)``: R (A + B) N sines by :func:`jaxocean._math.sincos` (fused polynomials:
-    measured 1.6x faster for the whole geometry than power tables built by doubling from 3 R N
-    library sines, whose concatenations are memory passes)."""
+def _row_layout(n_cols: int, block: int | None) -> tuple[int, int]:
+    """``(B, A)``: fine half-width B (offsets |b| < B: blocks of 2B - 1 columns) and the number
+    of blocks A covering ``n_cols``. ``block`` (columns per block) is rounded up to odd; by
+    default A ~ sqrt(n_cols) / 2 blocks of ~ 2 sqrt(n_cols) columns, the balance between the
+    per-block left factor (built elementwise, memory-bound) and the per-row GEMMs that
+    measured fastest at 128-512 columns."""
+    if block is None:
+        n_blocks = max(1, int(round(n_cols / (2.0 * n_cols ** 0.5))))
+        width = -(-n_cols // n_blocks)
+    else:
+        width = max(1, min(int(block), n_cols))
+    half = width // 2 + 1  # 2 half - 1 >= width, odd
+    return half, -(-n_cols // (2 * half - 1))
+
+
+def _row_tables(alpha, beta, half: int, n_blocks: int):
+    """(cos, sin) of the coarse phases alpha + c_a beta at the block centres c_a = (2B - 1) a +
+    B - 1, ``(R, A, N)``, and of the fine phases b beta, b = 0 .. B - 1, ``(R, B, N)``:
+    R (A + B) N sines by :func:`jaxocean._math.sincos` (fused polynomials: measured 1.6x
+    faster for the whole geometry than power tables built by doubling from 3 R N library
+    sines, whose concatenations are memory passes)."""
     dtype = alpha.dtype
-    coarse = alpha[:, None, :] + (block * jnp.arange(n_blocks, dtype=dtype))[None, :, None] * beta[:, None, :]
+    coarse = alpha[:, None, :] + _block_centres(half, n_blocks, dtype)[None, :, None] * beta[:, None, :]
     # computed once, not inside each of the four left factors that read them (see materialize)
     coarse_sin, coarse_cos = materialize(*sincos(coarse))
-    fine_sin, fine_cos = sincos(jnp.arange(block, dtype=dtype)[None, :, None] * beta[:, None, :])
+    fine_sin, fine_cos = sincos(jnp.arange(half, dtype=dtype)[None, :, None] * beta[:, None, :])
     return coarse_cos, coarse_sin, fine_cos, fine_sin
+
+
+def _block_centres(half: int, n_blocks: int, dtype):
+    return (2 * half - 1) * jnp.arange(n_blocks, dtype=dtype) + (half - 1)
 
 
 def _row_factors(cos_coeffs, sin_coeffs, coarse_cos, coarse_sin):
@@ -474,82 +492,93 @@ def _row_factors(cos_coeffs, sin_coeffs, coarse_cos, coarse_sin):
     return ((cos_coeffs[:, None], cos_a, -sin_a), (sin_coeffs[:, None], sin_a, cos_a))
 
 
-def _row_product(left_cos, left_sin, fine_cos, fine_sin):
-    """sum_n left_cos[.., n] cos b_n + left_sin[.., n] sin b_n for every fine column: two batched
-    products ``(R, A, C, N) x (R, B, N) -> (R, A, C, B)``."""
-    return (jnp.einsum("racn,rbn->racb", left_cos, fine_cos)
-            + jnp.einsum("racn,rbn->racb", left_sin, fine_sin))
+def _products(left, fine):
+    """Batched products ``(R, A, C, N) x (R, B, N) -> (R, A, C, B)``."""
+    return jnp.einsum("racn,rbn->racb", left, fine)
+
+
+def _mirrored(even, odd):
+    """A block's columns b = -(B-1) .. B-1 from the parts of the sums that are even and odd in
+    b, each ``(R, A, C, B)`` for b = 0 .. B - 1: even - odd (reversed, b < 0), then even + odd."""
+    return jnp.concatenate([jnp.flip((even - odd)[..., 1:], axis=-1), even + odd], axis=-1)
 
 
 def _row_sums(cos_coeffs, sin_coeffs, tables):
-    """The wave sums ``(R, A, C, B)`` of every row, C = 8 or 5 channels (the on_grid layout with
-    T = R, H = A, W = B): per channel group (cos, sin) two batched products of the coarse
-    factors carrying the coefficients with the fine tables. Four products with K = N and no
-    concatenated factors: the concatenations of one (R, A, C, 2N) x (R, B, 2N) product were
-    whole-array copies (measured 4.2 -> 3.2 ms for the normal-only sums at 256^2, N = 60)."""
+    """The wave sums ``(R, A, C, 2B - 1)`` of every row, C = 8 or 5 channels (the on_grid layout
+    with T = R, H = A, W = block columns). Per channel group, the left factors carrying the
+    coefficients times the fine tables: (K u) . cos(b beta) is even in b and (K v) . sin(b beta)
+    odd, so the products over b >= 0 give both halves of a block (half the multiply-adds and
+    table of products over every column). Separate products with K = N, no concatenated
+    factors: the concatenations of one (R, A, C, 2N) x (R, B, 2N) product were whole-array
+    copies."""
     coarse_cos, coarse_sin, fine_cos, fine_sin = tables
-    groups = [_row_product(k * u, k * v, fine_cos, fine_sin)
+    groups = [_mirrored(_products(k * u, fine_cos), _products(k * v, fine_sin))
               for k, u, v in _row_factors(cos_coeffs, sin_coeffs, coarse_cos, coarse_sin)]
     return jnp.concatenate(groups, axis=2)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(4, 5))
-def _row_surface(cos_coeffs, sin_coeffs, alpha, beta, block: int, n_blocks: int):
-    """(displacement, normal) ``(R, A, B, 3)`` of the points j = B a + b of every row, from the
-    per-row channel coefficients ``(R, 4, N)`` x 2 and phases psi = alpha + j beta ``(R, N)``.
+def _row_surface(cos_coeffs, sin_coeffs, alpha, beta, half: int, n_blocks: int):
+    """(displacement, normal) ``(R, A, 2B - 1, 3)`` of the columns j = c_a + b of every row, from
+    the per-row channel coefficients ``(R, 4, N)`` x 2 and phases psi = alpha + j beta ``(R, N)``.
     Coefficients of the normal's channels only (``(R, 3, N)``, ``(R, 2, N)``) give a None
     displacement. The core of :func:`on_rows`; see its tangent rule below."""
-    tables = _row_tables(alpha, beta, block, n_blocks)
+    tables = _row_tables(alpha, beta, half, n_blocks)
     disp, nrm, _ = _grid_outputs(_row_sums(cos_coeffs, sin_coeffs, tables))
     return disp, nrm
 
 
 @_row_surface.defjvp
-def _row_surface_jvp(block, n_blocks, primals, tangents):
+def _row_surface_jvp(half, n_blocks, primals, tangents):
     """Linear tangent rule, the per-row counterpart of :func:`_grid_surface_jvp`.
 
     Plain autodiff saved the tables' intermediates and transposed the batched products
     (measured 5x the forward, with the earlier doubling tables). Here the tables are
     differentiated in closed form -- d(e^{i phi}) = i e^{i phi} dphi with the linear phase
-    tangents da = dalpha + B a dbeta (coarse) and db = b dbeta (fine). Per channel group with
-    left factors (K u, K v) (see :func:`_row_factors`; du = v da, dv = -u da for both groups):
+    tangents da = dalpha + c_a dbeta (coarse) and db = b dbeta (fine). Per channel group with
+    left factors (K u, K v) (see :func:`_row_factors`; du = v da, dv = -u da for both groups),
+    the even and odd parts E = (K u) . cos b, O = (K v) . sin b have the tangents
 
-        d sums = (dK u + K v da) . cos b + (dK v - K u da) . sin b + (K v) . (cos b db) - (K u) . (sin b db)
+        dE = (dK u + K v da) . cos b - (K u) . (sin b db)
+        dO = (dK v - K u da) . sin b + (K v) . (cos b db)
 
-    four batched products of the forward's size, whose transpose (reverse mode) is four more;
-    the outputs' tangents are those of on_grid (:func:`_output_tangents`). Linear, so it
-    serves forward mode and higher orders too; tests check it against autodiff of
-    :func:`_on_rows_reference`.
+    (even and odd in b again, so mirrored like the values): four batched products of the
+    forward's size, whose transpose (reverse mode) is four more; the outputs' tangents are
+    those of on_grid (:func:`_output_tangents`). Linear, so it serves forward mode and
+    higher orders too; tests check it against autodiff of :func:`_on_rows_reference`.
     """
     cos_coeffs, sin_coeffs, alpha, beta = primals
     d_cos_coeffs, d_sin_coeffs, d_alpha, d_beta = tangents
-    tables = _row_tables(alpha, beta, block, n_blocks)
+    tables = _row_tables(alpha, beta, half, n_blocks)
     coarse_cos, coarse_sin, fine_cos, fine_sin = tables
     sums = _row_sums(cos_coeffs, sin_coeffs, tables)
     disp, nrm, inv = _grid_outputs(sums)
 
-    index = jnp.arange(max(block, n_blocks), dtype=alpha.dtype)
+    dtype = alpha.dtype
     # outer products as einsums: their transposes are then dots, not reductions over a short
     # middle axis (which XLA:CPU hands to a reduction kernel measured at 50 ms for (R, A, 4, N))
-    d_coarse = (jnp.einsum("a,rn->ran", jnp.ones(n_blocks, alpha.dtype), d_alpha)
-                + jnp.einsum("a,rn->ran", block * index[:n_blocks], d_beta))[:, :, None, :]  # (R, A, 1, N)
-    d_fine = jnp.einsum("b,rn->rbn", index[:block], d_beta)  # (R, B, N)
+    d_coarse = (jnp.einsum("a,rn->ran", jnp.ones(n_blocks, dtype), d_alpha)
+                + jnp.einsum("a,rn->ran", _block_centres(half, n_blocks, dtype), d_beta))[:, :, None, :]
+    d_fine = jnp.einsum("b,rn->rbn", jnp.arange(half, dtype=dtype), d_beta)  # (R, B, N)
     fine_cos_d, fine_sin_d = fine_cos * d_fine, fine_sin * d_fine
     d_groups = []
     for (k, u, v), d_k in zip(_row_factors(cos_coeffs, sin_coeffs, coarse_cos, coarse_sin),
                               (d_cos_coeffs[:, None], d_sin_coeffs[:, None])):
         d_k = jnp.concatenate([d_k] * n_blocks, axis=1)  # per-block copies: transposed, a sum of slices
         ku, kv = k * u, k * v
-        d_groups.append(_row_product(d_k * u + kv * d_coarse, d_k * v - ku * d_coarse, fine_cos, fine_sin)
-                        + _row_product(kv, -ku, fine_cos_d, fine_sin_d))
+        d_even = _products(d_k * u + kv * d_coarse, fine_cos) - _products(ku, fine_sin_d)
+        d_odd = _products(d_k * v - ku * d_coarse, fine_sin) + _products(kv, fine_cos_d)
+        d_groups.append(_mirrored(d_even, d_odd))
     d_sums = jnp.concatenate(d_groups, axis=2)
     return (disp, nrm), _output_tangents(sums, nrm, inv, [d_sums[:, :, c] for c in range(sums.shape[2])])
 
 
 def _on_rows_reference(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: int):
-    """(displacement, normal) of :func:`on_rows` by plain autodiff-able code: the same power
-    tables and product, differentiated by JAX, and :func:`normal_from_sums`. For tests only."""
-    rows, n_blocks = origin.shape[0], -(-n_cols // block)
+    """(displacement, normal) of :func:`on_rows` by plain autodiff-able code: the same tables
+    and products, differentiated by JAX, and :func:`normal_from_sums`. For tests only."""
+    rows = origin.shape[0]
+    half, n_blocks = _row_layout(n_cols, block)
     cos_coeffs, sin_coeffs, alpha, beta = _row_inputs(waves, origin, step, t, weights)
-    sums = _row_sums(cos_coeffs, sin_coeffs, _row_tables(alpha, beta, block, n_blocks))
-    return _surface_from_sums(sums[:, :, c].reshape(rows, n_blocks * block)[:, :n_cols] for c in range(8))
+    sums = _row_sums(cos_coeffs, sin_coeffs, _row_tables(alpha, beta, half, n_blocks))
+    width = 2 * half - 1
+    return _surface_from_sums(sums[:, :, c].reshape(rows, n_blocks * width)[:, :n_cols] for c in range(8))
