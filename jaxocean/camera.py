@@ -62,7 +62,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import safe_divide, safe_norm, safe_normalize, safe_sqrt
+from jaxocean._math import materialize, safe_divide, safe_norm, safe_normalize, safe_sqrt
 from jaxocean.errors import check_values, is_concrete
 
 __all__ = [
@@ -321,7 +321,9 @@ def _frame(camera: Camera) -> CameraFrame:
     cos_yaw, sin_yaw = jnp.cos(yaw), jnp.sin(yaw)
     forward = jnp.stack([cos_pitch * cos_yaw, cos_pitch * sin_yaw, -sin_pitch])
     right = jnp.stack([sin_yaw, -cos_yaw, jnp.zeros_like(yaw)])
-    return CameraFrame(forward, right, jnp.cross(right, forward))
+    # computed once (see _math.materialize): XLA:CPU otherwise re-evaluates the sines and
+    # cosines in every per-pixel loop that reads the frame (10-26 ns each)
+    return CameraFrame(*materialize(forward, right, jnp.cross(right, forward)))
 
 
 def _position(camera: Camera) -> jax.Array:
@@ -356,7 +358,9 @@ def _half_extents(camera: Camera):
         half_width = jnp.asarray(camera.ortho_width, dtype) / 2
         return half_width, half_width * H / W
     half_height = jnp.tan(jnp.asarray(camera.fov, dtype) / 2)
-    return half_height * W / H, half_height
+    # computed once, not per pixel in every loop that reads it (measured: the tangent
+    # re-evaluated in nine per-pixel loops made intersect_sea 3.3 ms at 256^2)
+    return materialize(half_height * W / H, half_height)
 
 
 def _ndc_grid(resolution, dtype):

@@ -354,7 +354,8 @@ def smith_lambda(cos_theta, sigma2):
     # v < V_MAX  <=>  den V_MAX^2 > c^2; this also excludes den = 0 (c = 1) from the sqrt,
     # and the switch to V_MAX is continuous.
     below_cap = den * _SMITH_V_MAX**2 > c * c
-    v = jnp.where(below_cap, c / jnp.sqrt(jnp.where(below_cap, den, 1.0)), _SMITH_V_MAX)
+    # (inv_sqrt: XLA:CPU rewrites c / sqrt(den) into a slow rsqrt, see jaxocean._math.inv_sqrt)
+    v = jnp.where(below_cap, c * inv_sqrt(jnp.where(below_cap, den, 1.0)), _SMITH_V_MAX)
     # v > 0, so erfc(v) = exp(-v^2) erfc_scaled(v): one exponential for both terms
     lam = jnp.exp(-v * v) * (1.0 - v * _SQRT_PI * _erfc_scaled(v)) / (2.0 * v * _SQRT_PI)
     return jnp.maximum(lam, 0.0)
@@ -389,8 +390,8 @@ def _ocean_brdf(n, t_x, t_y, sigma2_x, sigma2_y, view, light):
     h_n = jnp.maximum(_vdot(half, n), MIN_COSINE)
     zeta_x = _vdot(half, t_x) / h_n
     zeta_y = _vdot(half, t_y) / h_n
-    slope_pdf = jnp.exp(-0.5 * (zeta_x**2 / sigma2_x + zeta_y**2 / sigma2_y)) / (
-        2.0 * jnp.pi * jnp.sqrt(sigma2_x * sigma2_y)
+    slope_pdf = jnp.exp(-0.5 * (zeta_x**2 / sigma2_x + zeta_y**2 / sigma2_y)) * inv_sqrt(sigma2_x * sigma2_y) / (
+        2.0 * jnp.pi
     )
     fresnel = FRESNEL_NORMAL + (1.0 - FRESNEL_NORMAL) * jnp.clip(1.0 - _vdot(view, half), 0.0, 1.0) ** 5
     z_light = jnp.maximum(_vdot(light, n), MIN_COSINE)
