@@ -6,7 +6,9 @@ Measures, float32, median after compilation (compile time apart), peak memory fr
   leaves and all wave parameters) at 256 x 256 with 60 waves sampled from a JONSWAP sea,
   plus scaling with resolution {64, 128, 256, 512} and N {15, 60, 240};
 * ``on_grid`` for the same number of wave x pixel evaluations (one frame): the target is
-  render <= 3 x on_grid;
+  render <= 3 x on_grid, judged on the median over 7 rounds of alternating blocks of 11 calls
+  of the four functions (back-to-back runs drift: the render median moved 3.2-5.0 ms over
+  five runs; see ``benchutil.interleaved_medians``);
 * the hierarchy skip: a distant view rendered with the plan (sub-pixel waves evaluated for
   roughness only) against the plan-free path.
 
@@ -36,7 +38,7 @@ def jonswap_sea(n, seed=0, hs=1.5, tp=6.0, band=None):
     return spectrum.sample_waves(jax.random.key(seed), spec, n, band=band).waves
 
 
-def measure(n, res, repeats, camera_kw=None):
+def measure(n, res, repeats, camera_kw=None, interleaved=0):
     waves = jonswap_sea(n)
     camera = cam.make_camera(**(camera_kw or dict(height=10.0, pitch=0.5, fov=0.8)), resolution=(res, res))
     light = shading.make_lighting()
@@ -60,12 +62,17 @@ def measure(n, res, repeats, camera_kw=None):
         d, nrm = grid(waves, x)
         return jnp.sum(d * d) + jnp.sum(nrm[..., :2] ** 2)
 
-    for name, fn, args in (("render", fwd, (waves, light)), ("render", grad, (waves, light)),
-                           ("on_grid", grid, (waves, x)), ("on_grid", jax.value_and_grad(grid_loss), (waves, x))):
-        mode = "forward" if fn in (fwd, grid) else "forward+grad"
+    calls = (("render", "forward", fwd, (waves, light)), ("render", "forward+grad", grad, (waves, light)),
+             ("on_grid", "forward", grid, (waves, x)), ("on_grid", "forward+grad", jax.value_and_grad(grid_loss), (waves, x)))
+    for name, mode, fn, args in calls:
         r = benchutil.time_jitted(fn, *args, repeats=repeats)
         rows.append(dict(path=name, mode=mode, n_waves=n, res=res, pixels_per_s=res * res / r["median_s"],
                          ns_per_wave_pixel=r["median_s"] / (n * res * res) * 1e9, **r))
+    if interleaved:
+        # the same four calls timed round-robin: the ratios the target is judged on
+        med = benchutil.interleaved_medians({(p, m): (fn, args) for p, m, fn, args in calls}, rounds=interleaved)
+        for row in rows:
+            row["interleaved_median_s"] = med[row["path"], row["mode"]]
     return rows
 
 
@@ -139,7 +146,7 @@ def main(argv=None):
     configs = [(60, 256)] + ([] if args.quick else [(60, r) for r in (64, 128, 512)] + [(n, 256) for n in (15, 240)])
     rows = []
     for n, res in configs:
-        rows += measure(n, res, reps)
+        rows += measure(n, res, reps, interleaved=(2 if args.quick else 7) if (n, res) == (60, 256) else 0)
         benchutil.print_table(rows[-4:], ["path", "mode", "n_waves", "res", "ns_per_wave_pixel", "pixels_per_s",
                                           "median_s", "compile_s", "peak_bytes"])
     skip = skip_saving(reps)
@@ -147,8 +154,13 @@ def main(argv=None):
     summary = dict(
         ratio_forward=base["render", "forward"]["median_s"] / base["on_grid", "forward"]["median_s"],
         ratio_grad=base["render", "forward+grad"]["median_s"] / base["on_grid", "forward+grad"]["median_s"],
+        ratio_forward_interleaved=(base["render", "forward"]["interleaved_median_s"]
+                                   / base["on_grid", "forward"]["interleaved_median_s"]),
+        ratio_grad_interleaved=(base["render", "forward+grad"]["interleaved_median_s"]
+                                / base["on_grid", "forward+grad"]["interleaved_median_s"]),
         target_ratio=TARGET_RATIO, skip=skip)
-    summary["target_met"] = summary["ratio_forward"] <= TARGET_RATIO
+    # judged on the alternating-block timing (same drift for both paths; benchutil.interleaved_medians)
+    summary["target_met"] = summary["ratio_forward_interleaved"] <= TARGET_RATIO
     print("\nsummary:", summary)
     out = benchutil.save("bench_render", rows, dict(summary=summary))
     chart(rows, skip, out.with_suffix(".png"))

@@ -42,6 +42,33 @@ def time_jitted(fn, *args, repeats: int = 5, min_time: float = 0.0):
                 repeats=len(times), peak_bytes=peak)
 
 
+def interleaved_medians(calls: dict, rounds: int = 7, block: int = 11) -> dict:
+    """Median seconds of each ``name -> (fn, args)`` after compilation: ``rounds`` rounds, each
+    timing ``block`` consecutive calls of every function in turn; the median over rounds of
+    each block's median.
+
+    Consecutive blocks of repeats drift on this machine (measured: the same render 3.2-5.0
+    ms median across five back-to-back runs); alternating the blocks exposes every function
+    to the same drift, so their *ratios* are stabler. Blocks, not single calls in turn: a
+    call right after a different, larger one runs with cold caches (measured: on_grid 1.4 ms
+    in blocks, 2.3-2.8 ms alternating call by call with the renderer), which would bias
+    every ratio towards the larger function.
+    """
+    compiled = {name: jax.jit(fn).lower(*args).compile() for name, (fn, args) in calls.items()}
+    for name, (_, args) in calls.items():
+        jax.block_until_ready(compiled[name](*args))
+    medians = {name: [] for name in calls}
+    for _ in range(rounds):
+        for name, (_, args) in calls.items():
+            times = []
+            for _ in range(block):
+                t0 = time.perf_counter()
+                jax.block_until_ready(compiled[name](*args))
+                times.append(time.perf_counter() - t0)
+            medians[name].append(float(np.median(times)))
+    return {name: float(np.median(m)) for name, m in medians.items()}
+
+
 def machine_info() -> dict:
     """The machine, and its 1/5/15-minute load average when the results are saved (the
     development machine is shared: loaded runs are slower)."""
