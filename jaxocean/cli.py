@@ -203,6 +203,9 @@ def build_parser():
     p.add_argument("--frames", type=_index_list, help="frame indices to fit, e.g. 0,1,2 (default all)")
     p.add_argument("--n-waves", type=int, help="fit exactly this many waves (default: chosen by BIC)")
     p.add_argument("--max-waves", type=int, default=96, help="most waves the order selection tries (default 96)")
+    p.add_argument("--noise", type=float, help="noise sigma of the normals' x/y components when known (order "
+                   "selection and the success test use it; default: noise-free up to storage precision, so a fit "
+                   "leaving more than 1 mrad mean normal error is reported failed)")
     p.add_argument("--verbose", action="store_true", help="print the fit's order-selection steps")
 
     p = sub.add_parser("forecast", help="render waves at future frames",
@@ -567,6 +570,8 @@ def cmd_fit_waves(args):
         raise ValueError(f"--n-waves must be >= 1; got {args.n_waves}")
     if args.max_waves < 1:
         raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
+    if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
+        raise ValueError(f"--noise must be a finite sigma >= 0; got {args.noise}")
     scene_dir = Path(args.scene)
     scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
     scene = read_scene(scene_dir)
@@ -585,7 +590,7 @@ def cmd_fit_waves(args):
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
     result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
-                       throw=False, verbose=args.verbose)
+                       noise=args.noise, throw=False, verbose=args.verbose)
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite

@@ -134,6 +134,24 @@ def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     assert bool(fw.waves(normals, rough, c, TIMES, n_waves=3).success)
 
 
+def test_a_converged_fit_that_does_not_explain_the_data_is_reported_failed():
+    # one wave two footprints long: in the normals, but aliased by the spectral start; the
+    # greedy fit converges to waves that leave ~0.1 rad -- not success, and FitError says why
+    c = ortho()
+    k = 2 * np.pi / (2.0 * 12.0 / RES[0])
+    rng = np.random.default_rng(0)
+    truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [rng.uniform(-np.pi, np.pi)],
+                       [rng.uniform(0, 2 * np.pi)])
+    normals, rough = fw.predict(truth, c, TIMES)
+    fit = fw.waves(normals, rough, c, TIMES)
+    assert float(fit.normal_error) > fw.normal_error_bound() and not bool(fit.success)
+    with pytest.raises(FitError, match="do not explain the data"):
+        fw.waves(normals, rough, c, TIMES, throw=True)
+    # the bound: 1 mrad without noise, 1.5 x the mean angle sqrt(pi/2) sigma of the noise
+    assert fw.normal_error_bound() == fw.NORMAL_ERROR_FLOOR == 1e-3
+    assert fw.normal_error_bound(0.01) == pytest.approx(1.5 * np.sqrt(np.pi / 2) * 0.01)
+
+
 def test_refine_maps_over_scenes_with_vmap(ortho_scene):
     c, truth, normals, rough = ortho_scene
     init = truth._replace(amplitude=truth.amplitude * 0.95)

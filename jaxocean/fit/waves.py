@@ -99,6 +99,9 @@ __all__ = [
     "OrderSelection",
     "WaveMatch",
     "SOLVER_NAMES",
+    "NOISE_FACTOR",
+    "NORMAL_ERROR_FLOOR",
+    "normal_error_bound",
     "waves",
     "refine",
     "spectral_estimate",
@@ -116,6 +119,11 @@ SOLVER_NAMES = ("structured", "lm", "gauss_newton", "dogleg", "bfgs", "lbfgsb", 
 _CRITERIA = ("bic", "aic", "holdout")
 _BUCKETS = (16, 32, 64, 96, 128, 192, 256, 384, 512)
 _MIN_NZ = 0.05  # normals flatter than this (|slope| > 20) are treated as invalid
+# plausibility of a fit (see waves(): success): the mean normal angle of a fit that explains
+# its data is about sqrt(pi/2) sigma for per-component noise sigma; allowed up to 1.5x that,
+# and never below 1 mrad (noise-free fits reach 1e-5 rad; half-float EXR frames ~1e-4)
+NOISE_FACTOR = 1.5
+NORMAL_ERROR_FLOOR = 1e-3
 _CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
 
 
@@ -135,7 +143,9 @@ class WaveFit(NamedTuple):
       pipeline).
     * ``success``      the solver converged to its tolerances with a finite loss (and, when
       :func:`waves` selects the count, the selection stopped by itself: a fit stopped by
-      ``max_waves`` is reported failed -- the sea holds more than the cap allows).
+      ``max_waves`` is reported failed -- the sea holds more than the cap allows; and
+      :func:`waves` leaves a mean normal error within :func:`normal_error_bound` of its
+      ``noise``: a converged fit that does not explain the data is reported failed).
     * ``n_waves``      number of fitted waves.
     * ``time_s``       wall time [s] of the eager call (NaN under tracing).
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
@@ -810,10 +820,25 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
     return _maybe_throw(res, throw, max_steps)
 
 
-def _maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False):
+def normal_error_bound(noise=None) -> float:
+    """Largest mean normal angle [rad] a successful :func:`waves` fit may leave:
+    ``max(NOISE_FACTOR sqrt(pi/2) noise, NORMAL_ERROR_FLOOR)`` (sqrt(pi/2) sigma is the mean
+    angle of per-component Gaussian noise sigma on near-vertical normals). Without
+    ``noise`` the data are taken to be noise-free up to storage precision: noisy geometry
+    (network predictions, real images) needs ``noise=`` or it is reported failed."""
+    sigma = 0.0 if noise is None else float(noise)
+    return max(NOISE_FACTOR * math.sqrt(math.pi / 2) * sigma, NORMAL_ERROR_FLOOR)
+
+
+def _maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False, unexplained_bound=None):
     if throw and is_concrete(res.success) and not bool(res.success):
         from jaxocean.fit.solvers import FitError
 
+        if unexplained_bound is not None and not capped:
+            raise FitError(f"wave fit leaves a mean normal error of {float(res.normal_error):.3e} rad, above "
+                           f"{unexplained_bound:.1e} rad for its noise: the {int(res.n_waves)} waves do not explain "
+                           "the data (waves near the Nyquist limit? noisy geometry without noise=?); the result "
+                           "is attached as .result", res)
         if capped:
             raise FitError(f"wave fit stopped at max_waves={int(res.n_waves)} while the criterion still accepted "
                            f"waves (normal error {float(res.normal_error):.3e} rad): raise max_waves; the result "
@@ -1583,9 +1608,13 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     result = _sorted(result, n_fit)
     # the loop ran into the cap, not into the criterion: the count was not selected
     capped = n_waves is None and init is None and n_fit >= max_waves
+    # converged is not enough: the fit must explain the data to their noise (measured: one
+    # wave 1.25-2 footprints long, aliased by the start, "converged" at 0.05-0.12 rad)
+    bound = normal_error_bound(noise)
+    unexplained = not float(result.normal_error) <= bound
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
-                             success=jnp.asarray(result.success) & (not capped))
-    _maybe_throw(result, throw, max_steps, capped)
+                             success=jnp.asarray(result.success) & (not capped) & (not unexplained))
+    _maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
         return result, sel
