@@ -133,7 +133,7 @@ VALUES = dict(waves=(4, 15, 60, 240), frames=(2, 3, 10), noise=(0.0, 0.003, 0.01
 QUICK = dict(waves=(4, 15), frames=(2, 10), noise=(0.0, 0.01), resolution=(32, 64), nyquist=(1.25, 2.0, 5.0))
 
 
-def plot(out):
+def plot(out, name=NAME):
     plt = benchutil.pyplot()
 
     axes_present = [a for a in AXES if a in out]
@@ -153,7 +153,7 @@ def plot(out):
         for ax in axes[:, j]:
             ax.set_xticks(x)
             ax.set_xticklabels([str(v) for v in vals])
-    benchutil.save_figure(fig, NAME)
+    benchutil.save_figure(fig, name)
 
 
 def main(argv=None):
@@ -161,25 +161,27 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seeds", type=int, default=0, help="problems per point (default 2; 1 with --quick)")
     parser.add_argument("--only", default=",".join(AXES))
+    parser.add_argument("--name", default=NAME, help="results file stem under experiments/results (default "
+                        f"{NAME}; a separate name keeps a full-size run apart from --quick rows)")
     args = parser.parse_args(argv)
     seeds = args.seeds or (1 if args.quick else 2)
     only = [a for a in args.only.split(",") if a]
     bad = set(only) - set(AXES)
     if bad:
         parser.error(f"unknown axes {sorted(bad)}; choose from {AXES}")
-    out = benchutil.load_rows(NAME, {})
+    out = benchutil.load_rows(args.name, {})
     res = 32 if args.quick else 64
     meta = dict(quick=args.quick, seeds=seeds, sea={k: float(v) for k, v in SEA._asdict().items()})
 
     def save(axis, rows):
         out[axis] = list(rows)
-        benchutil.save(NAME, out, meta=meta)
+        benchutil.save(args.name, out, meta=meta)
 
     for a in only:
         print(f"== {a}", flush=True)
         save(a, run_axis(a, (QUICK if args.quick else VALUES)[a], seeds, args.quick, res,
                          on_row=lambda rows, a=a: save(a, rows)))
-        plot(out)
+        plot(out, args.name)
 
 
 if __name__ == "__main__":
