@@ -50,7 +50,8 @@ from jaxocean._math import components, materialize_cotangent
 from jaxocean.errors import check_finite, is_concrete
 from jaxocean.waves import Waves, validate, wavenumber
 
-__all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "geometry", "shade", "render", "refine_hits", "hit_residual",
+__all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "bucket_refine", "geometry", "shade", "render", "refine_hits",
+           "hit_residual",
            "DEFAULT_REFINE_TOLERANCE", "MAX_REFINE_ITERATIONS"]
 
 DEFAULT_REFINE_TOLERANCE = 1e-4  # m: how close the refined hit must be to the surface
@@ -98,8 +99,10 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     * ``refine``: 0 if the displacement-level waves shift every hit by less than half a
       footprint (bound: sum(h) (1 + cot(incidence))); otherwise the fewest fixed-point
       iterations whose worst hit residual at time ``t`` is within ``tolerance`` metres,
-      measured (capped at MAX_REFINE_ITERATIONS: where the ray grazes a crest the fixed
-      point has several solutions and may not converge -- occlusion is not modelled).
+      measured, then rounded up to a power of two (:func:`bucket_refine`: the count is
+      static, so views and times whose counts differ a little share one compilation), and
+      capped at MAX_REFINE_ITERATIONS: where the ray grazes a crest the fixed point has
+      several solutions and may not converge -- occlusion is not modelled.
     """
     _check_inputs(waves, camera)
     if not is_concrete(waves, camera):
@@ -127,7 +130,19 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
                                              n_min=n_min, n_max=n_max, max_distance=max_distance))
     ok = np.nonzero(residuals <= tolerance)[0]
     refine = int(ok[0]) + 1 if ok.size else MAX_REFINE_ITERATIONS
-    return RenderPlan(active=active, refine=refine)
+    return RenderPlan(active=active, refine=bucket_refine(refine))
+
+
+def bucket_refine(count: int) -> int:
+    """A refinement count rounded up to a power of two, at most MAX_REFINE_ITERATIONS (0 stays 0).
+
+    The count is a static argument of the compiled renderer: rounding it up lets nearby
+    cameras and frame times reuse one compilation (fit.camera's random starts measured 17-32
+    iterations, each count compiled anew); more iterations of the contracting fixed point
+    only bring the hits closer to the surface."""
+    if count <= 0:
+        return 0
+    return min(1 << (int(count) - 1).bit_length(), MAX_REFINE_ITERATIONS)
 
 
 _make_plan = plan  # geometry()'s `plan` argument shadows the function's name

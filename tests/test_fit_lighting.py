@@ -463,10 +463,9 @@ def test_reedit_scene_writes_frames_and_scene(scene, singles, tmp_path, x64):
     np.testing.assert_allclose(np.asarray(edited.times), [0.25])
 
 
-def test_camera_fit_refinement_counts_share_compilations():
-    # the plan's refinement count measured at the start camera is rounded up to a power of
-    # two (capped at the renderer's maximum), so nearby starts reuse one compiled fit
-    from jaxocean.fit import camera_fit
-
-    counts = [camera_fit._bucket_refine(n) for n in (0, 1, 2, 3, 5, 17, 32, 40)]
+def test_refinement_counts_are_bucketed_so_nearby_views_share_compilations():
+    # render.plan's refinement count (measured at the start camera in fit.camera) is rounded
+    # up to a power of two, capped at the renderer's maximum, so nearby starts reuse one
+    # compiled fit
+    counts = [render.bucket_refine(n) for n in (0, 1, 2, 3, 5, 17, 32, 40)]
     assert counts == [0, 1, 2, 4, 8, 32, 32, render.MAX_REFINE_ITERATIONS]

@@ -113,6 +113,7 @@ def test_refinement_puts_the_hit_on_the_displaced_surface(x64):
     c = cam.make_camera(height=6.0, pitch=1.1, fov=0.6, resolution=(10, 10), dtype=np.float64)
     p = render.plan(waves, c, 0.8)
     assert p.refine > 0  # a close view: metre-high waves shift the hit by many pixels
+    assert p.refine & (p.refine - 1) == 0  # a power of two (render.bucket_refine)
     geo = render.geometry(waves, c, 0.8, plan=p)
     origin, direction = cam.pixel_rays(c)
     # distance of the surface point from its pixel ray

@@ -244,16 +244,6 @@ def _loss_bound(image, weight, noise):
     return NOISE_FACTOR * noise * noise + LOSS_FLOOR * energy
 
 
-def _bucket_refine(count: int) -> int:
-    """The refinement count rounded up to a power of two (at most the renderer's cap): the
-    count is measured at the start camera and is static, so every distinct count compiled
-    the fit anew (17-32 over random starts of the demo scene); more iterations of the
-    contracting fixed point only bring the hits closer to the surface."""
-    if count <= 0:
-        return 0
-    return min(1 << (int(count) - 1).bit_length(), render.MAX_REFINE_ITERATIONS)
-
-
 def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
     args = (image, weight, waves, t, init, hg, light)
     dtype = image.dtype
@@ -384,8 +374,9 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         if traced:
             raise ValueError("plan='auto' needs concrete inputs; under jit/vmap pass plan=RenderPlan(...) or None")
         n = waves.omega.shape[0]
-        plans = tuple(render.full_plan(n, _bucket_refine(render.plan(
-            waves, init, t, n_min=s * hierarchy.DEFAULT_N_MIN, n_max=s * hierarchy.DEFAULT_N_MAX).refine))
+        # (the plan's count is rounded up to a power of two: nearby starts share one compilation)
+        plans = tuple(render.full_plan(n, render.plan(
+            waves, init, t, n_min=s * hierarchy.DEFAULT_N_MIN, n_max=s * hierarchy.DEFAULT_N_MAX).refine)
             for s in levels)
     else:
         if plan is not None:
