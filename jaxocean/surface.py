@@ -415,8 +415,8 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     ``(N, B)`` and only R (A + B) N sines are evaluated (instead of R A B N).
 
     Differentiable in both modes through a hand-written linear tangent rule (see
-    :func:`_row_surface_jvp`): the tables are differentiated in closed form and reverse mode
-    costs two more batched products.
+    :func:`_row_surface_jvp`): the tables are differentiated in closed form; the tangent is
+    twice the forward's batched products, and reverse mode their transposes.
 
     ``with_displacement=False`` computes the normal's five sums only (5/8 of the product;
     for a renderer that does not need hit positions) and returns ``displacement=None``.
@@ -542,8 +542,8 @@ def _row_surface_jvp(half, n_blocks, primals, tangents):
         dE = (dK u + K v da) . cos b - (K u) . (sin b db)
         dO = (dK v - K u da) . sin b + (K v) . (cos b db)
 
-    (even and odd in b again, so mirrored like the values): four batched products of the
-    forward's size, whose transpose (reverse mode) is four more; the outputs' tangents are
+    (even and odd in b again, so mirrored like the values): four batched products per group
+    where the forward has two, and their transposes in reverse mode; the outputs' tangents are
     those of on_grid (:func:`_output_tangents`). Linear, so it serves forward mode and
     higher orders too; tests check it against autodiff of :func:`_on_rows_reference`.
     """

@@ -319,13 +319,13 @@ def test_camera_fit_recovers_height_and_pitch(x64):
         fit.camera(image, waves, 0.5, init, lighting=light, fit=("roll",))
 
 
-def _jonswap_scene(n, height=10.0, pitch=0.35, dtype=jnp.float64, plan=None):
-    """A JONSWAP sea like the demo's (Tp 6 s, 32 waves to 30 wp; Hs 0.3 m) seen at ``n^2``,
+def _jonswap_scene(n, height=10.0, pitch=0.35, dtype=jnp.float64, plan=None, hs=0.3, n_waves=32):
+    """A JONSWAP sea like the demo's (Tp 6 s, ``n_waves`` to 30 wp; Hs ``hs``) seen at ``n^2``,
     rendered ``plan=None`` (unrefined: cheap to compile) unless a plan is given."""
     from jaxocean import spectrum
 
     wp = 2 * math.pi / 6.0
-    waves = spectrum.sample_waves(jax.random.key(101), spectrum.Spectrum(hs=0.3, tp=6.0), 32,
+    waves = spectrum.sample_waves(jax.random.key(101), spectrum.Spectrum(hs=hs, tp=6.0), n_waves,
                                   band=(0.5 * wp, 30 * wp)).waves
     waves = jax.tree.map(lambda a: jnp.asarray(a, dtype), waves)
     light = shading.make_lighting(sun_azimuth=0.12, sun_elevation=0.28, sun_color=(22.0, 17.0, 11.0),
@@ -402,15 +402,7 @@ def test_camera_fit_demo_scene_coarse_to_fine():
     # the demo scene of LIGHTING.md (48^2, float32, 64 waves to 30 wp, refined geometry): the
     # full model alone lands in the neighbouring minimum (9.85 m) and says so; coarse to fine
     # finds the camera
-    from jaxocean import spectrum
-
-    wp = 2 * math.pi / 6.0
-    waves = spectrum.sample_waves(jax.random.key(101), spectrum.Spectrum(hs=1.0, tp=6.0), 64,
-                                  band=(0.5 * wp, 30 * wp)).waves
-    light = shading.make_lighting(sun_azimuth=0.12, sun_elevation=0.28, sun_color=(22.0, 17.0, 11.0),
-                                  sky_color=(0.45, 0.55, 0.75), sea_color=(0.012, 0.035, 0.05))
-    true_cam = cam.make_camera(height=10.0, pitch=0.35, fov=0.8, resolution=(48, 48))
-    image = render.render(waves, true_cam, light, 0.0)
+    waves, light, true_cam, image = _jonswap_scene(48, dtype=jnp.float32, plan="auto", hs=1.0, n_waves=64)
     init = _start(true_cam, 10.8, 0.33)
     res = fit.camera(image, waves, 0.0, init, lighting=light)
     np.testing.assert_allclose([float(res.camera.height), float(res.camera.pitch)], [10.0, 0.35], rtol=1e-5)
@@ -461,11 +453,3 @@ def test_reedit_scene_writes_frames_and_scene(scene, singles, tmp_path, x64):
     assert float(edited.lighting.sun_elevation) == pytest.approx(math.radians(20.0))
     np.testing.assert_allclose(edited.lighting.sea_color, scene["truths"][0].sea_color, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(edited.times), [0.25])
-
-
-def test_refinement_counts_are_bucketed_so_nearby_views_share_compilations():
-    # render.plan's refinement count (measured at the start camera in fit.camera) is rounded
-    # up to a power of two, capped at the renderer's maximum, so nearby starts reuse one
-    # compiled fit
-    counts = [render.bucket_refine(n) for n in (0, 1, 2, 3, 5, 17, 32, 40)]
-    assert counts == [0, 1, 2, 4, 8, 32, 32, render.MAX_REFINE_ITERATIONS]

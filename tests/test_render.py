@@ -108,6 +108,14 @@ def test_glitter_is_where_the_sun_reflects_and_moves_with_the_sun():
     assert abs(np.unravel_index(np.argmax(img_high), img_high.shape)[0] - mirror_row) <= 6
 
 
+def test_refinement_counts_are_bucketed_so_nearby_views_share_compilations():
+    # render.plan's measured refinement count is rounded up to a power of two, capped at the
+    # renderer's maximum, so nearby views (fit.camera's starts, frames of a sequence) reuse
+    # one compilation
+    counts = [render.bucket_refine(n) for n in (0, 1, 2, 3, 5, 17, 32, 40)]
+    assert counts == [0, 1, 2, 4, 8, 32, 32, render.MAX_REFINE_ITERATIONS]
+
+
 def test_refinement_puts_the_hit_on_the_displaced_surface(x64):
     waves = sea(6, seed=4, omega=(0.6, 1.5), max_kh=0.3, dtype=np.float64)
     c = cam.make_camera(height=6.0, pitch=1.1, fov=0.6, resolution=(10, 10), dtype=np.float64)
