@@ -295,6 +295,9 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     tail = np.asarray(waves.omega) > 2.5 * 2 * np.pi / 5.0
     fit = fit_spectrum.spectrum(waves, reliable=tail)
     assert not fit.peak_observed
+    # the peak is pinned at the band's long edge: Tp and Hs come out low, not drifting off
+    np.testing.assert_allclose(float(fit.spectrum.tp), 2 * np.pi / fit.omega_band[0], rtol=1e-5)
+    assert float(fit.spectrum.tp) < 5.0 and float(fit.spectrum.hs) < 1.2
     # the Phillips level of the tail is still right
     alpha_true = float(spectrum.jonswap_normalisation(3.3)) * 5 / 16 * 1.2 ** 2 * (2 * np.pi / 5.0) ** 4 / GRAVITY ** 2
     assert abs(fit.alpha / alpha_true - 1) < 0.15
