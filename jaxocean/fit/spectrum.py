@@ -41,10 +41,12 @@ peak (the camera sees a patch shorter than the peak wavelength), the tail fixes 
 Phillips level ``alpha ~ Hs^2 wp^4``. ``SpectrumFit.peak_observed`` says whether the fitted
 peak lies inside the band of reliable frequencies. When it does not, the fit drifts along
 the ``alpha`` valley (measured on a dataset scene: Tp 137 s, Hs 510 m for a 5 s, 0.7 m
-sea), so the result is moved along the valley to the band's nearer edge, keeping
-``alpha`` and gamma: for a peak below the band, Tp becomes the longest period the reliable
-waves cover and Hs the value the tail level then implies (``Hs ~ Tp^2``). Both are then
-lower estimates when the true peak is longer; ``alpha`` is the identifiable quantity.
+sea), so Hs and gamma are refitted with the peak pinned to the band's nearer edge: for a
+peak below the band, Tp becomes the longest period the reliable waves cover and Hs the
+level that matches the in-band energies there -- lower estimates when the true peak is
+longer. ``alpha`` is reported from the free fit: it is the identifiable quantity.
+(Moving along the valley at the free fit's ``alpha`` instead was tried and gave Hs 4.1 m
+for a 0.32 m sea whose free fit had ended just outside the band.)
 
 ``correct_amplitudes(waves, spectrum, reliable=None)`` is the spectrum correction:
 waves that the image cannot resolve individually (too long for the view, or flagged
@@ -86,7 +88,7 @@ class SpectrumFit(NamedTuple):
     * ``n_waves``        number of waves the frequency and direction fits used.
     * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
     * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` (if not, Tp
-      and Hs are moved to the band's nearer edge at the fitted ``alpha``: module docstring).
+      is pinned to the band's nearer edge and Hs refitted: module docstring).
     * ``alpha``          Phillips tail level ``A(gamma) (5/16) Hs^2 wp^4 / g^2`` with
       ``A`` the JONSWAP normalisation (identifiable even when the peak is not observed).
     * ``time_s``         wall time.
@@ -258,40 +260,50 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
             r = jnp.concatenate([r, rr])
         return r
 
-    # global start: a grid over (Tp, gamma) with Hs^2 in closed form (energies are linear
-    # in Hs^2), evaluated in one vectorised call
-    tps = np.geomspace(2 * np.pi / (om[-1]), 2 * np.pi / (0.3 * om[0]), 48)
-    gammas = np.array([1.0, 2.0, 3.3, 5.0, 7.0] if gamma is None else [float(gamma)])
-    G, TP = np.meshgrid(gammas, tps, indexing="ij")
-    grid = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
-    c1 = np.cumsum(np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(grid), np.float64), axis=-1)
-    ok = np.all(np.isfinite(c1), axis=-1) & (c1[:, -1] > 0)
-    hs2 = np.where(ok, np.sum(c1 * cum_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
-    starts = np.stack([0.5 * np.log(np.maximum(hs2, 1e-300)), np.log(TP.ravel()), G.ravel()], -1)
-    starts_j = jnp.asarray(np.stack([from_params(p) for p in starts]), dtype)
-    vals = np.asarray(jax.jit(jax.vmap(lambda y: jnp.sum(residual(y, None) ** 2)))(starts_j), np.float64)
-    vals = np.where(ok & (hs2 > 0) & np.isfinite(vals), vals, np.inf)
-    if not np.isfinite(vals).any():
-        raise InvalidValueError("fit.spectrum found no admissible starting point (check the waves)")
-    y0 = starts_j[int(np.argmin(vals))]
-    lower = jnp.asarray([math.log(1e-3), math.log(0.3), 1.0][: y0.shape[0]], dtype)
-    upper = jnp.asarray([math.log(50.0), math.log(60.0), 10.0][: y0.shape[0]], dtype)
-    # jaxopt's tolerance is a projected-gradient norm: 1e-5 is what float32 reaches
-    out = solvers.solve(solver, residual, y0, None, max_steps=max_steps, rtol=1e-6, atol=1e-5 if bounded else 1e-9,
-                        lower=lower if bounded else None, upper=upper if bounded else None)
-    y = np.asarray(to_params(out.params), np.float64)
+    def grid_start(tps):
+        # a grid over (Tp, gamma) with Hs^2 in closed form (energies are linear in Hs^2),
+        # evaluated in one vectorised call; the best point as a solver vector y
+        gammas = np.array([1.0, 2.0, 3.3, 5.0, 7.0] if gamma is None else [float(gamma)])
+        G, TP = np.meshgrid(gammas, tps, indexing="ij")
+        grid = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
+        c1 = np.cumsum(np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(grid), np.float64), axis=-1)
+        ok = np.all(np.isfinite(c1), axis=-1) & (c1[:, -1] > 0)
+        hs2 = np.where(ok, np.sum(c1 * cum_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
+        starts = np.stack([0.5 * np.log(np.maximum(hs2, 1e-300)), np.log(TP.ravel()), G.ravel()], -1)
+        starts_j = jnp.asarray(np.stack([from_params(p) for p in starts]), dtype)
+        vals = np.asarray(jax.jit(jax.vmap(lambda y: jnp.sum(residual(y, None) ** 2)))(starts_j), np.float64)
+        vals = np.where(ok & (hs2 > 0) & np.isfinite(vals), vals, np.inf)
+        if not np.isfinite(vals).any():
+            raise InvalidValueError("fit.spectrum found no admissible starting point (check the waves)")
+        return starts_j[int(np.argmin(vals))]
+
+    def least_squares(y0, free):
+        # least squares over the entries ``free`` of y (the others stay at y0's values)
+        idx = jnp.asarray(np.flatnonzero(free))
+        full = lambda yf: y0.at[idx].set(yf)  # noqa: E731
+        lower = jnp.asarray([math.log(1e-3), math.log(0.3), 1.0][: y0.shape[0]], dtype)[idx]
+        upper = jnp.asarray([math.log(50.0), math.log(60.0), 10.0][: y0.shape[0]], dtype)[idx]
+        # jaxopt's tolerance is a projected-gradient norm: 1e-5 is what float32 reaches
+        out = solvers.solve(solver, lambda yf, args: residual(full(yf), args), y0[idx], None, max_steps=max_steps,
+                            rtol=1e-6, atol=1e-5 if bounded else 1e-9, lower=lower if bounded else None,
+                            upper=upper if bounded else None)
+        return out, np.asarray(to_params(full(out.params)), np.float64)
+
+    free = np.ones(2 if gamma is not None else 3, bool)
+    out, y = least_squares(grid_start(np.geomspace(2 * np.pi / (om[-1]), 2 * np.pi / (0.3 * om[0]), 48)), free)
+    wp = 2 * math.pi / math.exp(y[1])
+    # the tail level: JONSWAP in Hs-Tp form carries the normalisation A(gamma) into its tail
+    alpha = float(spec.jonswap_normalisation(y[2])) * 5.0 / 16.0 * math.exp(2 * y[0]) * wp ** 4 / GRAVITY ** 2
+    peak_observed = bool(edges[0] <= wp <= edges[-1])
+    if not peak_observed:
+        # only alpha is determined, and the solver drifts along its valley: refit Hs and
+        # gamma with the peak pinned to the band's nearer edge (module docstring)
+        wp = float(np.clip(wp, edges[0], edges[-1]))
+        free[1] = False
+        out, y = least_squares(grid_start(np.array([2 * math.pi / wp])), free)
     hs_fit, tp_fit = math.exp(y[0]), math.exp(y[1])
     g_fit = float(y[2])
     wp = 2 * math.pi / tp_fit
-    # the tail level: JONSWAP in Hs-Tp form carries the normalisation A(gamma) into its tail
-    a_norm = float(spec.jonswap_normalisation(g_fit)) * 5.0 / 16.0
-    alpha = a_norm * hs_fit ** 2 * wp ** 4 / GRAVITY ** 2
-    peak_observed = bool(edges[0] <= wp <= edges[-1])
-    if not peak_observed:
-        # only alpha is determined: move along its valley to the band's nearer edge
-        wp = float(np.clip(wp, edges[0], edges[-1]))
-        tp_fit = 2 * math.pi / wp
-        hs_fit = math.sqrt(alpha / a_norm) * GRAVITY / wp ** 2
 
     theta_mean, s_max = _direction_mle(om, th, wp, weight=h * h)
     fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
