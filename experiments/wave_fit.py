@@ -196,6 +196,7 @@ def section_table2(args, out):
                                       "time_s"])
         out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
         save(out, args)  # nothing lost if a later scene crashes
+    rows.sort(key=lambda r: r["seed"])
     out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
     print(json.dumps(out["table2"]["summary"], indent=1))
     plot_table2(rows)
