@@ -570,8 +570,8 @@ def cmd_fit_waves(args):
         raise ValueError(f"--n-waves must be >= 1; got {args.n_waves}")
     if args.max_waves < 1:
         raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
-    if args.noise is not None and not (np.isfinite(args.noise) and args.noise >= 0):
-        raise ValueError(f"--noise must be a finite sigma >= 0; got {args.noise}")
+    if args.noise is not None and not (np.isfinite(args.noise) and args.noise > 0):
+        raise ValueError(f"--noise must be a finite sigma > 0 (fit.waves' own bound); got {args.noise}")
     scene_dir = Path(args.scene)
     scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
     scene = read_scene(scene_dir)

@@ -752,34 +752,28 @@ def _uncertainty(y, jtj, active, half_rss, n_obs):
     standard deviations are not floored (noise-free fits have 1e-10 m).
     """
     n = active.shape[0]
-    dtype = jtj.dtype
     dof = jnp.maximum(n_obs - 4.0 * jnp.sum(active), 1.0)
     # half_rss is 0.5 |r|^2 of residuals scaled by 1/sqrt(P); sigma^2 in those units
     sigma2 = 2.0 * half_rss / dof
     d = jnp.sqrt(jnp.maximum(jnp.diag(jtj), 1e-30))
     lam, vec = jnp.linalg.eigh(jtj / d[:, None] / d[None, :])
-    lam = jnp.maximum(lam, jnp.finfo(dtype).eps * jnp.max(lam))
+    lam = jnp.maximum(lam, jnp.finfo(jtj.dtype).eps * jnp.max(lam))
+    # eigenvector rows by parameter block (a, b, log omega, theta) in unscaled coordinates:
+    # (4, N, 4N), so that a quantity of wave i projects onto the eigenvectors through its own
+    # parameters only
+    rows = (vec / d[:, None]).reshape(4, n, 4 * n)
     a, b, u, _ = _unpack(y, n)
     h2 = jnp.maximum(a * a + b * b, 1e-30)
     h = jnp.sqrt(h2)
-    zero = jnp.zeros_like(a)
-    # d(h, omega, theta, phi) / d(a, b, log omega, theta), one (4N,) gradient per wave and
-    # quantity, in the order of _pack's blocks
-    grads = {
-        "h": (a / h, b / h, zero, zero),
-        "omega": (zero, zero, jnp.exp(u), zero),
-        "theta": (zero, zero, zero, jnp.ones_like(a)),
-        "phi": (-b / h2, a / h2, zero, zero),
-    }
-    eye = jnp.eye(n, dtype=dtype)
 
-    def variance(g):
-        G = jnp.concatenate([gi[:, None] * eye for gi in g], axis=0)  # (4N, N): one column per wave
-        proj = vec.T @ (G / d[:, None])  # (4N eigen, N)
-        return sigma2 * jnp.sum(proj * proj / lam[:, None], axis=0)
+    def std(*grad):
+        # grad: ((block, d quantity / d parameter (N,)), ...) of each wave's quantity
+        proj = sum(g[:, None] * rows[k] for k, g in grad)  # (N, 4N)
+        return safe_sqrt(sigma2 * jnp.sum(proj * proj / lam, axis=-1), floor=0.0)
 
-    std = [safe_sqrt(variance(grads[q]), floor=0.0) for q in ("h", "omega", "theta", "phi")]
-    return Waves(*[jnp.where(active, s, 0.0) for s in std])
+    stds = (std((0, a / h), (1, b / h)), std((2, jnp.exp(u))), std((3, jnp.ones_like(a))),
+            std((0, -b / h2), (1, a / h2)))
+    return Waves(*[jnp.where(active, s, 0.0) for s in stds])
 
 
 # =============================================================================== refine (public)
