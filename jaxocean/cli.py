@@ -47,6 +47,9 @@ __all__ = ["main", "build_parser"]
 EXIT_OK, EXIT_PROBLEMS, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
+_FLOAT32_HELP = "store R G B as float32 instead of half floats (the geometry is float32 always)"
+
+
 def _resolution(text: str):
     try:
         parts = [int(p) for p in text.lower().replace("x", " ").split()]
@@ -134,7 +137,7 @@ def build_parser():
                        description="Render one scene (from options, or a scene.json / scene directory).")
     p.add_argument("scene", nargs="?", help="scene.json or a directory holding one (optional)")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--float32", action="store_true", help="write float32 EXR instead of half")
+    p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_scene_options(p)
 
     p = sub.add_parser("simulate", help="generate a synthetic dataset (resumable)",
@@ -148,7 +151,7 @@ def build_parser():
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--waves", type=int, default=None, help="wave trains per scene (default 60)")
     p.add_argument("--ranges", help="JSON file overriding SceneRanges fields, e.g. {\"hs\": [0.5, 2.0]}")
-    p.add_argument("--float32", action="store_true", help="float32 EXR instead of half")
+    p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("check", help="verify a dataset against its manifest",
@@ -187,7 +190,7 @@ def build_parser():
     p.add_argument("scene", help="scene directory or scene.json")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--frames", type=_index_list, help="indices of the scene's frames, e.g. 0,1 (default all)")
-    p.add_argument("--float32", action="store_true", help="write float32 EXR instead of half")
+    p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
 
@@ -221,7 +224,7 @@ def build_parser():
     when.add_argument("--times", type=_number_list, help="times [s], e.g. 0,10,50")
     p.add_argument("--fps", type=_positive, help="frames per second for --frames (default: the JSON's frame "
                                                  "interval; frame 0 is its first time)")
-    p.add_argument("--float32", action="store_true", help="write float32 EXR instead of half")
+    p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
     return ap
@@ -476,10 +479,15 @@ def cmd_fit_lighting(args):
     from jaxocean import fit
     from jaxocean.io import read_frame, read_scene
 
-    frame = read_frame(args.frame)
+    frame = read_frame(args.frame, warn_incomplete=False)
     if frame.normal is None:
         raise ValueError(f"{args.frame}: the frame has no normal channels (normal.X/Y/Z, roughness, mask); "
                          f"fit-lighting needs the geometry it was rendered with")
+    if frame.slope_variance is None:
+        print(f"jaxocean: note: {args.frame} has no slope_variance.X/Y channels (an older or foreign file): the fit "
+              f"shades its geometry with the isotropic roughness, which does not reproduce an image rendered with "
+              f"anisotropic slope variance; the fitted lighting (colours above all) can be off. Re-render the frame "
+              f"to fit it exactly", file=sys.stderr)
     scene = read_scene(args.scene) if args.scene else None
     if scene is not None and scene.camera is None:
         raise ValueError(f"{args.scene}: the scene has no camera")
@@ -533,7 +541,11 @@ def cmd_reedit(args):
 
 
 def _read_geometry_frames(scene_dir: Path, frames, resolution):
-    """``(normals (T, H, W, 3), roughness (T, H, W))`` of the scene's frames, with a progress bar."""
+    """``(normals (T, H, W, 3), roughness (T, H, W))`` of the scene's frames, with a progress bar.
+
+    fit.waves models the scalar roughness (its sub-pixel term), which every frame stores
+    exactly; the anisotropic slope variance, when a frame has it, is not part of that model.
+    """
     from tqdm.auto import tqdm
 
     from jaxocean.io import read_frame
@@ -541,7 +553,7 @@ def _read_geometry_frames(scene_dir: Path, frames, resolution):
 
     normals, roughness = [], []
     for f in tqdm(frames, desc="read", unit="frame"):
-        frame = read_frame(scene_dir / frame_name(f), expect_resolution=resolution)
+        frame = read_frame(scene_dir / frame_name(f), expect_resolution=resolution, warn_incomplete=False)
         if frame.normal is None:
             raise ValueError(f"{scene_dir / frame_name(f)}: the frame has no normal / roughness channels; "
                              f"fit-waves needs the geometry frames")

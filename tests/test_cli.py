@@ -99,6 +99,61 @@ def test_fit_lighting_recovers_the_sun(tiny_scene, tmp_path, capsys):
                                                                             first["sun_elevation"]], abs=1e-4)
 
 
+# The command's default scene (60 JONSWAP waves) at 16 x 16 pixels: its sub-pixel waves make the
+# slope variance strongly anisotropic, so shading its geometry needs slope_variance.X/Y.
+
+
+@pytest.fixture(scope="module")
+def default_scene(tmp_path_factory):
+    out = tmp_path_factory.mktemp("cli_default") / "render"
+    assert cli.main(["render", "--out", str(out), "--frames", "1", "--res", "16"]) == 0
+    return out
+
+
+def test_rendered_frame_reproduces_its_image(default_scene):
+    from jaxocean import io, render
+
+    frame, scene = io.read_frame(default_scene / "frame_00000.exr"), io.read_scene(default_scene)
+    sv = frame.slope_variance[frame.mask]
+    assert np.sum(sv[:, 0]) > 1.5 * np.sum(sv[:, 1]) or np.sum(sv[:, 1]) > 1.5 * np.sum(sv[:, 0])
+    shaded = render.shade(frame.normal, frame.roughness, scene.camera, scene.lighting,
+                          slope_variance=frame.slope_variance)
+    # R G B are stored as half floats (relative rounding 2^-11), the geometry as float32
+    np.testing.assert_allclose(np.asarray(shaded), frame.image, rtol=2.0**-11 + 1e-5, atol=3e-8)
+
+
+def test_fit_lighting_of_its_own_frame_is_exact(default_scene, tmp_path, capsys):
+    # the command that reported success with the sun colour 87% off while frames stored only
+    # the scalar roughness
+    from jaxocean import fit, io
+
+    out = tmp_path / "fit.json"
+    assert cli.main(["fit-lighting", str(default_scene / "frame_00000.exr"), "--scene", str(default_scene),
+                     "--out", str(out)]) == 0
+    assert "note:" not in capsys.readouterr().err
+    result = json.loads(out.read_text())
+    err = fit.lighting_error(fit.lighting_from_dict(result), io.read_scene(default_scene).lighting)
+    assert result["success"] is True and float(err["sun_angle_deg"]) < 1e-2
+    for name in ("sun_color", "sky_color", "sea_color"):
+        assert float(err[name]) < 2e-3, name
+
+
+def test_fit_lighting_notes_a_frame_without_slope_variance(default_scene, tmp_path, capsys, monkeypatch):
+    from jaxocean import fit, io
+
+    frame = io.read_frame(default_scene / "frame_00000.exr")
+    io.write_frame(tmp_path / "old.exr", frame.image, frame._replace(slope_variance=None))
+
+    def stop(*args, **kwargs):  # the note comes before the (slow) fit
+        raise ValueError("fit skipped")
+
+    monkeypatch.setattr(fit, "lighting", stop)
+    assert cli.main(["fit-lighting", str(tmp_path / "old.exr"), "--scene", str(default_scene),
+                     "--out", str(tmp_path / "fit.json")]) == 2
+    err = capsys.readouterr().err
+    assert "old.exr has no slope_variance.X/Y channels" in err and "isotropic roughness" in err
+
+
 def test_fit_lighting_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     from jaxocean import io
 

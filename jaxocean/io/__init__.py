@@ -3,7 +3,7 @@
 A rendered or observed sequence is a directory::
 
     scene.json           waves, camera, lighting, spectrum, frame times, seed, version
-    frame_00000.exr      R G B linear radiance [+ normal.X/Y/Z, roughness, mask]
+    frame_00000.exr      R G B linear radiance [+ normal.X/Y/Z, roughness, slope_variance.X/Y, mask]
     frame_00001.exr
     ...
 
@@ -29,9 +29,11 @@ from jaxocean.io.exr import (
     META_PREFIX,
     NORMAL_CHANNELS,
     RGB_CHANNELS,
+    SLOPE_VARIANCE_CHANNELS,
     FileFormatError,
     Frame,
     FrameError,
+    IncompleteFrameWarning,
     MissingFileError,
     atomic_write,
     read_frame,
@@ -59,6 +61,7 @@ __all__ = [
     "RGB_CHANNELS",
     "NORMAL_CHANNELS",
     "GEOMETRY_CHANNELS",
+    "SLOPE_VARIANCE_CHANNELS",
     "META_PREFIX",
     "COMPRESSIONS",
     "Frame",
@@ -69,6 +72,7 @@ __all__ = [
     "FileFormatError",
     "MissingFileError",
     "FrameError",
+    "IncompleteFrameWarning",
     "SceneError",
     "SceneFileError",
     # scenes

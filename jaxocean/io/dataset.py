@@ -6,7 +6,8 @@ A dataset is a directory::
 
     dataset.json                 generation settings (seed, counts, resolution, ranges, version)
     scene_00000/scene.json       waves, spectrum, camera, lighting, frame times, seed
-    scene_00000/frame_00000.exr  R G B + normal.X/Y/Z, roughness, mask (see jaxocean.io.exr)
+    scene_00000/frame_00000.exr  R G B + normal.X/Y/Z, roughness, slope_variance.X/Y, mask
+                                 (see jaxocean.io.exr)
     ...
     splits.json                  {"train": [...], "val": [...], "test": [...]} scene indices
     manifest.json                every file with its size and SHA-256
@@ -27,9 +28,10 @@ A dataset is a directory::
 Splits follow the paper: 200 test scenes out of 2,000 (10% in general), the rest split 9:1
 into train and validation, drawn from the seed.
 
-Geometry in datasets uses plane hits (no fixed-point refinement, ``RenderPlan.refine=0``):
-the image is rendered from exactly the geometry that is stored, which is what the
-geometry networks and the wave fits consume.
+Frames are rendered as :func:`jaxocean.render.render` renders them by default: plane hits
+where the waves move a hit by less than half a footprint, converged ray-surface hits
+otherwise (:func:`render_scene`). The image is shaded from exactly the geometry that is
+stored, which is what the geometry networks and the wave fits consume.
 """
 
 from __future__ import annotations
@@ -39,6 +41,7 @@ import hashlib
 import json
 import math
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import NamedTuple
@@ -50,7 +53,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import render, shading, spectrum
 from jaxocean.errors import InvalidValueError
-from jaxocean.io.exr import FileFormatError, atomic_write, read_frame, write_frame
+from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, atomic_write, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
 from jaxocean.io.sequence import frame_name
 
@@ -149,14 +152,21 @@ def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128)
     return SceneSample(waves, spec, camera, lighting, times)
 
 
-def render_scene(scene: SceneSample, plan=None):
+def render_scene(scene: SceneSample, plan="auto"):
     """Images ``(T, H, W, 3)`` and ``Geometry`` with a leading frame axis, one compiled call.
 
-    ``plan=None`` evaluates every wave without refinement: one plan for every scene of a
-    dataset, so the whole dataset compiles once (a per-scene plan would recompile per scene).
+    ``plan="auto"`` renders what :func:`jaxocean.render.render` renders by default (the rows
+    path or converged hits, by :func:`jaxocean.render.needs_refinement`) with every wave
+    evaluated, so a dataset compiles at most twice; ``None`` forces the rows path; or a
+    :class:`jaxocean.render.RenderPlan`.
     """
-    if plan is None:
-        plan = render.full_plan(scene.waves.omega.shape[-1])
+    n = scene.waves.omega.shape[-1]
+    if isinstance(plan, str):
+        if plan != "auto":
+            raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
+        plan = render.full_plan(n, render.plan(scene.waves, scene.camera).refine)
+    elif plan is None:
+        plan = render.full_plan(n)
     return _render_frames(scene.waves, scene.camera, scene.lighting, scene.times, plan)
 
 
@@ -269,7 +279,8 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
     directory = scene_dir(out, index)
     (directory / SCENE_FILENAME).unlink(missing_ok=True)  # incomplete until written again, last
     for f in range(images.shape[0]):
-        frame_geo = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f]}
+        frame_geo = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f],
+                     "slope_variance": geo.slope_variance[f]}
         write_frame(directory / frame_name(f), images[f], frame_geo,
                     {"scene": index, "frame": f, "time": float(scene.times[f])}, half=half)
     write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
@@ -323,7 +334,8 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
             if path.name == SCENE_FILENAME:
                 read_scene(path)
             elif read_frames:
-                frame = read_frame(path, expect_resolution=resolution)
+                # a dataset written before slope_variance was stored is still sound (the loader notes it)
+                frame = read_frame(path, expect_resolution=resolution, warn_incomplete=False)
                 if frame.normal is None:
                     problems.append(f"{path}: no geometry channels")
         except (FileFormatError, InvalidValueError, ValueError) as err:
@@ -338,7 +350,10 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
 class Batch(NamedTuple):
     """A training batch: ``image (B, S, H, W, 3)``, ``normal (B, S, H, W, 3)``,
     ``roughness (B, S, H, W)``, ``mask (B, S, H, W)``, ``times (B, S)``, and the scenes'
-    ``waves``, ``camera``, ``lighting`` pytrees with a leading ``B`` axis (S = sequence length)."""
+    ``waves``, ``camera``, ``lighting`` pytrees with a leading ``B`` axis (S = sequence length);
+    ``slope_variance (B, S, H, W, 2)`` the images were shaded with (pass it to
+    ``render.shade``), or None when a frame of the batch lacks it (a dataset written before
+    it was stored; :class:`Dataset` warns once)."""
 
     image: np.ndarray
     normal: np.ndarray
@@ -348,6 +363,7 @@ class Batch(NamedTuple):
     waves: object
     camera: object
     lighting: object
+    slope_variance: np.ndarray | None = None
 
 
 class Dataset:
@@ -356,7 +372,9 @@ class Dataset:
     ``Dataset(root).batches(key, split="train", batch_size=8, sequence=1)`` yields
     :class:`Batch` items in a key-shuffled order of (scene, first frame) windows. Decoded
     frames are kept in an in-memory cache up to ``cache_bytes`` (default 2 GiB), so epochs
-    after the first read from memory.
+    after the first read from memory. Frames without ``slope_variance`` channels (a dataset
+    written before they were stored) load with ``slope_variance`` None; the first such frame
+    raises one :class:`jaxocean.io.exr.IncompleteFrameWarning` per ``Dataset``.
     """
 
     def __init__(self, root, cache_bytes: int = 2 << 30):
@@ -372,6 +390,7 @@ class Dataset:
         self._cache_bytes = 0
         self._cache_limit = cache_bytes
         self._scenes: dict = {}
+        self._warned_incomplete = False
 
     def scene(self, index: int):
         if index not in self._scenes:
@@ -382,9 +401,16 @@ class Dataset:
         key = (scene_index, frame_index)
         if key in self._cache:
             return self._cache[key]
-        frame = read_frame(scene_dir(self.root, scene_index) / frame_name(frame_index),
-                           expect_resolution=self.resolution)
-        size = sum(a.nbytes for a in (frame.image, frame.normal, frame.roughness, frame.mask) if a is not None)
+        path = scene_dir(self.root, scene_index) / frame_name(frame_index)
+        frame = read_frame(path, expect_resolution=self.resolution, warn_incomplete=False)
+        if frame.normal is not None and frame.slope_variance is None and not self._warned_incomplete:
+            self._warned_incomplete = True
+            warnings.warn(f"{self.root}: frames without slope_variance.X/Y channels (first: {path}; written "
+                          f"before they were stored): Batch.slope_variance is None, and shading their geometry "
+                          f"with the isotropic roughness does not reproduce their images", IncompleteFrameWarning,
+                          stacklevel=2)
+        size = sum(a.nbytes for a in (frame.image, frame.normal, frame.roughness, frame.mask, frame.slope_variance)
+                   if a is not None)
         if self._cache_bytes + size <= self._cache_limit:
             self._cache[key] = frame
             self._cache_bytes += size
@@ -416,7 +442,9 @@ class Dataset:
             return jax.tree.map(lambda *leaves: np.stack([np.asarray(x) for x in leaves]), *trees)
 
         times = np.stack([np.asarray(sc.times)[f:f + sequence] for sc, (_, f) in zip(scenes, chosen)])
+        complete = all(fr.slope_variance is not None for seq in frames for fr in seq)
         return Batch(image=stack("image"), normal=stack("normal"), roughness=stack("roughness"), mask=stack("mask"),
                      times=times, waves=stack_tree([sc.waves for sc in scenes]),
                      camera=stack_tree([sc.camera for sc in scenes]),
-                     lighting=stack_tree([sc.lighting for sc in scenes]))
+                     lighting=stack_tree([sc.lighting for sc in scenes]),
+                     slope_variance=stack("slope_variance") if complete else None)

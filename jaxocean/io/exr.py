@@ -11,22 +11,37 @@ channel                                meaning                                  
 ``R``, ``G``, ``B``                    linear radiance: no tone map, no gamma          scene-linear
 ``normal.X``, ``normal.Y``,            unit macro-surface normal, world frame (z up)   --
 ``normal.Z``
-``roughness``                          sub-pixel slope variance sigma^2                dimensionless
+``roughness``                          sub-pixel slope variance sigma^2 =              dimensionless
+                                       sigma_x^2 + sigma_y^2 (floored at
+                                       ``shading.MIN_SLOPE_VARIANCE``)
+``slope_variance.X``,                  the anisotropic pair (sigma_x^2, sigma_y^2)     dimensionless
+``slope_variance.Y``                   the image was shaded with
 ``mask``                               1 where the pixel sees the sea, 0 for sky        0 / 1
 =====================================  =============================================  ==========
 
-``R G B`` are always there; the five geometry channels are written together or not at all
-(a file with some of them is reported as incomplete). Channels outside this list are ignored
-on reading, so files from other tools load as long as they carry ``R G B``.
+``R G B`` are always there; ``normal.X/Y/Z``, ``roughness`` and ``mask`` (the
+:data:`GEOMETRY_CHANNELS`) are written together or not at all (a file with some of them is
+reported as incomplete). ``slope_variance.X/Y`` (:data:`SLOPE_VARIANCE_CHANNELS`) are written
+with the geometry whenever it has a ``slope_variance`` (a :class:`jaxocean.render.Geometry`
+does: every frame jaxocean renders carries them). They are what the renderer shades with, so
+``render.shade(f.normal, f.roughness, camera, lighting, slope_variance=f.slope_variance)``
+of a read frame ``f`` reproduces its ``R G B`` to the precision they are stored in; the
+scalar ``roughness`` alone shades isotropically (sigma^2 / 2 per axis) and does not. A file
+with geometry but without them (written before they were stored, or by another tool) still
+reads: ``Frame.slope_variance`` is None and :func:`read_frame` warns
+(:class:`IncompleteFrameWarning`) unless ``warn_incomplete=False``. Channels outside this
+list are ignored on reading, so files from other tools load as long as they carry ``R G B``.
 
-Pixel type and compression. All channels of a file share one pixel type: half (float16) by
-default, float32 with ``half=False``. Half floats keep 11 significant bits (relative error
-<= 2^-11 ~ 4.9e-4) for magnitudes in [6.1e-5, 65504]; below 6.1e-5 they are subnormal with
-an absolute step of 6e-8 (roughness near its 2e-5 floor keeps ~3e-3 relative precision), and
-values above 65504 would become inf, so :func:`write_frame` refuses them (write such frames
-with ``half=False``). Float32 frames read back bit-exact. ZIP compression (lossless) is the
-default; any OpenEXR compression can be named (``"none"``, ``"piz"``, ``"zstd"``, ...;
-``"pxr24"``, ``"b44"``, ``"dwaa"`` ... are lossy).
+Pixel types. ``R G B`` and ``mask`` are half (float16) by default, float32 with
+``half=False``. The geometry values ``normal``, ``roughness`` and ``slope_variance`` are
+always float32 and read back bit-exact: the sun glitter is so sensitive to the normal that
+half-float normals (2.4e-4 rounding) move glint pixels by up to ~3% -- a frame could not
+reproduce its own image. Half floats keep 11 significant bits (relative error <= 2^-11 ~
+4.9e-4) for magnitudes in [6.1e-5, 65504]; below 6.1e-5 they are subnormal with an absolute
+step of 6e-8, and values above 65504 would become inf, so :func:`write_frame` refuses them
+(write such frames with ``half=False``). Float32 frames read back bit-exact. ZIP compression
+(lossless) is the default; any OpenEXR compression can be named (``"none"``, ``"piz"``,
+``"zstd"``, ...; ``"pxr24"``, ``"b44"``, ``"dwaa"`` ... are lossy).
 
 Metadata. ``meta`` is a small flat dict (scene id, frame index, time, ...) stored as header
 attributes named ``"jaxocean.<key>"``: a ``str`` as a string attribute, an ``int`` as a
@@ -43,15 +58,26 @@ deleted. Everything is validated (shapes, finite values, half range, metadata) b
 first byte is written.
 
 Errors. Reading reports the file by name: :class:`MissingFileError` (also a
-``FileNotFoundError``) for a missing file, :class:`FrameError` for a corrupt or truncated
-file, a missing ``R``/``G``/``B`` channel, an incomplete geometry channel set, mismatched
-channel sizes or an unexpected resolution. All are ``ValueError`` subclasses via
-:class:`jaxocean.errors.InvalidValueError`.
+``FileNotFoundError``) for a missing file, :class:`FrameError` for a file that is not an
+OpenEXR file (recognised by its first bytes: a PNG, JPEG, GIF, TIFF or JSON file is named as
+such), a corrupt or truncated file, a missing ``R``/``G``/``B`` channel, an incomplete
+geometry channel set, mismatched channel sizes or an unexpected resolution. All are
+``ValueError`` subclasses via :class:`jaxocean.errors.InvalidValueError`. What the OpenEXR
+library itself prints while decoding (it reports damaged files on stdout and stderr) is
+captured and, for a damaged file, its first line goes into the error message instead; reads
+are serialised by a lock while they redirect file descriptors 1 and 2.
 """
 
 from __future__ import annotations
 
+import contextlib
+import ctypes
+import io
 import os
+import sys
+import tempfile
+import threading
+import warnings
 from pathlib import Path
 from typing import Any, Callable, NamedTuple
 
@@ -64,11 +90,13 @@ __all__ = [
     "RGB_CHANNELS",
     "NORMAL_CHANNELS",
     "GEOMETRY_CHANNELS",
+    "SLOPE_VARIANCE_CHANNELS",
     "META_PREFIX",
     "COMPRESSIONS",
     "FileFormatError",
     "MissingFileError",
     "FrameError",
+    "IncompleteFrameWarning",
     "Frame",
     "atomic_write",
     "write_frame",
@@ -78,6 +106,12 @@ __all__ = [
 RGB_CHANNELS = ("R", "G", "B")
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
 GEOMETRY_CHANNELS = NORMAL_CHANNELS + ("roughness", "mask")
+"""The geometry channels written together or not at all."""
+SLOPE_VARIANCE_CHANNELS = ("slope_variance.X", "slope_variance.Y")
+"""The anisotropic slope variance (sigma_x^2, sigma_y^2): written with the geometry when it
+has one, optional on reading (older files lack it)."""
+_FLOAT32_CHANNELS = frozenset(NORMAL_CHANNELS + ("roughness",) + SLOPE_VARIANCE_CHANNELS)
+"""Stored as float32 whatever ``half`` says (module docstring, "Pixel types")."""
 META_PREFIX = "jaxocean."
 """Header attributes of the ``meta`` dict are named ``META_PREFIX + key``."""
 
@@ -120,7 +154,13 @@ class MissingFileError(FileFormatError, FileNotFoundError):
 
 
 class FrameError(FileFormatError):
-    """An OpenEXR frame file that is corrupt, truncated or misses protocol channels."""
+    """An OpenEXR frame file that is corrupt, truncated or misses protocol channels, or a
+    file that is not OpenEXR at all."""
+
+
+class IncompleteFrameWarning(UserWarning):
+    """A frame with geometry but without ``slope_variance.X/Y``: shading its geometry uses
+    the isotropic roughness and need not reproduce its image."""
 
 
 def _require_file(path, what: str) -> Path:
@@ -197,6 +237,12 @@ class Frame(NamedTuple):
     * ``roughness`` ``(H, W)`` float32 slope variance sigma^2, or None.
     * ``mask``      ``(H, W)`` bool, True where the pixel sees the sea, or None.
     * ``meta``      dict of the ``jaxocean.*`` header attributes, prefix removed.
+    * ``slope_variance`` ``(H, W, 2)`` float32 (sigma_x^2, sigma_y^2) the image was shaded
+      with, or None when the file has no such channels (no geometry, or an older file).
+
+    A frame is a geometry-like: ``render.shade(f.normal, f.roughness, camera, lighting,
+    slope_variance=f.slope_variance)`` and ``fit.lighting(f.image, f, camera)`` use the
+    anisotropic slope variance when the file has it.
     """
 
     image: np.ndarray
@@ -204,6 +250,7 @@ class Frame(NamedTuple):
     roughness: np.ndarray | None
     mask: np.ndarray | None
     meta: dict
+    slope_variance: np.ndarray | None = None
 
 
 def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, compression: str = "zip") -> Path:
@@ -215,10 +262,12 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
         image: ``(H, W, 3)`` linear radiance, NumPy or JAX, any real dtype.
         geometry: optional per-pixel geometry: a :class:`jaxocean.render.Geometry`, or any
             object or dict with ``normal (H, W, 3)``, ``roughness (H, W)`` and ``mask
-            (H, W)`` (bool, or numbers 0 / 1).
+            (H, W)`` (bool, or numbers 0 / 1), and optionally ``slope_variance (H, W, 2)``
+            (>= 0; stored as ``slope_variance.X/Y`` when present and not None).
         meta: optional flat dict ``{str: str | int | float}`` stored as header attributes
             ``jaxocean.<key>``; ints must fit 32 bits, floats must be finite.
-        half: store half floats (default) or, with False, float32 (bit-exact round trip).
+        half: store ``R G B`` and ``mask`` as half floats (default) or, with False, as
+            float32 (bit-exact round trip). Geometry values are float32 either way.
         compression: one of :data:`COMPRESSIONS`; ``"zip"`` (lossless) by default.
 
     Returns:
@@ -226,17 +275,18 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
 
     Raises:
         ValueError: wrong shapes, dtypes, compression name or metadata types.
-        InvalidValueError: NaN/inf values (naming the channel), |value| > 65504 with
-            ``half=True``, a mask that is not 0/1. Nothing is written in either case.
+        InvalidValueError: NaN/inf values (naming the channel), |R G B| > 65504 with
+            ``half=True``, a mask that is not 0/1, a negative slope variance. Nothing is
+            written in either case.
     """
     if compression not in _COMPRESSION_BY_NAME:
         raise ValueError(f"unknown EXR compression {compression!r}; expected one of {COMPRESSIONS}")
-    pixel_type = np.float16 if half else np.float32
     planes = _frame_planes(image, geometry)
-    if half:
-        for name, plane in planes.items():
+    types = {name: np.float32 if name in _FLOAT32_CHANNELS or not half else np.float16 for name in planes}
+    for name, plane in planes.items():
+        if types[name] == np.float16:
             _check_half_range(plane, name)
-    channels = {name: np.ascontiguousarray(plane, dtype=pixel_type) for name, plane in planes.items()}
+    channels = {name: np.ascontiguousarray(plane, dtype=types[name]) for name, plane in planes.items()}
     header = {
         "compression": _COMPRESSION_BY_NAME[compression],
         "type": OpenEXR.scanlineimage,
@@ -265,17 +315,25 @@ def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
         normal = _real_array(_geometry_field(geometry, "normal"), "normal")
         roughness = _real_array(_geometry_field(geometry, "roughness"), "roughness")
         mask = _mask_plane(_geometry_field(geometry, "mask"))
-        for name, array, shape in (
-            ("normal", normal, resolution + (3,)),
-            ("roughness", roughness, resolution),
-            ("mask", mask, resolution),
-        ):
+        slope_var = _geometry_field(geometry, "slope_variance", required=False)
+        fields = [("normal", normal, resolution + (3,)), ("roughness", roughness, resolution),
+                  ("mask", mask, resolution)]
+        if slope_var is not None:
+            slope_var = _real_array(slope_var, "slope_variance")
+            fields.append(("slope_variance", slope_var, resolution + (2,)))
+        for name, array, shape in fields:
             if array.shape != shape:
                 raise ValueError(f"geometry.{name} must have shape {shape} to match the image; got {array.shape}")
         planes.update({name: normal[..., c] for c, name in enumerate(NORMAL_CHANNELS)})
         planes.update(roughness=roughness, mask=mask)
+        if slope_var is not None:
+            planes.update({name: slope_var[..., c] for c, name in enumerate(SLOPE_VARIANCE_CHANNELS)})
     for name, plane in planes.items():
         check_finite(plane, f"EXR channel {name!r}")
+    for name in SLOPE_VARIANCE_CHANNELS:
+        if name in planes and not np.all(planes[name] >= 0):
+            raise InvalidValueError(f"EXR channel {name!r}: a slope variance must be >= 0; "
+                                    f"got {float(np.min(planes[name])):g}")
     return planes
 
 
@@ -286,10 +344,12 @@ def _real_array(x, name: str, kinds: str = "iuf") -> np.ndarray:
     return array
 
 
-def _geometry_field(geometry, name: str):
+def _geometry_field(geometry, name: str, *, required: bool = True):
     try:
         return geometry[name] if isinstance(geometry, dict) else getattr(geometry, name)
     except (KeyError, AttributeError):
+        if not required:
+            return None
         raise ValueError(
             f"geometry needs fields 'normal', 'roughness' and 'mask'; {type(geometry).__name__} has no {name!r}"
         ) from None
@@ -348,32 +408,131 @@ def _meta_from_header(header: dict) -> dict:
 
 # --------------------------------------------------------------------------- reading
 
+_EXR_MAGIC = b"\x76\x2f\x31\x01"
+# First bytes of files that are easily passed where a frame is expected.
+_OTHER_FORMATS = (
+    (b"\x89PNG\r\n\x1a\n", "a PNG image"),
+    (b"\xff\xd8\xff", "a JPEG image"),
+    (b"GIF87a", "a GIF image"),
+    (b"GIF89a", "a GIF image"),
+    (b"II*\x00", "a TIFF image"),
+    (b"MM\x00*", "a TIFF image"),
+    (b"{", "a JSON file"),
+)
+_EXPECTED = "expected an OpenEXR frame (.exr: linear R G B, with normal / roughness / mask channels for the fits)"
+_DECODE_LOCK = threading.Lock()
 
-def read_frame(path, *, expect_resolution=None) -> Frame:
+
+def _check_magic(path: Path) -> None:
+    """:class:`FrameError` naming what the file is when it is not OpenEXR (by its first bytes)."""
+    with open(path, "rb") as file:
+        head = file.read(8)
+    if head.startswith(_EXR_MAGIC):
+        return
+    if not head:
+        raise FrameError(path, f"empty file (0 bytes); {_EXPECTED}")
+    what = next((name for magic, name in _OTHER_FORMATS if head.startswith(magic)), None)
+    if what is None and len(head) < len(_EXR_MAGIC) and _EXR_MAGIC.startswith(head):
+        raise FrameError(path, f"truncated OpenEXR file ({len(head)} bytes)")
+    what = what or f"not an OpenEXR file (it starts with bytes {head[:4].hex(' ')}, not {_EXR_MAGIC.hex(' ')})"
+    if what.startswith("a "):
+        what = f"{what}, not an OpenEXR file"
+    raise FrameError(path, f"{what}; {_EXPECTED}")
+
+
+class _Captured:
+    text = ""
+
+
+@contextlib.contextmanager
+def _captured_output():
+    """Capture what native code and Python print on stdout / stderr during the block.
+
+    The OpenEXR binding reports damaged files itself: from C++ on file descriptor 2 and
+    through Python's ``sys.stdout``. Both descriptors and both Python streams are redirected
+    into a temporary file; the text is in the yielded object's ``text`` afterwards. A lock
+    serialises the redirection (descriptors are process-wide). Where descriptors 1 / 2
+    cannot be duplicated (closed), only the Python streams are redirected.
+    """
+    captured = _Captured()
+    with _DECODE_LOCK, tempfile.TemporaryFile() as sink:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(Exception):
+                stream.flush()
+        try:
+            saved = [os.dup(1), os.dup(2)]
+        except OSError:
+            saved = None
+        python_text = io.StringIO()
+        try:
+            if saved is not None:
+                os.dup2(sink.fileno(), 1)
+                os.dup2(sink.fileno(), 2)
+            with contextlib.redirect_stdout(python_text), contextlib.redirect_stderr(python_text):
+                yield captured
+        finally:
+            if saved is not None:
+                _flush_c_streams()
+                os.dup2(saved[0], 1)
+                os.dup2(saved[1], 2)
+                for fd in saved:
+                    os.close(fd)
+            sink.seek(0)
+            captured.text = python_text.getvalue() + sink.read().decode("utf-8", errors="replace")
+
+
+def _flush_c_streams() -> None:
+    """``fflush(NULL)``: C stdio buffers (which C++ ``std::cout`` writes through) reach the
+    redirected descriptor before it is restored. Best effort."""
+    with contextlib.suppress(Exception):
+        ctypes.CDLL(None).fflush(None)
+
+
+def _decode_problem(path: Path, error: Exception, printed: str) -> str:
+    """The most telling line of what OpenEXR said (printed text first), without the path."""
+    lines = [line.strip() for line in printed.splitlines() if line.strip()]
+    lines = [line.removeprefix(f"{path}:").removeprefix(f"{os.fspath(path)}:").strip() for line in lines]
+    telling = [line for line in lines if "EXR_ERR" in line] or lines
+    return telling[0] if telling else str(error)
+
+
+def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) -> Frame:
     """Read a frame written by :func:`write_frame` (or any OpenEXR file with ``R G B``).
 
     Args:
         path: the ``.exr`` file.
         expect_resolution: optional ``(H, W)``; a frame of another size is an error.
+        warn_incomplete: warn (:class:`IncompleteFrameWarning`) when the file has geometry
+            but no ``slope_variance.X/Y`` channels; ``Frame.slope_variance`` is None either
+            way, so a caller that reports it itself passes False.
 
     Returns:
         a :class:`Frame` of float32 NumPy arrays (the mask as bool: channel value > 0.5),
-        geometry fields None when the file has no geometry channels.
+        geometry fields None when the file has no geometry channels, ``slope_variance``
+        None when it has no slope-variance channels.
 
     Raises:
         MissingFileError: no such file.
-        FrameError: the file is corrupt or truncated, lacks a channel of ``R G B``, has
-            only part of the geometry channels, has channels of different sizes, or is not
-            ``expect_resolution``. The message names the file (and the channels).
+        FrameError: the file is not OpenEXR (a PNG, JPEG, ... is named as such), is corrupt
+            or truncated, lacks a channel of ``R G B``, has only part of the geometry (or
+            slope-variance) channels, has channels of different sizes, or is not
+            ``expect_resolution``. The message names the file (and the channels). Nothing
+            the OpenEXR library prints reaches stdout / stderr.
     """
     path = _require_file(path, "EXR frame file")
-    try:
-        exr = OpenEXR.File(os.fspath(path), separate_channels=True)
-        header = exr.header()
-        # The binding reads pixel data lazily: truncation surfaces here, not at opening.
-        pixels = {name: channel.pixels for name, channel in exr.channels().items()}
-    except (RuntimeError, ValueError, OSError) as error:
-        raise FrameError(path, f"corrupt or truncated OpenEXR file ({error})") from error
+    _check_magic(path)
+    error = None
+    with _captured_output() as printed:
+        try:
+            exr = OpenEXR.File(os.fspath(path), separate_channels=True)
+            header = exr.header()
+            # The binding reads pixel data lazily: truncation surfaces here, not at opening.
+            pixels = {name: channel.pixels for name, channel in exr.channels().items()}
+        except (RuntimeError, ValueError, OSError) as caught:
+            error = caught
+    if error is not None:
+        raise FrameError(path, f"corrupt or truncated OpenEXR file ({_decode_problem(path, error, printed.text)})"
+                         ) from error
 
     missing_rgb = [name for name in RGB_CHANNELS if name not in pixels]
     if missing_rgb:
@@ -382,8 +541,12 @@ def read_frame(path, *, expect_resolution=None) -> Frame:
     if present_geometry and len(present_geometry) != len(GEOMETRY_CHANNELS):
         missing = [name for name in GEOMETRY_CHANNELS if name not in pixels]
         raise FrameError(path, f"incomplete geometry: has {present_geometry} but is missing channel(s) {missing}")
+    present_slope = [name for name in SLOPE_VARIANCE_CHANNELS if name in pixels]
+    if present_slope and (len(present_slope) != len(SLOPE_VARIANCE_CHANNELS) or not present_geometry):
+        missing = [name for name in SLOPE_VARIANCE_CHANNELS + GEOMETRY_CHANNELS if name not in pixels]
+        raise FrameError(path, f"incomplete geometry: has {present_slope} but is missing channel(s) {missing}")
 
-    used = RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ())
+    used = RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ()) + tuple(present_slope)
     shapes = {name: np.shape(pixels[name]) for name in used}
     if len(set(shapes.values())) != 1:
         raise FrameError(path, f"channels of different sizes (subsampled?): {shapes}")
@@ -396,10 +559,16 @@ def read_frame(path, *, expect_resolution=None) -> Frame:
 
     if not present_geometry:
         return Frame(stack(RGB_CHANNELS), None, None, None, _meta_from_header(header))
+    if not present_slope and warn_incomplete:
+        warnings.warn(f"{path}: no {'/'.join(SLOPE_VARIANCE_CHANNELS)} channels (an older or foreign file): "
+                      f"Frame.slope_variance is None, and shading its geometry uses roughness / 2 per axis, "
+                      f"which does not reproduce an image rendered with anisotropic slope variance",
+                      IncompleteFrameWarning, stacklevel=2)
     return Frame(
         image=stack(RGB_CHANNELS),
         normal=stack(NORMAL_CHANNELS),
         roughness=np.asarray(pixels["roughness"], dtype=np.float32),
         mask=np.asarray(pixels["mask"]) > 0.5,
         meta=_meta_from_header(header),
+        slope_variance=stack(SLOPE_VARIANCE_CHANNELS) if present_slope else None,
     )

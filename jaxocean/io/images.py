@@ -65,7 +65,7 @@ def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
     _check_space(space)
     path = _require_file(path, "image file")
     if path.suffix.lower() == _EXR_SUFFIX:
-        return read_frame(path).image
+        return read_frame(path, warn_incomplete=False).image  # the image alone: no geometry used
     try:
         pixels = iio.imread(path, plugin=_plugin(path))
     except (OSError, ValueError) as error:
