@@ -16,8 +16,8 @@ sea at any times ``(T,)`` [s]:
 The camera and the light need not be those of the observation: that is the paper's
 re-editing (its Fig. 15-16). Rendering goes through :func:`jaxocean.render.geometry`;
 ``plan="rows"`` (default) evaluates every wave on the rows fast path (no hit refinement,
-the fit's own model), ``plan="auto"`` lets the renderer choose (refinement for close
-views), or pass a :class:`jaxocean.render.RenderPlan`.
+the fit's own model), ``plan="auto"`` lets the renderer choose as :func:`jaxocean.render.render` does
+(converged hits for close views; the same choice under ``jit``), or pass a :class:`jaxocean.render.RenderPlan`.
 
 Frames: :func:`frame_times` turns frame indices (``0, 100, 500``) into times on the
 observed sequence's clock (``t0 + f dt`` with ``dt`` the median frame interval).
@@ -107,7 +107,10 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
     if isinstance(plan, str) and plan == "rows":
         plan = render.full_plan(waves.omega.shape[0])
     elif isinstance(plan, str) and plan == "auto":
-        plan = render.plan(waves, camera, times[0], n_min=n_min, n_max=n_max) if is_concrete(waves, camera) else None
+        # one host-side plan for every frame when it can be made; under tracing the renderer
+        # applies the same rule inside the compiled function (render.geometry)
+        if is_concrete(waves, camera):
+            plan = render.plan(waves, camera, n_min=n_min, n_max=n_max)
     elif plan is not None and not isinstance(plan, render.RenderPlan):
         raise ValueError(f"plan must be 'rows', 'auto', None or a RenderPlan; got {plan!r}")
 

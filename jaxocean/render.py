@@ -17,21 +17,29 @@ geometry there and is shaded.
 
 Waves ``(N,)``, camera a :class:`jaxocean.camera.Camera`, ``t`` a scalar [s].
 
-Two evaluation paths give the same geometry:
+Two evaluation paths:
 
-* **rows** (no refinement): for a pinhole camera without roll (and the orthographic one) the
-  sea-plane hits are affine along each image row and the footprint is constant along it,
-  so the Nyquist weights are per row and the wave sums are the rank-N product of
-  :func:`jaxocean.surface.on_rows` -- GEMM speed, no per-pixel sines.
-* **points** (``refine > 0``): the ray hit is refined by fixed-point iteration against the
-  displaced surface (horizontal and vertical displacement of the displacement-level
-  waves), then the normal is evaluated per pixel at the refined rest position.
+* **rows** (``RenderPlan.refine == 0``): the geometry at each pixel's mean-sea-plane hit. For
+  a pinhole camera without roll (and the orthographic one) those hits are affine along each
+  image row and the footprint is constant along it, so the Nyquist weights are per row and
+  the wave sums are the rank-N product of :func:`jaxocean.surface.on_rows` -- GEMM speed, no
+  per-pixel sines. Exact where the displacement-level waves move the hit by less than half a
+  footprint; otherwise an approximation.
+* **hits** (``refine > 0``): each pixel's hit on the displaced surface, the converged fixed
+  point of :func:`jaxocean.raycast.refine_hits` (at most ``refine`` iterations, derivative by
+  the implicit function theorem); the normal is evaluated per pixel there.
+  ``Geometry.converged`` is False where a ray grazes a crest and the hit is not unique.
 
-:func:`plan` inspects concrete inputs once and returns a static :class:`RenderPlan`: the
-waves that matter at the image footprint (a wave whose normal and displacement weights are
-zero over the whole image is evaluated for its roughness only: no sines) and the number of
-refinement iterations the scene needs (zero when the largest displacement is under half a
-pixel). Inside ``jit``/``vmap`` pass a plan explicitly, or get the full, plan-free path.
+``plan="auto"`` (the default) picks the rows path when the displacement-level waves shift
+every hit by less than half a footprint (bound: sum(h) (1 + cot(incidence)), a function of
+the waves and the camera, not of the time) and the hits path otherwise. With concrete inputs
+:func:`plan` makes that choice on the host and also skips the waves whose weights vanish
+over the whole image (they are evaluated for their roughness only: no sines); under
+``jit``/``vmap``/``grad`` the same choice is made inside the compiled function
+(``lax.cond``; under ``vmap`` both paths are evaluated and one selected) and every wave is
+evaluated. Either way the value is the same function of the inputs: a traced call equals the
+eager one, and gradients are those of the image that is returned. Pass an explicit
+:class:`RenderPlan` (static) to fix the path, e.g. one plan for a whole dataset or fit.
 """
 
 from __future__ import annotations
@@ -45,21 +53,26 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import camera as cam
-from jaxocean import hierarchy, shading, surface
+from jaxocean import hierarchy, raycast, shading, surface
 from jaxocean._math import components, materialize_cotangent
 from jaxocean.errors import check_finite, is_concrete
+from jaxocean.raycast import hit_residual, refine_hits
 from jaxocean.waves import Waves, validate, wavenumber
 
-__all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "bucket_refine", "geometry", "shade", "render", "refine_hits",
-           "hit_residual",
-           "DEFAULT_REFINE_TOLERANCE", "MAX_REFINE_ITERATIONS"]
+__all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "needs_refinement", "geometry", "shade", "render",
+           "refine_hits", "hit_residual", "MAX_REFINE_ITERATIONS"]
 
-DEFAULT_REFINE_TOLERANCE = 1e-4  # m: how close the refined hit must be to the surface
-MAX_REFINE_ITERATIONS = 32
+MAX_REFINE_ITERATIONS = raycast.MAX_ITERATIONS  # the cap plan() gives the hits path
 
 
 class Geometry(NamedTuple):
-    """Per-pixel hierarchical geometry, ``(H, W, ...)``."""
+    """Per-pixel hierarchical geometry, ``(H, W, ...)``.
+
+    ``converged`` is False on sea pixels whose ray-surface hit did not converge to a unique
+    fixed point (a ray grazing a crest, see :mod:`jaxocean.raycast`): their values come from
+    the last iterate and carry no derivative through the hit. It is True on the rows path and
+    on sky pixels; the pixels a fit can use are ``mask & converged``.
+    """
 
     normal: jnp.ndarray
     roughness: jnp.ndarray
@@ -68,10 +81,13 @@ class Geometry(NamedTuple):
     xy: jnp.ndarray
     position: jnp.ndarray
     footprint: jnp.ndarray
+    converged: jnp.ndarray | None = None
 
 
 class RenderPlan(NamedTuple):
-    """Static evaluation plan: indices of the waves evaluated with sines, refinement iterations."""
+    """Static evaluation plan: indices of the waves evaluated with sines, and ``refine``: 0 for
+    the rows path (plane hits), else the hits path with at most ``refine`` fixed-point
+    iterations (the hits are converged, not a fixed count: see :mod:`jaxocean.raycast`)."""
 
     active: tuple
     refine: int
@@ -92,21 +108,21 @@ def _check_inputs(waves: Waves, camera):
 
 
 def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
-         grid_cell=None, tolerance=DEFAULT_REFINE_TOLERANCE, refine="auto", max_distance=cam.DEFAULT_MAX_DISTANCE):
+         grid_cell=None, refine="auto", max_distance=cam.DEFAULT_MAX_DISTANCE):
     """The cheapest exact plan for rendering ``waves`` through ``camera`` (concrete inputs only).
 
-    * ``active``: waves with a nonzero normal or displacement weight at some sea pixel.
-    * ``refine``: 0 if the displacement-level waves shift every hit by less than half a
-      footprint (bound: sum(h) (1 + cot(incidence))); otherwise the fewest fixed-point
-      iterations whose worst hit residual at time ``t`` is within ``tolerance`` metres,
-      measured, then rounded up to a power of two (:func:`bucket_refine`: the count is
-      static, so views and times whose counts differ a little share one compilation), and
-      capped at MAX_REFINE_ITERATIONS: where the ray grazes a crest the fixed point has
-      several solutions and may not converge -- occlusion is not modelled.
+    * ``active``: waves with a nonzero normal or displacement weight at some sea pixel (the
+      others contribute zero; skipping them changes nothing but the time).
+    * ``refine``: 0 (rows path) where :func:`needs_refinement` is False, else
+      ``MAX_REFINE_ITERATIONS`` -- the same choice ``plan="auto"`` makes under tracing. An int
+      ``refine`` is used as given. ``t`` is accepted for symmetry with :func:`geometry`: the
+      choice does not depend on the time.
     """
+    del t
     _check_inputs(waves, camera)
     if not is_concrete(waves, camera):
-        raise ValueError("render.plan needs concrete inputs; inside jit pass plan=RenderPlan(...) or plan=None")
+        raise ValueError("render.plan needs concrete inputs; inside jit pass plan=RenderPlan(...), plan=None "
+                         "or plan='auto' (chosen inside the compiled function)")
     hit = cam.intersect_sea(camera, max_distance=max_distance)
     mask = np.asarray(hit.mask)
     if not mask.any():
@@ -119,49 +135,33 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     active = tuple(int(i) for i in np.nonzero((w_disp > 0) | (w_norm > 0))[0])
     if refine != "auto":
         return RenderPlan(active=active, refine=int(refine))
-    direction = np.asarray(hit.direction)[mask]
-    cot = np.linalg.norm(direction[:, :2], axis=-1) / np.maximum(-direction[:, 2], 1e-6)
-    shift = float(np.sum(np.asarray(waves.amplitude) * w_disp)) * (1.0 + cot)  # plane-hit error bound [m]
-    if np.all(shift < 0.5 * fp):
-        return RenderPlan(active=active, refine=0)
-    # the analytic contraction bound of the fixed point is loose at oblique views, so measure:
-    # iterate once up to the cap and take the first count whose worst residual meets tolerance
-    residuals = np.asarray(_refine_residuals(waves, camera, jnp.asarray(t, waves.omega.dtype), grid_cell,
-                                             n_min=n_min, n_max=n_max, max_distance=max_distance))
-    ok = np.nonzero(residuals <= tolerance)[0]
-    refine = int(ok[0]) + 1 if ok.size else MAX_REFINE_ITERATIONS
-    return RenderPlan(active=active, refine=bucket_refine(refine))
+    needed = bool(_needs_refinement(waves, hit, grid_cell, n_min=n_min, n_max=n_max))
+    return RenderPlan(active=active, refine=MAX_REFINE_ITERATIONS if needed else 0)
 
 
-def bucket_refine(count: int) -> int:
-    """A refinement count rounded up to a power of two, at most MAX_REFINE_ITERATIONS (0 stays 0).
+def needs_refinement(waves: Waves, camera, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
+                     grid_cell=None, max_distance=cam.DEFAULT_MAX_DISTANCE):
+    """True (a bool array, traceable) when the displacement-level waves can move some sea
+    pixel's hit by half its footprint or more: bound sum(h w_disp) (1 + cot(incidence)), the
+    weights taken at the image's smallest footprint. The rule ``plan="auto"`` follows."""
+    _check_inputs(waves, camera)
+    return _needs_refinement(waves, cam.intersect_sea(camera, max_distance=max_distance), grid_cell,
+                             n_min=n_min, n_max=n_max)
 
-    The count is a static argument of the compiled renderer: rounding it up lets nearby
-    cameras and frame times reuse one compilation (fit.camera's random starts measured 17-32
-    iterations, each count compiled anew); more iterations of the contracting fixed point
-    only bring the hits closer to the surface."""
-    if count <= 0:
-        return 0
-    return min(1 << (int(count) - 1).bit_length(), MAX_REFINE_ITERATIONS)
+
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max"))
+def _needs_refinement(waves, hit, grid_cell, *, n_min, n_max):
+    mask = hit.mask
+    fp_min = jnp.min(jnp.where(mask, hit.footprint, jnp.inf))
+    fp_min = jnp.where(jnp.isfinite(fp_min), fp_min, 1.0)  # no sea pixel: nothing to refine
+    w_disp = hierarchy.weights(waves, fp_min[None], n_min=n_min, n_max=n_max, grid_cell=grid_cell).displacement[0]
+    down = jnp.maximum(-hit.direction[..., 2], 1e-6)
+    cot = jnp.linalg.norm(hit.direction[..., :2], axis=-1) / down
+    shift = jnp.sum(waves.amplitude * w_disp) * (1.0 + cot)  # plane-hit error bound [m]
+    return jnp.any(mask & (shift >= 0.5 * hit.footprint))
 
 
 _make_plan = plan  # geometry()'s `plan` argument shadows the function's name
-
-
-@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "max_distance"))
-def _refine_residuals(waves, camera, t, grid_cell, *, n_min, n_max, max_distance):
-    """Worst hit residual [m] over sea pixels after 1 .. MAX_REFINE_ITERATIONS iterations."""
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
-    ws = hierarchy.weights(waves, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
-    origin, direction = _sea_rays(camera, hit)
-
-    def step(xy, _):
-        xy = _refine_step(waves, origin, direction, xy, t, ws.displacement)
-        res = hit_residual(waves, origin, direction, xy, t, ws.displacement)
-        return xy, jnp.max(jnp.where(hit.mask, res, 0.0))
-
-    _, res = jax.lax.scan(step, hit.xy, None, length=MAX_REFINE_ITERATIONS)
-    return res
 
 
 def _select(waves: Waves, active):
@@ -178,38 +178,6 @@ def _sea_rays(camera, hit):
     return jnp.broadcast_to(origin, direction.shape), direction
 
 
-def _ray_point_at_height(origin, direction, z):
-    s = (z - origin[..., 2]) / direction[..., 2]
-    return origin[..., :2] + s[..., None] * direction[..., :2]
-
-
-def _refine_step(waves, origin, direction, xy, t, weights):
-    d = surface.displacement(waves, xy, t, weights)
-    return _ray_point_at_height(origin, direction, d[..., 2]) - d[..., :2]
-
-
-def hit_residual(waves: Waves, origin, direction, xy, t, weights=None):
-    """Horizontal distance [m] between the surface point p(xy, t) and its pixel ray, taken at
-    the point's own height: zero when the refined hit lies on the displaced surface."""
-    d = surface.displacement(waves, xy, t, weights)
-    p_xy = xy + d[..., :2]
-    return jnp.linalg.norm(_ray_point_at_height(origin, direction, d[..., 2]) - p_xy, axis=-1)
-
-
-def refine_hits(waves: Waves, origin, direction, xy0, t, weights, iterations: int):
-    """Fixed-point refinement of rest positions X so that p(X, t) lies on each pixel ray.
-
-    Iterates X <- r_xy(d_z(X)) - d_xy(X), with r the ray point at the height of the
-    displaced surface. ``origin`` broadcastable to ``direction (..., 3)``; ``xy0 (..., 2)`` the
-    plane hits; ``weights`` per-pixel displacement weights ``(..., N)``. Rays must go down
-    (callers substitute a safe ray for sky pixels).
-    """
-    origin = jnp.broadcast_to(origin, direction.shape)
-    xy, _ = jax.lax.scan(lambda xy, _: (_refine_step(waves, origin, direction, xy, t, weights), None), xy0, None,
-                         length=iterations)
-    return xy
-
-
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "active", "refine", "max_distance"))
 def _geometry(waves, camera, t, grid_cell, *, n_min, n_max, active, refine, max_distance):
     return _geometry_at(waves, camera, t, grid_cell, cam.intersect_sea(camera, max_distance=max_distance),
@@ -218,37 +186,60 @@ def _geometry(waves, camera, t, grid_cell, *, n_min, n_max, active, refine, max_
 
 def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refine, positions=True):
     """The body of :func:`geometry` given the camera's sea hits (shared with :func:`_shade_at`
-    inside :func:`render`'s single compiled function). ``positions=False`` (the renderer,
-    which shades normals only): on the rows path the three displacement sums are not
-    computed (5 of the product's 8 channels) and ``position`` is None."""
-    H, W = camera.resolution
-    mask = hit.mask
-    evaluated = waves if active is None else _select(waves, active)
+    inside :func:`render`'s single compiled function). ``refine``: 0 (rows path), a positive
+    iteration cap (hits path) or ``"auto"`` (the choice of :func:`needs_refinement`, made
+    here). ``positions=False`` (the renderer, which shades normals only): on the rows path
+    the three displacement sums are not computed (5 of the product's 8 channels) and
+    ``position`` is None."""
+    kw = dict(n_min=n_min, n_max=n_max, active=active, positions=positions)
+    if refine == "auto":
+        needed = _needs_refinement(waves, hit, grid_cell, n_min=n_min, n_max=n_max)
+        rows = functools.partial(_rows_geometry, **kw)
+        hits = functools.partial(_hits_geometry, refine=MAX_REFINE_ITERATIONS, **kw)
+        if not positions:  # the branches must return one structure: drop the hits path's positions
+            hits = (lambda f: lambda *a: f(*a)._replace(position=None))(hits)
+        return jax.lax.cond(needed, hits, rows, waves, camera, t, grid_cell, hit)
     if refine == 0:
-        # rows path: footprint and plane hits per row (exact for the no-roll pinhole and the
-        # orthographic camera); the centre column stands for the row
-        fp_row = hit.footprint[:, W // 2]
-        ws_all = hierarchy.weights(waves, fp_row, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
-        ws = hierarchy.weights(evaluated, fp_row, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
-        origin = hit.xy[:, 0]
-        step = (hit.xy[:, -1] - hit.xy[:, 0]) / max(W - 1, 1)
-        rows = surface.on_rows(evaluated, origin, step, W, t, ws, with_displacement=positions)
-        sx2, sy2 = surface.slope_variance(waves, ws_all)
-        slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[:, None, :], (H, W, 2))
-        xy, disp, normal = hit.xy, rows.displacement, rows.normal
-    else:
-        ws_all = hierarchy.weights(waves, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
-        ws = hierarchy.weights(evaluated, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
-        origin, direction = _sea_rays(camera, hit)
-        xy = refine_hits(evaluated, origin, direction, hit.xy, t, ws.displacement, refine)
-        disp = surface.displacement(evaluated, xy, t, ws)
-        normal = surface.normal(evaluated, xy, t, ws)
-        sx2, sy2 = surface.slope_variance(waves, ws_all)
-        slope_var = jnp.stack([sx2, sy2], -1)
+        return _rows_geometry(waves, camera, t, grid_cell, hit, **kw)
+    return _hits_geometry(waves, camera, t, grid_cell, hit, refine=refine, **kw)
+
+
+def _rows_geometry(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, positions):
+    """Rows path: footprint and plane hits per row (exact for the no-roll pinhole and the
+    orthographic camera); the centre column stands for the row."""
+    H, W = camera.resolution
+    evaluated = waves if active is None else _select(waves, active)
+    fp_row = hit.footprint[:, W // 2]
+    ws_all = hierarchy.weights(waves, fp_row, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
+    ws = hierarchy.weights(evaluated, fp_row, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
+    origin = hit.xy[:, 0]
+    step = (hit.xy[:, -1] - hit.xy[:, 0]) / max(W - 1, 1)
+    rows = surface.on_rows(evaluated, origin, step, W, t, ws, with_displacement=positions)
+    sx2, sy2 = surface.slope_variance(waves, ws_all)
+    slope_var = jnp.broadcast_to(jnp.stack([sx2, sy2], -1)[:, None, :], (H, W, 2))
+    return _assemble(hit, hit.xy, rows.displacement, rows.normal, slope_var, jnp.ones(hit.mask.shape, bool))
+
+
+def _hits_geometry(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, positions, refine):
+    """Hits path: each pixel's converged hit on the displaced surface, geometry per pixel."""
+    del positions  # the per-pixel displacement is computed for the hits anyway
+    evaluated = waves if active is None else _select(waves, active)
+    ws_all = hierarchy.weights(waves, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
+    ws = hierarchy.weights(evaluated, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
+    origin, direction = _sea_rays(camera, hit)
+    hits = refine_hits(evaluated, origin, direction, hit.xy, t, ws.displacement, active=hit.mask,
+                       max_iterations=refine)
+    disp = surface.displacement(evaluated, hits.xy, t, ws)
+    normal = surface.normal(evaluated, hits.xy, t, ws)
+    sx2, sy2 = surface.slope_variance(waves, ws_all)
+    return _assemble(hit, hits.xy, disp, normal, jnp.stack([sx2, sy2], -1), hits.converged)
+
+
+def _assemble(hit, xy, disp, normal, slope_var, converged):
     position = None if disp is None else disp + jnp.concatenate([xy, jnp.zeros_like(xy[..., :1])], -1)
     roughness = jnp.maximum(slope_var[..., 0] + slope_var[..., 1], shading.MIN_SLOPE_VARIANCE)
-    return Geometry(normal=normal, roughness=roughness, slope_variance=slope_var, mask=mask, xy=xy,
-                    position=position, footprint=hit.footprint)
+    return Geometry(normal=normal, roughness=roughness, slope_variance=slope_var, mask=hit.mask, xy=xy,
+                    position=position, footprint=hit.footprint, converged=converged)
 
 
 def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
@@ -256,9 +247,15 @@ def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
+        if not is_concrete(waves, camera, grid_cell):
+            return None, "auto"  # the same rule, applied inside the compiled function
         plan = _make_plan(waves, camera, t, n_min=n_min, n_max=n_max, grid_cell=grid_cell,
-                          max_distance=max_distance) if is_concrete(waves, camera, t) else None
+                          max_distance=max_distance)
+    elif plan is not None and not isinstance(plan, RenderPlan):
+        raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
     active, refine = (None, 0) if plan is None else (tuple(plan.active), int(plan.refine))
+    if refine < 0:
+        raise ValueError(f"RenderPlan.refine must be >= 0; got {refine}")
     if active is not None and len(active) == 0:
         active = (0,)  # nothing resolvable: evaluate one wave (its weights are zero) to keep shapes static
     return active, refine
@@ -268,9 +265,11 @@ def geometry(waves: Waves, camera, t, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
              grid_cell=None, plan: RenderPlan | None | str = "auto", max_distance=cam.DEFAULT_MAX_DISTANCE) -> Geometry:
     """Per-pixel hierarchical geometry of ``waves`` at time ``t`` seen by ``camera``.
 
-    ``plan``: ``"auto"`` (default) computes :func:`plan` when the inputs are concrete and
-    uses the full, unrefined path under tracing; ``None`` forces the full unrefined path; a
-    :class:`RenderPlan` is used as given (static: recompiles per distinct plan).
+    ``plan``: ``"auto"`` (default) chooses the path by :func:`needs_refinement` -- on the
+    host with concrete inputs (:func:`plan`, which also skips vanishing waves), inside the
+    compiled function under tracing: the same value either way; ``None`` forces the rows
+    path with every wave; a :class:`RenderPlan` is used as given (static: recompiles per
+    distinct plan).
     """
     _check_inputs(waves, camera)
     active, refine = _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance)
@@ -343,17 +342,21 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
 
 def render(waves: Waves, camera, lighting, t, *, horizon_gradient=0.0, n_min=hierarchy.DEFAULT_N_MIN,
            n_max=hierarchy.DEFAULT_N_MAX, grid_cell=None, plan: RenderPlan | None | str = "auto",
-           max_distance=cam.DEFAULT_MAX_DISTANCE):
+           max_distance=cam.DEFAULT_MAX_DISTANCE, with_geometry: bool = False):
     """Linear RGB image ``(H, W, 3)``: ``shade(geometry(waves, camera, t))``, one compiled
     function (the camera's ray-sea intersection computed once for both). Keyword
-    arguments as in :func:`geometry` and :func:`shade`."""
+    arguments as in :func:`geometry` and :func:`shade`. ``with_geometry=True`` returns
+    ``(image, Geometry)`` (``position`` None on the rows path) -- among it the per-pixel
+    ``converged`` flag of the hits, which says where the image is not exact."""
     _check_inputs(waves, camera)
     shading.validate_lighting(lighting)
     shading._check_horizon_gradient(horizon_gradient)
     active, refine = _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance)
     dtype = waves.omega.dtype
-    return _render(waves, camera, lighting, jnp.asarray(t, dtype), jnp.asarray(horizon_gradient, dtype), grid_cell,
-                   n_min=n_min, n_max=n_max, active=active, refine=refine, max_distance=max_distance)
+    image, geo = _render(waves, camera, lighting, jnp.asarray(t, dtype), jnp.asarray(horizon_gradient, dtype),
+                         grid_cell, n_min=n_min, n_max=n_max, active=active, refine=refine,
+                         max_distance=max_distance)
+    return (image, geo) if with_geometry else image
 
 
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "active", "refine", "max_distance"))
@@ -362,4 +365,5 @@ def _render(waves, camera, lighting, t, horizon_gradient, grid_cell, *, n_min, n
     geo = _geometry_at(waves, camera, t, grid_cell, hit, n_min=n_min, n_max=n_max, active=active, refine=refine,
                        positions=False)
     # in reverse mode the normal's cotangent computed once (see materialize_cotangent)
-    return _shade_at(materialize_cotangent(geo.normal), geo.slope_variance, hit, lighting, horizon_gradient)
+    image = _shade_at(materialize_cotangent(geo.normal), geo.slope_variance, hit, lighting, horizon_gradient)
+    return image, geo._replace(position=None)

@@ -6,7 +6,7 @@ Protocol
 
 * ``image``   ``(H, W, 3)`` linear radiance, ``H, W`` the resolution of ``init``.
 * ``waves``   the :class:`jaxocean.waves.Waves` ``(N,)`` of the scene and ``t`` [s] the frame time:
-  the geometry is rendered (:func:`jaxocean.render.geometry`, unrefined rows path) for
+  the geometry is rendered (:func:`jaxocean.render.geometry`, on the path ``plan`` names) for
   every candidate camera, so the camera is seen through the wave pattern, the horizon
   and the change of footprint with distance.
 * ``init``    a :class:`jaxocean.camera.Camera`: the starting guess, and every field that is not
@@ -162,7 +162,9 @@ def _data(y, args, fit, plan, scale=1.0):
     c = _unpack(y[: len(fit)], init, fit)
     geo = render.geometry(waves, c, t, plan=plan, n_min=scale * hierarchy.DEFAULT_N_MIN,
                           n_max=scale * hierarchy.DEFAULT_N_MAX)
-    return lf._prepare(image, geo.normal, geo.slope_variance, c, weight, hg)
+    # pixels whose ray-surface hit is not unique (grazing rays) have no exact model: left out
+    usable = geo.converged.reshape(geo.converged.shape + (1,) * (jnp.ndim(weight) - 2))
+    return lf._prepare(image, geo.normal, geo.slope_variance, c, jnp.where(usable, weight, 0.0), hg)
 
 
 def _sun_and_colors(y, data, light, fit, fit_lighting):
@@ -319,12 +321,13 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
             noise std with the default weights), for the success test; None: noise-free.
         grid: the sun grid of the lighting starts (``fit_lighting`` only).
         plan: how the geometry is evaluated for every candidate camera: ``"auto"`` (default)
-            uses the refinement count that :func:`jaxocean.render.plan` picks at ``init`` (as
-            :func:`jaxocean.render.render` does by default), rounded up to a power of two so
-            that nearby starts share one compilation, with every wave evaluated (a
-            wave skipped at ``init`` may matter at the fitted camera); ``None`` the
-            unrefined path; or a :class:`jaxocean.render.RenderPlan`. The model must match
-            the way the image was made: a refined render differs from an unrefined one.
+            uses the path :func:`jaxocean.render.plan` picks at ``init`` (rows or converged
+            hits, as :func:`jaxocean.render.render` does by default) for every candidate, with
+            every wave evaluated (a wave skipped at ``init`` may matter at the fitted camera);
+            concrete inputs only (under ``jit``/``vmap`` pass a plan). ``None``: the rows path;
+            or a :class:`jaxocean.render.RenderPlan`. The model must match the way the image
+            was made: the hits path differs from the rows path. Pixels whose hit does not
+            converge to a unique point (``Geometry.converged`` False) are left out of the loss.
 
     Returns:
         :class:`CameraFit`.
@@ -374,7 +377,6 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         if traced:
             raise ValueError("plan='auto' needs concrete inputs; under jit/vmap pass plan=RenderPlan(...) or None")
         n = waves.omega.shape[0]
-        # (the plan's count is rounded up to a power of two: nearby starts share one compilation)
         plans = tuple(render.full_plan(n, render.plan(
             waves, init, t, n_min=s * hierarchy.DEFAULT_N_MIN, n_max=s * hierarchy.DEFAULT_N_MAX).refine)
             for s in levels)
