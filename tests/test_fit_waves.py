@@ -253,6 +253,20 @@ def test_bad_inputs_give_clear_errors(ortho_scene):
         fw.waves(jnp.full_like(normals, jnp.nan), rough, c, TIMES)
 
 
+def test_non_unit_normals_are_refused(ortho_scene):
+    # an image's pixels (positive RGB, |n| far from 1) are not geometry; float32 and
+    # half-float rounding of true normals pass
+    c, truth, normals, rough = ortho_scene
+    rgb = jnp.broadcast_to(jnp.asarray([0.05, 0.1, 0.2], normals.dtype), normals.shape)
+    for call in (lambda n: fw.waves(n, rough, c, TIMES), lambda n: fw.refine(n, rough, c, TIMES, truth)):
+        with pytest.raises(InvalidValueError, match=r"normals must be unit vectors.*An image is not geometry"):
+            call(rgb)
+    with pytest.raises(InvalidValueError, match=r"1 of 2880 sea pixel-frames"):
+        fw.check_inputs(normals.at[2, 3, 4].multiply(1.02), rough, c, TIMES)
+    half = jnp.asarray(normals, jnp.float16).astype(normals.dtype)
+    assert fw.check_inputs(half, rough, c, TIMES)[0].shape == normals.shape
+
+
 def test_match_and_resolvable_helpers():
     truth = few_waves()
     fitted = Waves(*[jnp.asarray(x)[::-1] for x in truth])

@@ -101,6 +101,7 @@ __all__ = [
     "SOLVER_NAMES",
     "NOISE_FACTOR",
     "NORMAL_ERROR_FLOOR",
+    "UNIT_NORMAL_TOLERANCE",
     "normal_error_bound",
     "waves",
     "refine",
@@ -119,6 +120,9 @@ SOLVER_NAMES = ("structured", "lm", "gauss_newton", "dogleg", "bfgs", "lbfgsb", 
 _CRITERIA = ("bic", "aic", "holdout")
 _BUCKETS = (16, 32, 64, 96, 128, 192, 256, 384, 512)
 _MIN_NZ = 0.05  # normals flatter than this (|slope| > 20) are treated as invalid
+UNIT_NORMAL_TOLERANCE = 1e-2
+"""How far from 1 the length of a valid normal may be: float32 and half-float storage
+(relative 5e-4) pass; anything else is not a unit normal."""
 # plausibility of a fit (see waves(): success): the mean normal angle of a fit that explains
 # its data is about sqrt(pi/2) sigma for per-component noise sigma; allowed up to 1.5x that,
 # and never below 1 mrad (noise-free fits reach 1e-5 rad; half-float EXR frames ~1e-4)
@@ -215,7 +219,9 @@ def check_inputs(normals, roughness, camera, times):
     Structure -> ``ValueError``: camera missing or not a Camera, normals not ``(T, H, W, 3)``
     matching the camera's resolution, roughness not ``(T, H, W)``, times not ``(T,)``, fewer
     than two frames. Values (when concrete) -> :class:`InvalidValueError`: frame times not
-    strictly increasing or not finite, no valid sea pixel, negative roughness.
+    strictly increasing or not finite, no valid sea pixel, normals that are not unit vectors
+    (``| |n| - 1 | > UNIT_NORMAL_TOLERANCE`` on a valid sea pixel: an image's RGB values passed
+    as normals, say), negative roughness.
     """
     if camera is None:
         raise ValueError("fit.waves needs the camera the geometry was seen with (camera=None given)")
@@ -245,8 +251,17 @@ def check_inputs(normals, roughness, camera, times):
         check_values(np.isfinite(t), "frame times must be finite", t)
         check_values(np.diff(t) > 0, "frame times must be strictly increasing", np.diff(t))
     if is_concrete(normals, camera):
-        if not bool(np.any(np.asarray(_weights(normals, camera)) > 0)):
+        valid = np.asarray(_weights(normals, camera)) > 0
+        if not bool(np.any(valid)):
             raise InvalidValueError("no valid sea pixel: every pixel is sky or has a non-finite/downward normal")
+        length = np.linalg.norm(np.asarray(normals, np.float64)[valid], axis=-1)
+        off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
+        if off.any():
+            raise InvalidValueError(
+                f"normals must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of "
+                f"{off.size} sea pixel-frames are not (|n| from {length.min():.4g} to {length.max():.4g}). "
+                f"An image is not geometry: pass normals from render.geometry, a geometry network or an EXR "
+                f"frame's normal.X/Y/Z channels")
     if roughness is not None and is_concrete(roughness):
         r = np.asarray(roughness)
         finite = np.isfinite(r)
