@@ -165,6 +165,20 @@ def test_refine_maps_over_scenes_with_vmap(ortho_scene):
     np.testing.assert_allclose(np.asarray(out.waves.amplitude[1]), np.asarray(truth.amplitude), rtol=1e-3)
 
 
+def test_refine_is_the_same_function_jitted_and_eager(ortho_scene):
+    # 3 waves are padded to a bucket of inactive slots; the padding must not depend on
+    # whether the inputs are traced (it did: eager calls padded, jitted ones did not)
+    c, truth, normals, rough = ortho_scene
+    init = truth._replace(amplitude=truth.amplitude * 0.95)
+    eager = fw.refine(normals, rough, c, TIMES, init, max_steps=5)
+    traced = jax.jit(lambda n, r, cc, w: fw.refine(n, r, cc, TIMES, w, max_steps=5))(normals, rough, c, init)
+    for a, b in zip(traced.waves, eager.waves):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-9)
+    assert int(traced.steps) == int(eager.steps)
+    with pytest.raises(ValueError, match="cannot raise on failure"):
+        jax.jit(lambda n: fw.refine(n, rough, c, TIMES, init, max_steps=5, throw=True))(normals)
+
+
 def test_structured_jacobian_matches_autodiff_through_render(x64):
     c = persp()
     truth = make_waves([0.03, 0.02, 0.006], [2.8, 3.6, 9.0], [0.4, 2.1, -1.2], [0.5, 4.0, 2.0])

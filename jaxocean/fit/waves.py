@@ -816,6 +816,8 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         raise ValueError(f"init must have leaves (N,); got {init.omega.shape} (vmap batches of scenes)")
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+    if throw and not is_concrete(normals, init, roughness, times, camera):
+        raise ValueError("fit.refine under jit/vmap cannot raise on failure: pass throw=False and read .success")
     dtype = normals.dtype
     init = Waves(*[jnp.asarray(x, dtype) for x in init])
     H = camera.resolution[0]
@@ -824,8 +826,9 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
     if roughness is None:
         roughness_weight = 0.0
     if solver == "structured":
-        # eagerly, pad to a bucket size so that nearby wave counts share one compilation
-        n_pad = _bucket(n) if is_concrete(normals, init) else n
+        # pad to a bucket size so that nearby wave counts share one compilation -- traced or
+        # not (the count is a shape), so a jitted call computes what the eager one does
+        n_pad = _bucket(n)
         padded, active = _pad_waves(init, n_pad)
         out, n_valid = _refine_kernel(_pack(padded), active, normals, roughness, times, camera, tail_rows,
                                       jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
