@@ -13,8 +13,21 @@ Subcommands (each has ``--help``):
 
 Exit codes: 0 success, 1 a check found problems or a fit did not converge (its JSON is
 still written, with ``success: false``), 2 bad input (the message names it), 130
-interrupted. Errors print ``jaxocean: error: ...`` on stderr, not a traceback. Every file is
-written atomically (:func:`jaxocean.io.atomic_write`).
+interrupted (the message says what was kept; only ``simulate`` resumes). Errors print
+``jaxocean: error: ...`` on stderr, not a traceback. Every file is written atomically
+(:func:`jaxocean.io.atomic_write`).
+
+Bad input refused before any work: a resolution and frame count whose render would not fit
+in memory (estimated from ``H x W x frames``, compared with the available memory), counts
+below 1, an ``--out`` directory that is an existing file, a dataset directory that does
+not exist, a file of another kind than the command takes (a PNG for an EXR frame, a
+lighting fit for a scene: the message says which it is), the waves of a fit that reported
+failure (``forecast``, unless ``--allow-failed``).
+
+One vocabulary: every command names the camera ``--camera-height`` [m],
+``--camera-pitch-deg``, ``--camera-fov-deg`` and ``--camera-yaw-deg`` [deg]; ``--res`` is
+``N`` or ``HxW``. An output directory holds one scene: rendering into one that holds a
+previous scene replaces that scene's files (:func:`jaxocean.io.write_sequence`).
 
 JSON written by the fits:
 
@@ -36,6 +49,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -48,6 +62,9 @@ EXIT_OK, EXIT_PROBLEMS, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
 _FLOAT32_HELP = "store R G B as float32 instead of half floats (the geometry is float32 always)"
+_OUT_DIR_NOTE = ("The output directory holds one scene: rendering into a directory that holds a previous one "
+                 "replaces its files (frame_*.exr / .png, normal_00000.png, roughness_00000.png, scene.json; "
+                 "frames beyond the new count are removed) and leaves every other file alone.")
 
 
 def _resolution(text: str):
@@ -79,6 +96,29 @@ def _index_list(text: str):
 
 def _number_list(text: str):
     return _parse_list(text, float, math.isfinite, "comma-separated finite numbers, e.g. 0,1.5,10")
+
+
+def _positive_int(text: str):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer; got {text!r}")
+    return value
+
+
+class _DeprecatedAlias(argparse.Action):
+    """A former option name kept working: stores into the new option's ``dest`` and says so."""
+
+    def __init__(self, option_strings, dest, *, new: str, **kwargs):
+        self.new = new
+        kwargs.update(default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # hidden; the new option's default holds
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"jaxocean: note: {option_string} is deprecated; use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def _positive(text: str):
@@ -116,16 +156,20 @@ def _add_scene_options(p):
     g.add_argument("--gamma", type=float, default=3.3, help="JONSWAP peak enhancement; 1 = Pierson-Moskowitz")
     g.add_argument("--wave-direction", type=float, default=20.0, help="mean wave direction [deg from +x]")
     g.add_argument("--spreading", type=float, default=10.0, help="Mitsuyasu s_max (larger = narrower)")
-    g.add_argument("--waves", type=int, default=60, help="number of wave trains (default 60)")
+    g.add_argument("--waves", type=_positive_int, default=60, help="number of wave trains (default 60)")
     g.add_argument("--seed", type=int, default=0, help="random seed for the wave draw")
     g.add_argument("--camera-height", type=float, default=12.0, help="camera height above the sea [m]")
-    g.add_argument("--pitch", type=float, default=20.0, help="camera pitch below the horizon [deg]")
-    g.add_argument("--fov", type=float, default=45.0, help="vertical field of view [deg]")
+    g.add_argument("--camera-pitch-deg", type=float, default=20.0, help="camera pitch below the horizon [deg]")
+    g.add_argument("--camera-fov-deg", type=float, default=45.0, help="vertical field of view [deg]")
+    g.add_argument("--camera-yaw-deg", type=float, default=0.0, help="viewing azimuth [deg from +x] (default 0)")
+    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=_DeprecatedAlias, new="--camera-pitch-deg")
+    g.add_argument("--fov", dest="camera_fov_deg", type=float, action=_DeprecatedAlias, new="--camera-fov-deg")
     g.add_argument("--res", type=_resolution, default=(128, 192), help="HxW pixels (default 128x192)")
-    g.add_argument("--sun-azimuth", type=float, default=10.0, help="sun azimuth [deg from +x]; the camera looks along +x")
+    g.add_argument("--sun-azimuth", type=float, default=10.0, help="sun azimuth [deg from +x]; the camera looks "
+                   "along +x unless --camera-yaw-deg turns it")
     g.add_argument("--sun-elevation", type=float, default=25.0, help="sun elevation [deg]")
-    g.add_argument("--frames", type=int, default=24, help="number of frames (default 24)")
-    g.add_argument("--dt", type=float, default=0.1, help="time between frames [s]")
+    g.add_argument("--frames", type=_positive_int, default=24, help="number of frames (default 24)")
+    g.add_argument("--dt", type=_positive, default=0.1, help="time between frames [s] (default 0.1)")
 
 
 def build_parser():
@@ -134,9 +178,9 @@ def build_parser():
     sub = ap.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     p = sub.add_parser("render", help="render one scene to EXR + PNG frames",
-                       description="Render one scene (from options, or a scene.json / scene directory).")
+                       description="Render one scene (from options, or a scene.json / scene directory). " + _OUT_DIR_NOTE)
     p.add_argument("scene", nargs="?", help="scene.json or a directory holding one (optional)")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output directory (one scene: a previous one there is replaced)")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_scene_options(p)
 
@@ -145,19 +189,20 @@ def build_parser():
                                    "lighting (see jaxocean.io.dataset.SceneRanges for the ranges). Killing it and "
                                    "running the same command again finishes the dataset.")
     p.add_argument("--out", required=True, help="dataset directory")
-    p.add_argument("--scenes", type=int, default=2000, help="number of scenes (default 2000)")
-    p.add_argument("--frames", type=int, default=10, help="frames per scene (default 10)")
+    p.add_argument("--scenes", type=_positive_int, default=2000, help="number of scenes (default 2000)")
+    p.add_argument("--frames", type=_positive_int, default=10, help="frames per scene (default 10)")
     p.add_argument("--res", type=_resolution, default=(128, 128), help="resolution N or HxW (default 128)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--waves", type=int, default=None, help="wave trains per scene (default 60)")
+    p.add_argument("--waves", type=_positive_int, default=None, help="wave trains per scene (default 60)")
     p.add_argument("--ranges", help="JSON file overriding SceneRanges fields, e.g. {\"hs\": [0.5, 2.0]}")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("check", help="verify a dataset against its manifest",
                        description="Verify every file of a dataset (size, SHA-256, readable, resolution, "
-                                   "channels). Exit code 1 when problems are found.")
-    p.add_argument("directory")
+                                   "channels). Exit code 1 when problems are found, 2 when DIRECTORY is not a "
+                                   "dataset at all.")
+    p.add_argument("directory", help="dataset directory (made by `jaxocean simulate`)")
     p.add_argument("--quick", action="store_true", help="hashes and scene files only, do not decode frames")
 
     p = sub.add_parser("demo", help="the main job: render a scene, fit its lighting, fit waves and forecast",
@@ -186,7 +231,7 @@ def build_parser():
     p = sub.add_parser("reedit", help="re-render a scene under a new camera or light",
                        description="Re-render a scene directory (scene.json with waves, camera, lighting, times) "
                                    "with a new camera and/or light: EXR + PNG frames and the edited scene.json. "
-                                   "Angles in degrees.")
+                                   "Angles in degrees. " + _OUT_DIR_NOTE)
     p.add_argument("scene", help="scene directory or scene.json")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--frames", type=_index_list, help="indices of the scene's frames, e.g. 0,1 (default all)")
@@ -216,9 +261,12 @@ def build_parser():
                                    "times and render them: EXR + PNG per frame (numbered in output order; each "
                                    "file's metadata and scene.json's extra.forecast_frames give the requested "
                                    "frame index) and scene.json. Camera and lighting come from the JSON unless "
-                                   "replaced by the options; the default lighting is jaxocean.shading's.")
+                                   "replaced by the options; the default lighting is jaxocean.shading's. "
+                                   + _OUT_DIR_NOTE)
     p.add_argument("waves", help="JSON with waves (fit-waves output or scene.json)")
-    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--out", required=True, help="output directory (one scene: a previous one there is replaced)")
+    p.add_argument("--allow-failed", action="store_true", help="forecast the waves of a fit-waves result that "
+                   "reported failure (refused otherwise: its waves need not explain the frames)")
     when = p.add_mutually_exclusive_group(required=True)
     when.add_argument("--frames", type=_index_list, help="frame indices, e.g. 0,100,500")
     when.add_argument("--times", type=_number_list, help="times [s], e.g. 0,10,50")
@@ -228,6 +276,114 @@ def build_parser():
     _add_camera_edits(p)
     _add_lighting_edits(p)
     return ap
+
+
+# ----------------------------------------------------------------------------- input checks
+
+# What a render holds, in float32 values: per pixel and frame the image (3) and the
+# Geometry's normal (3), roughness (1), slope variance (2), mask (1), rest position (2),
+# world position (3) and footprint (1); per pixel, one frame's working set. Measured on the
+# CPU backend (peak RSS above the baseline, 60 waves, 128x192 to 512x768 pixels): 54 bytes
+# per pixel and frame and 1.8-2.0 KB per pixel, besides ~200 MB for the compiled program.
+_VALUES_PER_PIXEL_FRAME = 16
+_WORKING_VALUES_PER_PIXEL = 512
+
+
+def _render_bytes(resolution, n_frames: int) -> int:
+    """Estimated peak memory [bytes] of rendering ``n_frames`` frames of ``resolution``."""
+    pixels = int(resolution[0]) * int(resolution[1])
+    return 4 * pixels * (_VALUES_PER_PIXEL_FRAME * int(n_frames) + _WORKING_VALUES_PER_PIXEL)
+
+
+def _available_memory():
+    """``(bytes, what)``: the memory a render may use -- the host's available memory
+    (``/proc/meminfo`` MemAvailable, else the physical memory) and, on an accelerator, its
+    memory limit, whichever is smaller -- or ``(None, None)`` when neither can be told."""
+    limits = []
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    limits.append((int(line.split()[1]) * 1024, "the available memory (MemAvailable)"))
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if not limits:
+        try:
+            limits.append((os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "the physical memory"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    try:
+        import jax
+
+        stats = jax.local_devices()[0].memory_stats() or {}
+        if stats.get("bytes_limit"):
+            limits.append((int(stats["bytes_limit"]), f"the {jax.local_devices()[0].platform} memory limit"))
+    except Exception:  # a backend without memory statistics: the host's figure stands
+        pass
+    return min(limits) if limits else (None, None)
+
+
+def _gigabytes(n: float) -> str:
+    gib = n / 2**30
+    return f"{gib:,.0f} GiB" if gib >= 100 else f"{gib:.3g} GiB"
+
+
+def _check_memory(resolution, n_frames: int, what: str) -> None:
+    """ValueError (exit 2) before any work when the render cannot fit in memory."""
+    need = _render_bytes(resolution, n_frames)
+    limit, source = _available_memory()
+    if limit is not None and need > limit:
+        raise ValueError(f"{what}: {resolution[0]}x{resolution[1]} pixels x {n_frames} frame(s) needs about "
+                         f"{_gigabytes(need)} of memory, more than {source} ({_gigabytes(limit)}); "
+                         f"use a smaller --res or fewer frames")
+
+
+def _check_out_dir(path) -> Path:
+    """``--out`` of a command that writes a directory: not an existing file."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory of frames)")
+    return path
+
+
+def _check_out_file(path) -> Path:
+    """``--out`` of a command that writes one JSON file: not an existing directory."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / 'fit.json'}")
+    return path
+
+
+def _json_kind(data: dict) -> str | None:
+    """What a JSON object that is not a scene file is, when it is one jaxocean writes."""
+    if "version" in data:
+        return None
+    if "lighting" in data and ("rms_residual" in data or "loss" in data):
+        return "a lighting fit result (jaxocean fit-lighting)"
+    if {"scenes", "frames", "ranges"} <= data.keys():
+        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
+    if "files" in data:
+        return "a dataset manifest (manifest.json)"
+    if {"train", "val", "test"} <= data.keys():
+        return "a dataset's splits (splits.json)"
+    if "outputs" in data and "frames" in data:
+        return "a demo summary (summary.json; its scene is the render directory beside it)"
+    return None
+
+
+def _refuse_other_json(path, needs: str) -> None:
+    """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene."""
+    path = Path(path)
+    if not path.is_file():
+        return
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return  # read_scene reports it
+    kind = _json_kind(data) if isinstance(data, dict) else None
+    if kind is not None:
+        raise ValueError(f"{path}: this is {kind}; {needs}")
 
 
 # ----------------------------------------------------------------------------- commands
@@ -242,7 +398,8 @@ def _scene_from_args(args):
     spec = spectrum.Spectrum(hs=args.hs, tp=args.tp, gamma=args.gamma, theta_mean=np.deg2rad(args.wave_direction),
                              s_max=args.spreading)
     waves = spectrum.sample_waves(jax.random.key(args.seed), spec, args.waves).waves
-    cam = camera.make_camera(height=args.camera_height, pitch=np.deg2rad(args.pitch), fov=np.deg2rad(args.fov),
+    cam = camera.make_camera(height=args.camera_height, pitch=np.deg2rad(args.camera_pitch_deg),
+                             fov=np.deg2rad(args.camera_fov_deg), yaw=np.deg2rad(args.camera_yaw_deg),
                              resolution=args.res)
     light = shading.make_lighting(sun_azimuth=np.deg2rad(args.sun_azimuth),
                                   sun_elevation=np.deg2rad(args.sun_elevation))
@@ -254,6 +411,7 @@ def _scene_from_file(path):
     from jaxocean.io.dataset import SceneSample
     from jaxocean.io.scene import read_scene
 
+    _refuse_other_json(path, "render needs a scene.json (waves, camera, lighting and times) or its directory")
     sc = read_scene(path)
     missing = [n for n in ("waves", "camera", "lighting", "times") if getattr(sc, n) is None]
     if missing:
@@ -374,13 +532,17 @@ def cmd_render(args):
 
     from jaxocean.io.dataset import render_scene
 
+    out = _check_out_dir(args.out)
+    if not args.scene:
+        _check_memory(args.res, args.frames, "render")
     scene = _scene_from_file(args.scene) if args.scene else _scene_from_args(args)
+    if args.scene:
+        _check_memory(scene.camera.resolution, int(np.size(scene.times)), f"render {args.scene}")
     t0 = time.perf_counter()
     images, geo = jax.device_get(render_scene(scene))
     render_s = time.perf_counter() - t0
     from jaxocean.io import write_sequence
-    write_sequence(Path(args.out), scene, images, geo, half=not args.float32,
-                    seed=None if args.scene else args.seed)
+    write_sequence(out, scene, images, geo, half=not args.float32, seed=None if args.scene else args.seed)
     print(f"rendered {images.shape[0]} frame(s) of {images.shape[1]}x{images.shape[2]} in {render_s:.2f} s "
           f"(compile included) -> {args.out}")
     return EXIT_OK
@@ -389,6 +551,8 @@ def cmd_render(args):
 def cmd_simulate(args):
     from jaxocean.io.dataset import SceneRanges, simulate
 
+    _check_out_dir(args.out)
+    _check_memory(args.res, args.frames, "simulate")
     ranges = SceneRanges()
     if args.ranges:
         ranges = SceneRanges.from_json({**ranges.to_json(), **json.loads(Path(args.ranges).read_text())})
@@ -402,9 +566,17 @@ def cmd_simulate(args):
 
 
 def cmd_check(args):
-    from jaxocean.io.dataset import check
+    from jaxocean.io.dataset import DATASET_FILENAME, MANIFEST_FILENAME, SPLITS_FILENAME, check
 
-    problems = check(args.directory, read_frames=not args.quick, progress=True)
+    directory = Path(args.directory)
+    if not directory.is_dir():
+        raise FileNotFoundError(f"{directory}: no such directory" if not directory.exists() else
+                                f"{directory}: not a directory; check takes a dataset directory (jaxocean simulate)")
+    names = (DATASET_FILENAME, MANIFEST_FILENAME, SPLITS_FILENAME)
+    if not any((directory / name).exists() for name in names):
+        raise ValueError(f"{directory}: not a jaxocean dataset (none of {', '.join(names)}); check takes a "
+                         f"directory made by `jaxocean simulate`")
+    problems = check(directory, read_frames=not args.quick, progress=True)
     for p in problems:
         print(p)
     if problems:
@@ -425,7 +597,8 @@ def cmd_demo(args):
     unknown = stages - {"render", "lighting", "waves"}
     if unknown:
         raise ValueError(f"unknown demo stages {sorted(unknown)}; choose from render, lighting, waves")
-    out = Path(args.out)
+    out = _check_out_dir(args.out)
+    _check_memory(args.res, args.frames, "demo")
     scene = _scene_from_args(args)
     print(f"demo: {args.waves} waves from JONSWAP(Hs={args.hs} m, Tp={args.tp} s, gamma={args.gamma}), "
           f"{args.frames} frames of {args.res[0]}x{args.res[1]}")
@@ -479,6 +652,7 @@ def cmd_fit_lighting(args):
     from jaxocean import fit
     from jaxocean.io import read_frame, read_scene
 
+    _check_out_file(args.out)
     frame = read_frame(args.frame, warn_incomplete=False)
     if frame.normal is None:
         raise ValueError(f"{args.frame}: the frame has no normal channels (normal.X/Y/Z, roughness, mask); "
@@ -522,9 +696,14 @@ def cmd_reedit(args):
     from jaxocean.fit import reedit_scene
     from jaxocean.io import read_scene
 
+    _check_out_dir(args.out)
+    _refuse_other_json(args.scene, "reedit needs a scene: a scene directory or scene.json with waves, camera, "
+                                   "lighting and times")
     scene = read_scene(args.scene)
     n = 1 if scene.times is None else int(np.size(scene.times))
     frames = _check_frames(args.frames, n, f"scene {args.scene}")
+    if scene.camera is not None:
+        _check_memory(args.res or scene.camera.resolution, len(frames), "reedit")
     lighting = _lighting_from_file(args.lighting) if args.lighting else None
     t0 = time.perf_counter()
     out = reedit_scene(args.scene, args.out, camera_height=args.camera_height, camera_pitch_deg=args.camera_pitch_deg,
@@ -584,6 +763,8 @@ def cmd_fit_waves(args):
         raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
     if args.noise is not None and not (np.isfinite(args.noise) and args.noise > 0):
         raise ValueError(f"--noise must be a finite sigma > 0 (fit.waves' own bound); got {args.noise}")
+    _check_out_file(args.out)
+    _refuse_other_json(args.scene, "fit-waves needs a scene directory (scene.json and its frame_XXXXX.exr files)")
     scene_dir = Path(args.scene)
     scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
     scene = read_scene(scene_dir)
@@ -642,9 +823,20 @@ def cmd_forecast(args):
     from jaxocean.io import read_scene
     from jaxocean.io.dataset import SceneSample
 
+    _check_out_dir(args.out)
+    _refuse_other_json(args.waves, "forecast needs waves (a fit-waves result or a scene.json)")
     scene = read_scene(args.waves)
     if scene.waves is None:
         raise ValueError(f"{args.waves}: no waves to forecast (expected a fit-waves JSON or a scene.json)")
+    wave_fit = (scene.extra or {}).get("wave_fit") if isinstance(scene.extra, dict) else None
+    if isinstance(wave_fit, dict) and wave_fit.get("success") is False:
+        error = wave_fit.get("normal_error_deg")
+        detail = "" if error is None else f", mean normal error {error:.3g} deg"
+        if not args.allow_failed:
+            raise ValueError(f"{args.waves}: the wave fit reported failure (success: false{detail}); its waves need "
+                             f"not explain the frames. Pass --allow-failed to forecast them anyway")
+        print(f"jaxocean: warning: forecasting the waves of a failed fit ({args.waves}: success: false{detail})",
+              file=sys.stderr)
     if args.fps is not None and args.times is not None:
         raise ValueError("--fps applies to --frames; --times are already in seconds")
     known = None if scene.times is None else np.asarray(scene.times, np.float64)
@@ -660,6 +852,7 @@ def cmd_forecast(args):
         else:
             raise ValueError(f"{args.waves} holds no frame clock (two or more times); give --fps or --times")
     camera = _camera_from_args(args, scene.camera, None, where=f"{args.waves}")
+    _check_memory(camera.resolution, len(times), "forecast")
     lighting = _lighting_from_args(args, scene.lighting)
     print(f"forecasting {np.size(scene.waves.omega)} wave(s) at t = "
           f"{', '.join(f'{t:.4g}' for t in times)} s ({camera.resolution[0]}x{camera.resolution[1]})")
@@ -679,6 +872,17 @@ def cmd_forecast(args):
     return EXIT_OK
 
 
+# What an interrupted command leaves, and what running it again does.
+_INTERRUPTED = {
+    "simulate": "completed scenes are kept; run the same command to resume",
+    "render": "frames written so far are kept; running the command again renders every frame again",
+    "demo": "files written so far are kept; running the command again starts over",
+    "reedit": "frames written so far are kept; running the command again renders every frame again",
+    "forecast": "frames written so far are kept; running the command again renders every frame again",
+    "fit-lighting": "nothing was written; running the command again starts the fit over",
+    "fit-waves": "nothing was written; running the command again starts the fit over",
+}
+
 COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, "demo": cmd_demo,
             "fit-lighting": cmd_fit_lighting, "reedit": cmd_reedit, "fit-waves": cmd_fit_waves,
             "forecast": cmd_forecast}
@@ -692,9 +896,13 @@ def main(argv=None) -> int:
     try:
         return COMMANDS[args.command](args)
     except KeyboardInterrupt:
-        print("jaxocean: interrupted (completed files are kept; run the same command to resume)", file=sys.stderr)
+        print(f"jaxocean: interrupted ({_INTERRUPTED[args.command]})", file=sys.stderr)
         return EXIT_INTERRUPTED
     except (InvalidValueError, ValueError, FileNotFoundError, json.JSONDecodeError) as err:
+        print(f"jaxocean: error: {err}", file=sys.stderr)
+        return EXIT_INPUT
+    except (FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError) as err:
+        # a path argument that cannot be written or read as given
         print(f"jaxocean: error: {err}", file=sys.stderr)
         return EXIT_INPUT
 

@@ -290,3 +290,154 @@ def test_demo_fit_stages(tmp_path, capsys):
     assert max(summary["wave_fit"]["forecast_normal_error_deg"]) < 0.5
     for name in ("lighting_fit.png", "wave_fit.png", "forecast_strip.png"):
         assert (out / name).exists()
+
+
+# ----------------------------------------------------------------------------- refused before any work (issue 13)
+
+
+def test_render_refuses_sizes_memory_cannot_hold(tmp_path, capsys, monkeypatch):
+    out = tmp_path / "x"
+    assert cli.main(["render", "--out", str(out), "--res", "99999x99999"]) == 2  # aborted inside XLA before
+    err = capsys.readouterr().err
+    assert err.startswith("jaxocean: error: render: 99999x99999 pixels x 24 frame(s) needs about") and "GiB" in err
+    assert err.count("\n") == 1 and not out.exists()
+    # the estimate is compared with what the machine reports, here a 50 MiB limit
+    monkeypatch.setattr(cli, "_available_memory", lambda: (50 * 2**20, "the test's limit"))
+    assert cli._render_bytes((256, 256), 100) > 50 * 2**20
+    assert cli.main(["simulate", "--out", str(out), "--res", "256", "--frames", "100", "--quiet"]) == 2
+    assert "more than the test's limit (0.0488 GiB)" in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["render", "--out", "x", "--frames", "0"], "argument --frames: expected a positive integer; got '0'"),
+    (["render", "--out", "x", "--waves", "-1"], "argument --waves: expected a positive integer"),
+    (["render", "--out", "x", "--dt", "0"], "argument --dt: expected a positive number"),
+    (["simulate", "--out", "x", "--scenes", "0"], "argument --scenes: expected a positive integer"),
+    (["demo", "--frames", "0"], "argument --frames: expected a positive integer"),
+])
+def test_counts_below_one_are_usage_errors(argv, message, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    assert exit_info.value.code == 2 and message in capsys.readouterr().err
+
+
+def test_out_that_is_a_file_exits_2(tmp_path, capsys):
+    existing = tmp_path / "taken"
+    existing.write_text("not a directory")
+    for argv in (["render", "--out", str(existing), "--frames", "1", "--res", "8", "--waves", "4"],
+                 ["simulate", "--out", str(existing), "--scenes", "1", "--frames", "1", "--res", "8", "--quiet"]):
+        assert cli.main(argv) == 2  # a FileExistsError traceback, exit 1 before
+        assert f"--out {existing}: exists and is not a directory" in capsys.readouterr().err
+    assert existing.read_text() == "not a directory"
+    assert cli.main(["fit-lighting", str(existing), "--out", str(tmp_path), "--camera-height", "5",
+                     "--camera-pitch-deg", "30"]) == 2
+    assert "is a directory; give the JSON file to write" in capsys.readouterr().err
+
+
+def test_render_replaces_the_previous_scene_in_its_directory(tmp_path, capsys):
+    out = tmp_path / "r"
+    out.mkdir()
+    for f in range(5):  # an older, longer scene
+        (out / f"frame_{f:05d}.exr").write_bytes(b"old")
+        (out / f"frame_{f:05d}.png").write_bytes(b"old")
+    (out / "notes.txt").write_text("mine")
+    (out / "frame_00009.txt").write_text("mine too")
+    assert cli.main(["render", "--out", str(out), "--frames", "2", "--res", "8x12", "--waves", "6"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frame_00000.exr", "frame_00000.png", "frame_00001.exr",
+                                                     "frame_00001.png", "frame_00009.txt", "normal_00000.png",
+                                                     "notes.txt", "roughness_00000.png", "scene.json"]
+    assert (out / "frame_00001.exr").read_bytes()[:4] == b"\x76\x2f\x31\x01"
+    assert "removed 6 frame file(s) beyond the new 2 frame(s)" in capsys.readouterr().err
+
+
+def test_check_of_a_path_that_is_no_dataset_exits_2(tmp_path, capsys):
+    assert cli.main(["check", str(tmp_path / "nope_dir")]) == 2
+    assert capsys.readouterr().err == f"jaxocean: error: {tmp_path / 'nope_dir'}: no such directory\n"
+    assert cli.main(["check", str(tmp_path)]) == 2
+    assert "not a jaxocean dataset" in capsys.readouterr().err
+    (tmp_path / "dataset.json").write_text("{}")  # a damaged dataset is a problem found: exit 1
+    assert cli.main(["check", str(tmp_path)]) == 1
+    assert "manifest.json: missing" in capsys.readouterr().out
+
+
+def test_damaged_or_foreign_frame_is_one_line(tiny_scene, tmp_path, capfd):
+    import imageio.v3 as iio
+
+    data = (tiny_scene / "frame_00000.exr").read_bytes()
+    (tmp_path / "cut.exr").write_bytes(data[:len(data) // 2])
+    iio.imwrite(tmp_path / "photo.exr", np.zeros((16, 16, 3), np.uint8), extension=".png")
+    capfd.readouterr()
+    for name, what in (("cut.exr", "corrupt or truncated OpenEXR file ((EXR_ERR"),
+                       ("photo.exr", "a PNG image, not an OpenEXR file; expected an OpenEXR frame")):
+        assert cli.main(["fit-lighting", str(tmp_path / name), "--scene", str(tiny_scene),
+                         "--out", str(tmp_path / "fit.json")]) == 2
+        out, err = capfd.readouterr()  # file descriptors: what OpenEXR prints from C++ shows here
+        assert out == "" and err.startswith(f"jaxocean: error: {tmp_path / name}: {what}") and err.count("\n") == 1
+
+
+@pytest.mark.parametrize("command", ["render", "demo", "fit-lighting", "reedit", "forecast"])
+def test_every_command_names_the_camera_alike(command, capsys):
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    text = capsys.readouterr().out
+    for option in ("--camera-height", "--camera-pitch-deg", "--camera-fov-deg", "--camera-yaw-deg"):
+        assert option in text, option
+    assert ("--res" in text) == (command != "fit-lighting")  # a frame has its own resolution
+    assert "--pitch " not in text and "--fov " not in text
+
+
+def test_render_camera_options_and_the_old_names(tmp_path, capsys):
+    out = tmp_path / "r"
+    assert cli.main(["render", "--out", str(out), "--frames", "2", "--res", "8x12", "--waves", "6",
+                     "--camera-pitch-deg", "30", "--camera-fov-deg", "50", "--camera-yaw-deg", "10"]) == 0
+    camera = json.loads((out / "scene.json").read_text())["camera"]
+    assert [camera["pitch"], camera["fov"], camera["yaw"]] == pytest.approx([math.radians(a) for a in (30, 50, 10)])
+    # the former render-only names still work, with a note
+    args = cli.build_parser().parse_args(["render", "--out", "o", "--pitch", "31", "--fov", "51"])
+    assert (args.camera_pitch_deg, args.camera_fov_deg) == (31.0, 51.0)
+    assert "--pitch is deprecated; use --camera-pitch-deg" in capsys.readouterr().err
+    assert cli.build_parser().parse_args(["render", "--out", "o"]).camera_pitch_deg == 20.0
+
+
+@pytest.mark.parametrize("command, argv, message", [
+    ("simulate", ["simulate", "--out", "{tmp}/ds", "--scenes", "1", "--frames", "1", "--res", "8", "--quiet"],
+     "completed scenes are kept; run the same command to resume"),
+    ("fit-waves", ["fit-waves", "{scene}", "--out", "{tmp}/w.json"],
+     "nothing was written; running the command again starts the fit over"),
+    ("render", ["render", "--out", "{tmp}/r", "--frames", "1", "--res", "8", "--waves", "4"],
+     "running the command again renders every frame again"),
+])
+def test_interrupt_says_what_a_rerun_does(command, argv, message, tiny_scene, tmp_path, capsys, monkeypatch):
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setitem(cli.COMMANDS, command, interrupted)
+    argv = [a.format(tmp=tmp_path, scene=tiny_scene) for a in argv]
+    assert cli.main(argv) == 130
+    err = capsys.readouterr().err
+    assert message in err and (command == "simulate" or "resume" not in err)
+
+
+def test_forecast_refuses_a_failed_fit_and_other_json(tiny_scene, tmp_path, capsys):
+    from jaxocean import io
+
+    scene = io.read_scene(tiny_scene)
+    failed = tmp_path / "waves.json"  # what fit-waves writes when its fit failed
+    io.write_scene(failed, io.scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
+                                            times=scene.times, extra={"wave_fit": {"success": False,
+                                                                                   "normal_error_deg": 2.5}}))
+    out = tmp_path / "fc"
+    assert cli.main(["forecast", str(failed), "--frames", "0", "--out", str(out)]) == 2  # ran, exit 0 before
+    err = capsys.readouterr().err
+    assert "the wave fit reported failure (success: false, mean normal error 2.5 deg)" in err
+    assert "--allow-failed" in err and not out.exists()
+    assert cli.main(["forecast", str(failed), "--frames", "0", "--out", str(out), "--allow-failed"]) == 0
+    assert "warning: forecasting the waves of a failed fit" in capsys.readouterr().err
+    assert (out / "frame_00000.exr").exists()
+    # a lighting fit's JSON is named as such, not as a scene missing 'version'
+    light = tmp_path / "fit.json"
+    light.write_text(json.dumps({"lighting": {"sun_azimuth": 0.1}, "loss": 1e-6, "rms_residual": 1e-3,
+                                 "success": True, "frame": "f.exr"}))
+    assert cli.main(["forecast", str(light), "--frames", "0", "--out", str(tmp_path / "fc2")]) == 2
+    assert capsys.readouterr().err == (f"jaxocean: error: {light}: this is a lighting fit result (jaxocean "
+                                       f"fit-lighting); forecast needs waves (a fit-waves result or a scene.json)\n")

@@ -12,10 +12,17 @@ stored so that each frame's geometry reproduces its image (:mod:`jaxocean.io.exr
 Every file is written atomically (:func:`jaxocean.io.exr.atomic_write`). The CLI's
 ``render``, ``demo`` and ``forecast`` and :func:`jaxocean.fit.reedit_scene` all write
 through here.
+
+A directory holds one sequence. Writing into a directory that holds a previous one replaces
+it: its ``scene.json`` is removed first (the directory is incomplete until the new one is
+written, last), and its ``frame_XXXXX.exr`` / ``.png`` beyond the new frame count are
+removed, so no stale frame of the old scene is left beside the new ones. No other file is
+touched.
 """
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -23,12 +30,14 @@ import numpy as np
 
 from jaxocean.io.exr import atomic_write, write_frame
 from jaxocean.io.images import save_png
-from jaxocean.io.scene import scene_to_dict, write_scene
+from jaxocean.io.scene import SCENE_FILENAME, scene_to_dict, write_scene
 
 __all__ = ["HALF_MAX", "frame_name", "write_sequence"]
 
 #: the largest finite half float: brighter radiance forces a float32 EXR
 HALF_MAX = 65504.0
+
+_FRAME_FILE = re.compile(r"frame_(\d{5,})\.(exr|png)")
 
 
 def frame_name(index: int) -> str:
@@ -40,10 +49,11 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
                    frame_ids=None, extra=None, exposure: float = 1.0) -> list[Path]:
     """Write the sequence (module docstring); returns the PNG preview paths.
 
-    Files are numbered 0, 1, ... in order; ``frame_ids`` (default the same numbers) go into
-    each EXR's ``frame`` metadata. Sequences with radiance beyond the half-float range
-    (bright glints) are written as float32 with a note on stderr. ``exposure``: of the PNG
-    previews.
+    A previous sequence in ``out`` is replaced (module docstring); ``out`` must not be a
+    file (ValueError). Files are numbered 0, 1, ... in order; ``frame_ids`` (default the
+    same numbers) go into each EXR's ``frame`` metadata. Sequences with radiance beyond the
+    half-float range (bright glints) are written as float32 with a note on stderr.
+    ``exposure``: of the PNG previews.
     """
     import imageio.v3 as iio
     from tqdm.auto import tqdm
@@ -70,7 +80,13 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
         print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
         half = False
     frame_ids = range(n_frames) if frame_ids is None else frame_ids
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory; a sequence is written into a directory")
     out.mkdir(parents=True, exist_ok=True)
+    stale = _remove_previous(out, n_frames)
+    if stale:
+        print(f"note: replacing the previous scene in {out}: removed {len(stale)} frame file(s) beyond the new "
+              f"{n_frames} frame(s)", file=sys.stderr)
     pngs = []
     for f in tqdm(range(n_frames), desc="write", unit="frame", disable=not progress):
         g = {"normal": normal[f], "roughness": roughness[f], "mask": mask[f],
@@ -84,3 +100,14 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     write_scene(out, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
                                    spectrum=getattr(scene, "spectrum", None), times=times, seed=seed, extra=extra))
     return pngs
+
+
+def _remove_previous(out: Path, n_frames: int) -> list[Path]:
+    """Remove a previous sequence's ``scene.json`` and its frame files numbered ``>= n_frames``
+    (the others are overwritten); returns the removed frame files."""
+    (out / SCENE_FILENAME).unlink(missing_ok=True)
+    stale = sorted(path for path in out.iterdir()
+                   if (m := _FRAME_FILE.fullmatch(path.name)) and int(m.group(1)) >= n_frames and path.is_file())
+    for path in stale:
+        path.unlink()
+    return stale
