@@ -386,6 +386,24 @@ def test_corrupt_or_truncated_frame_is_reported_by_name(tmp_path, capfd, damage)
         assert "EXR_ERR" in str(info.value)
 
 
+def test_output_printed_during_a_good_read_is_kept(tmp_path, capfd, monkeypatch):
+    # reads redirect stdout / stderr to catch OpenEXR's reports on damaged files; what is
+    # printed meanwhile (another thread's output, say) still appears after a read that succeeds
+    image, geometry = random_frame(6)
+    path = write_frame(tmp_path / "f.exr", image, geometry)
+    original = OpenEXR.File
+
+    def chatty(*args, **kwargs):
+        print("from python")
+        os.write(2, b"from a file descriptor\n")
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(OpenEXR, "File", chatty)
+    capfd.readouterr()
+    np.testing.assert_array_equal(read_frame(path).mask, geometry.mask)
+    assert capfd.readouterr() == ("from python\n", "from a file descriptor\n")
+
+
 @pytest.mark.parametrize("kind, data", [
     ("a PNG image", None),
     ("a JSON file", b'{"version": "0.1.0"}'),

@@ -64,8 +64,10 @@ such), a corrupt or truncated file, a missing ``R``/``G``/``B`` channel, an inco
 geometry channel set, mismatched channel sizes or an unexpected resolution. All are
 ``ValueError`` subclasses via :class:`jaxocean.errors.InvalidValueError`. What the OpenEXR
 library itself prints while decoding (it reports damaged files on stdout and stderr) is
-captured and, for a damaged file, its first line goes into the error message instead; reads
-are serialised by a lock while they redirect file descriptors 1 and 2.
+captured and, for a damaged file, its first line goes into the error message instead (after
+a read that succeeds, what was captured is printed after all: nothing another thread printed
+meanwhile is lost); reads are serialised by a lock while they redirect file descriptors 1
+and 2.
 """
 
 from __future__ import annotations
@@ -441,7 +443,22 @@ def _check_magic(path: Path) -> None:
 
 
 class _Captured:
-    text = ""
+    """What was printed during :func:`_captured_output`, per stream."""
+
+    stdout = ""
+    stderr = ""
+
+    @property
+    def text(self) -> str:
+        return self.stdout + self.stderr
+
+    def replay(self) -> None:
+        """Print it after all (a read that succeeded: nothing of another thread is lost)."""
+        for text, stream in ((self.stdout, sys.stdout), (self.stderr, sys.stderr)):
+            if text:
+                with contextlib.suppress(Exception):
+                    stream.write(text)
+                    stream.flush()
 
 
 @contextlib.contextmanager
@@ -450,12 +467,12 @@ def _captured_output():
 
     The OpenEXR binding reports damaged files itself: from C++ on file descriptor 2 and
     through Python's ``sys.stdout``. Both descriptors and both Python streams are redirected
-    into a temporary file; the text is in the yielded object's ``text`` afterwards. A lock
+    into temporary files; the text is in the yielded :class:`_Captured` afterwards. A lock
     serialises the redirection (descriptors are process-wide). Where descriptors 1 / 2
     cannot be duplicated (closed), only the Python streams are redirected.
     """
     captured = _Captured()
-    with _DECODE_LOCK, tempfile.TemporaryFile() as sink:
+    with _DECODE_LOCK, tempfile.TemporaryFile() as sink_out, tempfile.TemporaryFile() as sink_err:
         for stream in (sys.stdout, sys.stderr):
             with contextlib.suppress(Exception):
                 stream.flush()
@@ -463,12 +480,12 @@ def _captured_output():
             saved = [os.dup(1), os.dup(2)]
         except OSError:
             saved = None
-        python_text = io.StringIO()
+        python_out, python_err = io.StringIO(), io.StringIO()
         try:
             if saved is not None:
-                os.dup2(sink.fileno(), 1)
-                os.dup2(sink.fileno(), 2)
-            with contextlib.redirect_stdout(python_text), contextlib.redirect_stderr(python_text):
+                os.dup2(sink_out.fileno(), 1)
+                os.dup2(sink_err.fileno(), 2)
+            with contextlib.redirect_stdout(python_out), contextlib.redirect_stderr(python_err):
                 yield captured
         finally:
             if saved is not None:
@@ -477,8 +494,11 @@ def _captured_output():
                 os.dup2(saved[1], 2)
                 for fd in saved:
                     os.close(fd)
-            sink.seek(0)
-            captured.text = python_text.getvalue() + sink.read().decode("utf-8", errors="replace")
+            texts = []
+            for python_text, sink in ((python_out, sink_out), (python_err, sink_err)):
+                sink.seek(0)
+                texts.append(python_text.getvalue() + sink.read().decode("utf-8", errors="replace"))
+            captured.stdout, captured.stderr = texts
 
 
 def _flush_c_streams() -> None:
@@ -516,8 +536,8 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
         FrameError: the file is not OpenEXR (a PNG, JPEG, ... is named as such), is corrupt
             or truncated, lacks a channel of ``R G B``, has only part of the geometry (or
             slope-variance) channels, has channels of different sizes, or is not
-            ``expect_resolution``. The message names the file (and the channels). Nothing
-            the OpenEXR library prints reaches stdout / stderr.
+            ``expect_resolution``. The message names the file (and the channels); what
+            the OpenEXR library prints about a damaged file does not reach stdout / stderr.
     """
     path = _require_file(path, "EXR frame file")
     _check_magic(path)
@@ -530,7 +550,9 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
             pixels = {name: channel.pixels for name, channel in exr.channels().items()}
         except (RuntimeError, ValueError, OSError) as caught:
             error = caught
-    if error is not None:
+    if error is None:
+        printed.replay()
+    else:
         raise FrameError(path, f"corrupt or truncated OpenEXR file ({_decode_problem(path, error, printed.text)})"
                          ) from error
 
