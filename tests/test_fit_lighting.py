@@ -198,14 +198,96 @@ def test_fit_recovers_lighting_from_a_random_start(scene, singles, i, x64):
     assert float(res.wall_time) > 0
 
 
-def test_fit_without_glitter_is_reported_as_failed(scene, singles, x64):
-    res = singles["results"][2]
+def test_fit_without_glitter_says_the_sun_is_undetermined_and_keeps_the_colours(scene, singles, x64):
+    # sun behind the camera: the image does not determine the sun (direction or colour), but
+    # it does determine the sky and sea colours, and the fit returns and flags them
+    res, truth = singles["results"][2], scene["truths"][2]
     assert not bool(res.success)
-    # and raised, not returned, when the caller asks for it
-    with pytest.raises(fit.FitError, match="did not converge") as info:
+    assert not bool(res.determined["sun_direction"]) and not bool(res.determined["sun_color"])
+    assert bool(res.determined["sky_color"]) and bool(res.determined["sea_color"])
+    assert float(res.glitter) < 1e-8 and float(res.loss) <= float(res.loss_bound)
+    for name in ("sky_color", "sea_color"):
+        np.testing.assert_allclose(getattr(res.lighting, name), getattr(truth, name), rtol=1e-6)
+        assert np.all(np.asarray(res.std[name]) < 1e-3 * np.max(np.asarray(getattr(truth, name))))
+    assert float(res.std["sun_direction"]) > math.radians(fit.lighting_fit.DETERMINED_SUN_DEG)
+    # and raised, not returned, when the caller asks for it -- saying exactly why
+    with pytest.raises(fit.FitError, match="^sun direction undetermined: no sun glitter in the image") as info:
         fit.lighting(jnp.asarray(scene["images"][2]), _f64(scene["geo"]), _f64(scene["camera"]),
                      init=singles["inits"][2])
     assert not bool(info.value.result.success)
+    d = fit.fit_to_dict(info.value.result)
+    assert d["determined"] == {"sun_direction": False, "sun_color": False, "sky_color": True, "sea_color": True}
+    assert len(d["std"]["sky_color"]) == 3
+
+
+def test_fit_that_does_not_explain_the_image_is_a_failure_naming_the_residual(scene, singles, x64):
+    # the geometry without its anisotropic slope variance (isotropic roughness / 2 per axis, as
+    # an EXR frame with scalar roughness gives): the model cannot reproduce the image, the best
+    # lighting is 1-1.5 deg and 85-96% (sun colour) off with loss 2e-4..8e-4 and the solver
+    # converges; noise-free data allow 2e-8, so the fit fails and says so. Told that the data
+    # are that noisy, the residual passes the test.
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    iso = geo._replace(slope_variance=None)
+    image = jnp.asarray(scene["images"][0])
+    res = fit.lighting(image, iso, camera, init=singles["inits"][0], throw=False)
+    assert not bool(res.success)
+    assert float(res.loss) > 1e3 * float(res.loss_bound)
+    assert float(fit.lighting_error(res.lighting, scene["truths"][0])["sun_color"]) > 0.5
+    with pytest.raises(fit.FitError, match=r"does not explain the image: residual loss .* exceeds .*noise-free"):
+        fit.lighting(image, iso, camera, init=singles["inits"][0])
+    noisy = fit.lighting(image, iso, camera, init=singles["inits"][0], throw=False, noise=2 * math.sqrt(float(res.loss)))
+    assert float(noisy.loss) == pytest.approx(float(res.loss)) and float(noisy.loss) <= float(noisy.loss_bound)
+    for bad in (-1.0, float("nan"), "0.1"):
+        with pytest.raises(ValueError, match="noise"):
+            fit.lighting(image, geo, camera, noise=bad)
+
+
+def _horizon_scene(seed, n=32):
+    """Issue 13's view: 30 waves of steepness k h 0.02-0.2 (omega 0.8-3 rad/s), camera 10 m
+    high, pitch 20 deg, vertical fov 50 deg (the horizon in the image), sun azimuth 0.15 rad,
+    elevation 0.45 rad, the default colours, float64, rendered unrefined."""
+    from jaxocean.waves import make_waves
+
+    rng = np.random.default_rng(seed)
+    om = np.sort(rng.uniform(0.8, 3.0, 30))
+    amp = rng.uniform(0.02, 0.2, 30) * GRAVITY / om**2
+    waves = make_waves(amp, om, rng.uniform(-1.0, 1.0, 30), rng.uniform(0, 2 * np.pi, 30), dtype=jnp.float64)
+    camera = cam.make_camera(height=10.0, pitch=math.radians(20), fov=math.radians(50), resolution=(n, n),
+                             dtype=jnp.float64)
+    geo = render.geometry(waves, camera, 0.0, plan=None)
+    truth = shading.make_lighting(sun_azimuth=0.15, sun_elevation=0.45, dtype=jnp.float64)
+    return geo, camera, truth, render.shade(geo.normal, geo.roughness, camera, truth, slope_variance=geo.slope_variance)
+
+
+def test_default_starts_find_a_narrow_glitter_with_the_horizon_in_view(x64):
+    # Issue 13 (item 2) at 32^2, two sea states: the glitter is a band of rough, saturated
+    # (censored) pixels at the horizon plus dark resolved pixels whose mirror directions
+    # surround the sun, so the loss has a well < 1 deg wide in a plateau. The grid and glint
+    # starts alone converge 10 and 1.6 deg off (loss 1e-4, 3e-5) and were reported as
+    # successes; the rough-pixel solves among the starts find the well.
+    for seed in (41, 67):
+        geo, camera, truth, image = _horizon_scene(seed)
+        res = fit.lighting(image, geo, camera, init=fit.random_lighting(jax.random.key(seed), dtype=jnp.float64))
+        err = fit.lighting_error(res.lighting, truth)
+        assert bool(res.success) and float(res.loss) < 1e-20
+        assert float(err["sun_angle_deg"]) < 1e-8, (seed, float(err["sun_angle_deg"]))
+        assert max(float(err[n]) for n in fit.COLOR_FIELDS) < 1e-8
+        assert all(bool(v) for v in res.determined.values())
+
+
+def test_parameter_std_is_the_delta_method_and_infinite_without_information(x64):
+    from jaxocean.fit import _plausibility
+
+    rng = np.random.default_rng(0)
+    jac = rng.normal(size=(50, 5)) * np.array([1.0, 1e-3, 10.0, 1.0, 0.1])
+    jac[:, 3] = jac[:, 0] + 1e-4 * rng.normal(size=50)  # nearly collinear, still informative
+    ref = np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)) * 0.01)
+    np.testing.assert_allclose(_plausibility.parameter_std(jnp.asarray(jac.T @ jac), 0.01), ref, rtol=1e-6)
+    jac[:, 1] = 0.0
+    std = np.asarray(_plausibility.parameter_std(jnp.asarray(jac.T @ jac), 0.01))
+    assert np.isinf(std[1]) and np.all(np.isfinite(std[[0, 2, 3, 4]]))
+    np.testing.assert_allclose(std[2], np.sqrt(np.linalg.inv(np.delete(np.delete(jac.T @ jac, 1, 0), 1, 1))[1, 1]
+                                               * 0.01), rtol=1e-6)
 
 
 def test_batched_fit_equals_single_fits(scene, singles, x64):
@@ -216,6 +298,8 @@ def test_batched_fit_equals_single_fits(scene, singles, x64):
     for i, single in enumerate(singles["results"]):
         got = jax.tree.map(lambda a: a[i], batched)
         assert bool(got.success) == bool(single.success)
+        assert {k: bool(v) for k, v in got.determined.items()} == {k: bool(v) for k, v in single.determined.items()}
+        np.testing.assert_allclose(got.loss_bound, single.loss_bound, rtol=1e-12)
         if bool(single.success):
             np.testing.assert_allclose(jnp.stack([got.lighting.sun_azimuth, got.lighting.sun_elevation]),
                                        jnp.stack([single.lighting.sun_azimuth, single.lighting.sun_elevation]),

@@ -46,10 +46,24 @@ Structures (``structure=``):
   the (fitted) colours; they are solved in closed form, per channel, by an exact
   non-negative least-squares solve of at most three unknowns (every active set
   enumerated), inside the residual. The solver then searches the two sun angles only.
-  Starts: the ``init`` sun, the *glint* estimate (the sea's mirror direction at the
-  brightest 1% of sea pixels, where the normal is the half vector) and the best points of a
-  coarse grid over the sky hemisphere evaluated on a sub-sampled image; the best
-  ``n_starts`` (by loss) are refined together (``vmap``) and the lowest loss wins.
+  Starts (``glint=True``): the ``init`` sun; the *glint* estimate (the sea's mirror
+  direction averaged over the brightest 1% of sea pixels, where the normal is the half
+  vector) and a ray of elevations along its azimuth; the mirror directions of the 32
+  brightest glint pixels, one candidate each; the 8 best points of a coarse grid over the
+  sky hemisphere (scored on a sub-sampled image); and the answers of short LM solves on the
+  *rough pixels alone* (slope variance >= 1e-2, then >= 1e-3), each started from the best
+  candidates of its level. All are scored by the full image's loss; the best ``n_starts``
+  are refined and the lowest loss wins.
+
+  Why the rough-pixel solves: with the horizon in view the glitter is a band of far,
+  rough pixels (the waves filtered into the slope variance), mostly saturated and
+  censored, plus near, resolved pixels with lobes 0.003 rad wide. Those near pixels that
+  are dark exclude every sun direction within a fraction of a degree of their mirror
+  direction, and they surround the sun: the full loss is a well < 1 deg wide in a
+  plateau that no grid or averaged glint estimate hits (measured on issue 13's view: the
+  glint estimate 5-17 deg off, the grid's best minimum 54 deg off at loss 4e-4 against 1e-33
+  at the truth). On the rough pixels alone the model is still exact and the loss is
+  smooth with a basin of many degrees; its minimum is the sun (noise-free), or next to it.
 * ``"plain"``: every fitted parameter at once from ``init`` alone -- the formulation of the
   paper's Adam baseline, kept for comparison charts (it fails from most random starts).
 
@@ -58,9 +72,23 @@ Solvers: any name of :data:`jaxocean.fit.solvers.SOLVER_NAMES` (``"lm"`` by defa
 Everything after validation is one jitted function of arrays (static: the names, sizes and
 tolerances), so a fit compiles once per image size and configuration, and runs under
 ``jax.vmap`` over images, geometries, cameras or initial guesses with ``throw=False``
-(results are arrays only; ``wall_time`` is NaN when traced). A fit that does not converge
-has ``success=False``; called eagerly with ``throw=True`` (the default) it raises
-:class:`jaxocean.fit.solvers.FitError` carrying the result.
+(results are arrays only; ``wall_time`` is NaN when traced).
+
+Success: ``success`` is True only when the answer explains the data and the data determine
+it -- every one of: the solver converged; the loss is finite and at most
+:func:`jaxocean.fit._plausibility.loss_bound` ``= 1.5 noise^2 + 1e-6 x`` (weighted mean
+square image) for the stated ``noise`` (``None``: noise-free; the rule of
+:func:`jaxocean.fit.camera`); the sun is above the horizon; and every fitted field is
+``determined``: its Gauss-Newton standard deviation at that noise (``std``, from ``J^T J``
+of the residual in the fitted fields at the answer) is below 0.5 deg for the sun direction
+(whose glitter must also carry >= 1e-8 of the weighted image energy) and below 10% of the
+colour's brightest channel for a colour. A converged wrong stationary point (a local
+minimum) leaves a loss far above the bound: it is a failure, not an answer. Otherwise
+``success=False``; called eagerly with ``throw=True`` (the default) it raises
+:class:`jaxocean.fit.solvers.FitError` carrying the result and saying why
+(:func:`failure_message`): the residual and its bound, "sun direction undetermined: no sun
+glitter in the image" (the colours that are determined are still fitted and flagged), an
+undetermined colour, or the solver's own failure.
 
 Validation: shapes and names -> ``ValueError``; NaN/inf pixels, negative weights, an empty
 selection, no sea pixel while sun or sea colour are fitted, and a geometry mask that
@@ -82,17 +110,20 @@ from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import safe_norm, safe_normalize, smoothstep
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
-from jaxocean.fit import solvers
+from jaxocean.fit import _plausibility, solvers
 from jaxocean.fit.solvers import FitError
 from jaxocean.shading import Lighting
 
 __all__ = [
     "FIT_FIELDS",
     "COLOR_FIELDS",
+    "DETERMINED_SUN_DEG",
+    "DETERMINED_COLOR_REL",
     "STRUCTURES",
     "COLOR_RANGES",
     "LightingFit",
     "lighting",
+    "failure_message",
     "random_lighting",
     "tonemap_weights",
     "lighting_error",
@@ -115,10 +146,21 @@ COLOR_RANGES = {"sun_color": (1.0, 40.0), "sky_color": (0.05, 1.0), "sea_color":
 _HALF_PI = math.pi / 2
 _GLINT_QUANTILE = 0.99
 _GRID_PIXELS = 4096
+_MIRROR_K = 32
+_GRID_KEEP = 8
+_ROUGH_LEVELS = (1e-2, 1e-3)
+_ROUGH_STARTS = 2
+_ROUGH_STEPS = 30
+_ROUGH_GRID = 12
 # The sun is "seen" when its glitter carries at least this fraction of the (weighted) image
 # energy; below it (a sun behind the camera lights the sea through the BRDF's far tails,
 # 1e-20 and less) its direction is undetermined and the fit is reported as failed.
-_SUN_SEEN = 1e-8  # the coarse grid is evaluated on at most about this many pixels
+_SUN_SEEN = 1e-8
+#: a fitted sun direction is determined when its standard deviation (RMS angle) is below this [deg]
+DETERMINED_SUN_DEG = 0.5
+#: a fitted colour is determined when every channel's standard deviation is below this
+#: fraction of the colour's brightest channel
+DETERMINED_COLOR_REL = 0.1
 _DEFAULT_TOL = {"float32": (1e-6, 1e-6), "float64": (1e-10, 1e-10)}
 _DEFAULT_MAX_STEPS = {"adam": 400}
 
@@ -130,13 +172,27 @@ class LightingFit(NamedTuple):
       their ``init`` values).
     * ``loss``      ``()`` weighted mean squared residual (linear radiance squared).
     * ``steps``     ``()`` int32 solver steps (of the winning start).
-    * ``success``   ``()`` bool: the solver converged, the loss is finite, the sun is above
-      the horizon and (when the sun direction is fitted) its glitter is seen: it carries at
-      least 1e-8 of the weighted image energy -- otherwise the direction is undetermined.
+    * ``success``   ``()`` bool: the answer explains the data and every fitted field is
+      determined (module docstring, *Success*): the solver converged, the loss is finite
+      and at most ``loss_bound``, the sun is above the horizon, and ``determined`` holds for
+      every fitted field.
     * ``wall_time`` ``()`` seconds of the call, compilation included on a first call (NaN
       when traced).
     * ``history``   ``(max_steps + 1,)`` loss after each step (winning start), or None
       unless ``history=True``.
+    * ``determined`` ``{field: () bool}`` for every name of :data:`FIT_FIELDS`: the field's
+      standard deviation at the stated noise is below :data:`DETERMINED_SUN_DEG` (sun
+      direction; and its glitter carries at least 1e-8 of the weighted image energy) or
+      :data:`DETERMINED_COLOR_REL` of the colour's brightest channel (every channel).
+      Fields not fitted are given: True.
+    * ``std``       ``{field: array}``: ``"sun_direction"`` ``()`` [rad], the RMS angular
+      error ``sqrt(var p + var q)`` of the sun's ``(p, q)``; each colour ``(3,)`` [linear
+      RGB]. Gauss-Newton standard deviations at the answer for noise ``noise`` (noise-free:
+      the models' own consistency, ``LOSS_FLOOR``); see :mod:`jaxocean.fit._plausibility`.
+      0 for fields not fitted.
+    * ``loss_bound`` ``()`` the largest loss a right answer can leave at the stated noise.
+    * ``glitter``   ``()`` the weighted energy of the fitted sun's glitter over that of the
+      image (0: the sun lights no selected pixel).
     """
 
     lighting: Lighting
@@ -145,6 +201,10 @@ class LightingFit(NamedTuple):
     success: jax.Array
     wall_time: jax.Array
     history: Any = None
+    determined: Any = None
+    std: Any = None
+    loss_bound: Any = None
+    glitter: Any = None
 
 
 # --------------------------------------------------------------------------- parameterisation
@@ -400,11 +460,11 @@ def _varpro_loss(data, pq, fixed, free):
 # --------------------------------------------------------------------------- starts
 
 
-def _glint_pq(data: _Data, dtype):
-    """Sun estimate from the glints: where a glint is, the sun lies in the mirror direction of
-    the view about the macro normal. Glints are the pixels the sky and sea alone cannot
-    explain: the excess over a sun-free fit (non-negative sky and sea colours), so bright
-    sky reflections near the horizon do not count; saturated pixels do (they are glints)."""
+def _glint_excess(data: _Data):
+    """``(excess (H, W), mirror (H, W, 3), candidate (H, W) bool)``: the radiance (summed over
+    channels) that a sun-free fit (non-negative sky and sea colours) leaves unexplained, the
+    mirror direction of the view about each pixel's normal, and the sea pixels whose mirror
+    direction is above the horizon and whose pixel is finite."""
     sea_ok = data.sea & jnp.all(jnp.isfinite(data.target), axis=-1)
     target = jnp.where(sea_ok[..., None], data.target, 0.0)
     a = jnp.stack([data.sky_term, data.sea_term], -1).reshape(-1, 2)
@@ -413,18 +473,42 @@ def _glint_pq(data: _Data, dtype):
     x = nnls_small(jnp.einsum("pc,pi,pj->cij", w2, a, a), jnp.einsum("pc,pi,pc->ci", w2, a, y))  # (3, 2)
     excess = jnp.sum(target - (a @ x.T).reshape(target.shape), axis=-1)
     r = shading.reflect(data.view, data.normal)
-    cand = sea_ok & (r[..., 2] > 0)
+    return excess, r, sea_ok & (r[..., 2] > 0)
+
+
+def _direction_pq(direction, dtype):
+    """Unit directions ``(..., 3)`` -> ``(p, q)`` with the elevation raised to at least 0.02 rad."""
+    direction = direction.at[..., 2].set(jnp.maximum(direction[..., 2], 0.02))
+    direction = safe_normalize(direction)
+    el = jnp.arcsin(jnp.clip(direction[..., 2], -1.0, 1.0))
+    az = jnp.arctan2(direction[..., 1], direction[..., 0])
+    return sun_to_pq(az, el).astype(dtype)
+
+
+def _glint_pq(data: _Data, dtype):
+    """Sun estimate from the glints: where a glint is, the sun lies in the mirror direction of
+    the view about the macro normal. Glints are the pixels the sky and sea alone cannot
+    explain: the excess over a sun-free fit (non-negative sky and sea colours), so bright
+    sky reflections near the horizon do not count; saturated pixels do (they are glints)."""
+    excess, r, cand = _glint_excess(data)
     e = jnp.where(cand, excess, jnp.nan)
     any_cand = jnp.any(cand)
     thr = jnp.maximum(jnp.nanquantile(jnp.where(any_cand, e, 0.0), _GLINT_QUANTILE), 0.0)
     w = jnp.where(e > thr, e - thr, 0.0)  # NaN compares False
     w = jnp.where(jnp.sum(w) > 0, w, jnp.where(e >= thr, 1.0, 0.0))
-    direction = safe_normalize(jnp.sum(w[..., None] * r, axis=(0, 1)))
-    direction = direction.at[2].set(jnp.maximum(direction[2], 0.02))
-    direction = safe_normalize(direction)
-    el = jnp.arcsin(jnp.clip(direction[2], -1.0, 1.0))
-    az = jnp.arctan2(direction[1], direction[0])
-    return sun_to_pq(az, el).astype(dtype)
+    return _direction_pq(safe_normalize(jnp.sum(w[..., None] * r, axis=(0, 1))), dtype)
+
+
+def _mirror_pq(data: _Data, k: int, dtype):
+    """``(k, 2)`` candidates: the mirror directions of the ``k`` sea pixels with the largest
+    glint excess, one each (not averaged). A glint pixel whose normal's slope lobe is
+    narrow lies within about its slope spread of the sun, and the brightest glints are the
+    narrowest (the lobe's peak scales as ``1 / sigma^2``)."""
+    excess, r, cand = _glint_excess(data)
+    score = jnp.where(cand, excess, -jnp.inf).reshape(-1)
+    k = min(k, score.shape[0])
+    _, idx = jax.lax.top_k(score, k)
+    return _direction_pq(r.reshape(-1, 3)[idx], dtype)
 
 
 _RAY_ELEVATIONS = np.radians(np.geomspace(0.2, 60.0, 16))
@@ -456,9 +540,26 @@ def _subsample(data: _Data, stride: int) -> _Data:
     return jax.tree.map(lambda a: a[::stride, ::stride], data)
 
 
-def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool = True):
-    """The ``n_starts`` lowest-loss candidates among init, glint and the grid (no gradient:
-    the solution, not the path to it, is differentiated)."""
+def _losses(data, cands, fixed, free):
+    """Variable-projection losses ``(n,)`` of candidate suns ``(n, 2)`` (non-finite -> inf)."""
+    losses = jax.lax.map(lambda pq: _varpro_loss(data, pq, fixed, free), cands, batch_size=64)
+    return jnp.where(jnp.isfinite(losses), losses, jnp.inf)
+
+
+def _rough_only(data: _Data, threshold) -> _Data:
+    """``data`` with the weight of every sea pixel smoother than ``threshold`` (slope variance
+    ``sigma_x^2 + sigma_y^2``) set to 0; sky pixels keep theirs."""
+    keep = ~data.sea | (data.sx2 + data.sy2 >= threshold)
+    return data._replace(weight=jnp.where(keep[..., None], data.weight, 0.0))
+
+
+def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool = True,
+            rough_levels: tuple = (), tol: tuple = (1e-6, 1e-6)):
+    """The ``n_starts`` lowest-loss candidates (no gradient: the solution, not the path to it,
+    is differentiated). Candidates: ``init``; with ``glint`` the glint estimate, the ray along
+    its azimuth and the mirror directions of the brightest glints (scored on the full image);
+    the best of the ``grid`` (scored on a sub-sampled image); and with ``rough_levels`` the
+    answers of short solves on the rough pixels alone (module docstring, *Starts*)."""
     data, init_pq, fixed = jax.lax.stop_gradient((data, init_pq, fixed))
     dtype = data.target.dtype
     H, W = data.target.shape[:2]
@@ -469,13 +570,40 @@ def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool
         g = _glint_pq(data, dtype)
         cands.append(g[None])
         cands.append(_glint_ray(g, dtype))
-    if grid > 0:
-        cands.append(_grid_pq(grid, dtype))
+        cands.append(_mirror_pq(data, _MIRROR_K, dtype))
     cands = jnp.concatenate(cands, 0)
-    losses = jax.lax.map(lambda pq: _varpro_loss(small, pq, fixed, free), cands, batch_size=64)
-    losses = jnp.where(jnp.isfinite(losses), losses, jnp.inf)
+    losses = _losses(data, cands, fixed, free)
+    grid_pq = _grid_pq(grid, dtype) if grid > 0 else cands[:0]
+    if grid > 0:
+        best = grid_pq[jnp.argsort(_losses(small, grid_pq, fixed, free))[:_GRID_KEEP]]
+        cands = jnp.concatenate([cands, best], 0)
+        losses = jnp.concatenate([losses, _losses(data, best, fixed, free)], 0)
+    if rough_levels:
+        pool = jnp.concatenate([cands, _grid_pq(_ROUGH_GRID, dtype)], 0)
+
+        def level(seeds, threshold):
+            rough = _rough_only(data, threshold)
+            trial = jnp.concatenate([seeds, pool], 0)
+            starts = trial[jnp.argsort(_losses(_subsample(rough, stride), trial, fixed, free))[:_ROUGH_STARTS]]
+            outs = jax.lax.map(lambda y0: solvers.solve("lm", _varpro_bound(free), y0, (rough, fixed),
+                                                        max_steps=_ROUGH_STEPS, rtol=tol[0], atol=tol[1]).params,
+                               starts)
+            return outs, outs
+
+        seeds0 = jnp.broadcast_to(init_pq, (_ROUGH_STARTS, 2))
+        _, found = jax.lax.scan(level, seeds0, jnp.asarray(rough_levels, dtype))
+        found = _clip_pq(found.reshape(-1, 2))
+        cands = jnp.concatenate([cands, found], 0)
+        losses = jnp.concatenate([losses, _losses(data, found, fixed, free)], 0)
     order = jnp.argsort(losses)
     return cands[order[:n_starts]]
+
+
+def _clip_pq(pq):
+    """``(p, q)`` pulled inside the horizon circle (``|(p, q)| <= 0.999 pi / 2``)."""
+    r = safe_norm(pq)
+    limit = _HALF_PI * 0.999
+    return jnp.where((r > limit)[..., None], pq * (limit / jnp.maximum(r, limit))[..., None], pq)
 
 
 # --------------------------------------------------------------------------- plain structure
@@ -639,7 +767,8 @@ def _solve_linear(data: _Data, init: Lighting, st: _Static):
             loss = 2 * half_loss
             hist = jnp.full((st.max_steps + 1,), loss) if st.history else None
             return init_pq, colors, loss, jnp.asarray(0, jnp.int32), jnp.isfinite(loss), hist, sun_energy
-        starts = _starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint)
+        starts = _starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint,
+                         rough_levels=_ROUGH_LEVELS if st.glint else (), tol=(st.rtol, st.atol))
 
         def run_one(y0):
             return solvers.solve(st.solver, _varpro_bound(st.free), y0, (data, init_colors),
@@ -699,17 +828,58 @@ def _host_map(fn, starts):
     return jax.tree.map(lambda *xs: jnp.stack(xs), *outs)
 
 
-def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, st: _Static):
+def _uncertainty(data: _Data, pq, colors, st: _Static, noise):
+    """``(std, determined)`` dicts of the answer (see :class:`LightingFit`): Gauss-Newton
+    standard deviations from ``J^T J`` of the linear-colour residual of the fitted fields
+    (built column by column, ``O(pixels)`` memory) at the stated noise."""
+    data, pq, colors = jax.lax.stop_gradient((data, pq, colors))
+    dtype = data.target.dtype
+    layout, n = _plain_layout(st.fit)
+    parts = [pq] if "sun_direction" in layout else []
+    parts += [colors[c] for c in COLOR_FIELDS if c in layout]
+    y = jnp.concatenate(parts).astype(dtype)
+
+    def residual(y):
+        return _plain_residual(y, (data, pq, colors, st.fit, False))
+
+    _, jvp = jax.linearize(residual, y)
+    vjp = jax.linear_transpose(jvp, y)
+    jtj = jax.lax.map(lambda e: vjp(jvp(e))[0], jnp.eye(n, dtype=dtype))
+    sd = _plausibility.parameter_std(jtj, _plausibility.noise_variance(data.target, data.weight, noise))
+    std, determined = {}, {}
+    for name in FIT_FIELDS:
+        if name not in layout:
+            std[name] = jnp.zeros(() if name == "sun_direction" else (3,), dtype)
+            determined[name] = jnp.asarray(True)
+        elif name == "sun_direction":
+            sl = sd[layout[name]]
+            std[name] = jnp.sqrt(jnp.sum(sl * sl))
+            determined[name] = std[name] < math.radians(DETERMINED_SUN_DEG)
+        else:
+            std[name] = sd[layout[name]]
+            determined[name] = jnp.all(std[name] < DETERMINED_COLOR_REL * jnp.max(colors[name]))
+    return std, determined
+
+
+def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, st: _Static):
     data = _prepare(image, normal, slope_var, camera, weight, horizon_gradient)
     pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
     light = _finish(data, pq, colors)
-    success = success & jnp.isfinite(loss) & (light.sun_elevation > 0)
+    if st.space == "display":  # the reported loss is the display-space MSE over the used pixels
+        bound = _plausibility.loss_bound(shading.tonemap(data.target, st.exposure, st.tonemap), used, noise)
+    else:
+        bound = _plausibility.loss_bound(data.target, data.weight, noise)
+    std, determined = _uncertainty(data, pq, colors, st, noise)
+    glitter = sun_energy / jnp.sum((data.weight * data.target) ** 2)
     if "sun_direction" in st.fit:
         # the sun direction is only determined where its glitter is seen: a fit that explains
         # the image without any sun light (zero sun colour or no glitter on a selected
-        # pixel) has not found the sun, whatever the solver says
-        success = success & (sun_energy > _SUN_SEEN * jnp.sum((data.weight * data.target) ** 2))
-    return light, loss, steps, success, hist
+        # pixel) has not found the sun, whatever its standard deviation says
+        determined["sun_direction"] = determined["sun_direction"] & (glitter > _SUN_SEEN)
+    success = success & jnp.isfinite(loss) & (light.sun_elevation > 0) & (loss <= bound)
+    for name in st.fit:
+        success = success & determined[name]
+    return light, loss, steps, success, hist, determined, std, bound, glitter
 
 
 _fit_jit = jax.jit(_fit_arrays, static_argnames=("st",))
@@ -869,8 +1039,8 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
              structure: str = "varpro", weights="display", mask=None, exposure=1.0, tonemap: str = "bruneton",
              saturation: float | None = 0.9, space: str = "linear", horizon_gradient=0.0, max_steps: int | None = None,
              rtol: float | None = None, atol: float | None = None, grid: int = 24, n_starts: int = 2,
-             glint: bool = True, batching: str = "vectorized", history: bool = False, throw: bool = True,
-             options: dict | None = None) -> LightingFit:
+             glint: bool = True, noise: float | None = None, batching: str = "vectorized", history: bool = False,
+             throw: bool = True, options: dict | None = None) -> LightingFit:
     """Fit sun direction and colours to ``image`` given its ``geometry`` and ``camera``.
 
     Args:
@@ -904,6 +1074,12 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
             (0: no grid). ``n_starts``: how many of the best starts are refined.
             ``glint``: include the glint estimate among the starts (``grid=0, glint=False,
             n_starts=1`` starts from ``init`` alone).
+        noise: the RMS of the weighted residual the data allow at the true lighting (with
+            the default display weights: about the standard deviation of the noise on
+            display values; with ``weights="uniform"`` that of linear radiance); ``None``
+            (default, as the command line passes): noise-free up to the model's own
+            consistency. It sets the success test's loss bound and the standard deviations
+            of ``std`` / ``determined`` (module docstring, *Success*).
         batching: how ``jax.vmap`` batches the fit: ``"vectorized"`` (default; every
             transformation works) or ``"sequential"`` (the images of a batch are fitted one
             after another inside the compiled program -- several times faster on a CPU,
@@ -923,6 +1099,9 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     spec = solvers.get_solver(solver)
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {STRUCTURES}")
+    if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer))
+                                  and math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
     if not isinstance(grid, int) or grid < 0 or not isinstance(n_starts, int) or n_starts < 1:
         raise ValueError(f"grid must be an int >= 0 and n_starts an int >= 1; got {grid!r}, {n_starts!r}")
     normal, slope_var, geo_mask = _geometry_fields(geometry, image.shape[:2], dtype)
@@ -958,17 +1137,50 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     else:
         run = _fit_jit
     t0 = time.perf_counter()
-    light, loss, steps, success, hist = run(image, normal, slope_var, camera, weight, used, hg, init, st=st)
+    noise_arr = jnp.asarray(0.0 if noise is None else noise, dtype)
+    light, loss, steps, success, hist, determined, std, bound, glitter = run(
+        image, normal, slope_var, camera, weight, used, hg, init, noise_arr, st=st)
     if traced:
         wall = jnp.asarray(jnp.nan, dtype)
     else:
         jax.block_until_ready((light, loss))
         wall = jnp.asarray(time.perf_counter() - t0, dtype)
-    result = LightingFit(light, loss, steps, success, wall, hist)
+    result = LightingFit(light, loss, steps, success, wall, hist, determined, std, bound, glitter)
     if throw and not bool(success):
-        raise FitError(f"lighting fit did not converge (solver {solver!r}, structure {structure!r}): "
-                       f"loss {float(loss):.3e} after {int(steps)} steps", result)
+        raise FitError(failure_message(result, solver=solver, structure=structure, noise=noise), result)
     return result
+
+
+def failure_message(result: LightingFit, *, solver: str = "lm", structure: str = "varpro", noise=None) -> str:
+    """Why a (single, concrete) :class:`LightingFit` failed, in one line: the first of a
+    non-finite loss, a residual above what the noise allows, an undetermined field (the sun
+    direction without glitter in the image, or a standard deviation above the threshold), a
+    sun below the horizon, or the solver's own test. Empty for a success."""
+    if bool(result.success):
+        return ""
+    loss, bound = float(result.loss), float(result.loss_bound)
+    noise_text = "noise-free" if noise is None else f"noise={noise:g}"
+    undetermined = [n for n in FIT_FIELDS if not bool(result.determined[n])]
+    if not math.isfinite(loss):
+        return f"lighting fit failed: loss {loss} is not finite (solver {solver!r}, structure {structure!r})"
+    if loss > bound:
+        return (f"lighting fit does not explain the image: residual loss {loss:.3e} (RMS {math.sqrt(loss):.3g}) "
+                f"exceeds {bound:.3e}, what the stated noise allows ({noise_text}); a wrong local minimum, or "
+                f"pass the image's noise=")
+    if "sun_direction" in undetermined:
+        determined = [n for n in COLOR_FIELDS if n not in undetermined]
+        keep = f"; the determined colours ({', '.join(determined)}) are in the result" if determined else ""
+        if float(result.glitter) <= _SUN_SEEN:
+            return f"sun direction undetermined: no sun glitter in the image{keep}"
+        return (f"sun direction undetermined: its standard deviation {math.degrees(float(result.std['sun_direction'])):.3g}"
+                f" deg at the stated noise ({noise_text}) exceeds {DETERMINED_SUN_DEG} deg{keep}")
+    if undetermined:
+        return (f"lighting fit: {', '.join(undetermined)} undetermined (standard deviation above "
+                f"{DETERMINED_COLOR_REL:.0%} of the colour at the stated noise, {noise_text})")
+    if not float(result.lighting.sun_elevation) > 0:
+        return f"lighting fit failed: the fitted sun is below the horizon (elevation {float(result.lighting.sun_elevation):.3g} rad)"
+    return (f"lighting fit did not converge (solver {solver!r}, structure {structure!r}): loss {loss:.3e} after "
+            f"{int(result.steps)} steps")
 
 
 # --------------------------------------------------------------------------- helpers
@@ -1034,7 +1246,9 @@ def lighting_to_dict(light: Lighting) -> dict:
 
 
 def fit_to_dict(result) -> dict:
-    """A JSON-safe dict of a (single) fit result: the lighting, loss, steps, success, time."""
+    """A JSON-safe dict of a (single) fit result: the lighting, loss, steps, success, time;
+    for a :class:`LightingFit` also ``determined``, ``std`` (non-finite values as None; the
+    sun's also in degrees, ``sun_direction_deg``), ``loss_bound`` and ``glitter``."""
     out = {
         "lighting": lighting_to_dict(result.lighting),
         "loss": float(result.loss),
@@ -1047,6 +1261,17 @@ def fit_to_dict(result) -> dict:
         c = result.camera
         out["camera"] = {"height": float(c.height), "pitch": float(c.pitch), "fov": float(c.fov),
                          "pitch_deg": math.degrees(float(c.pitch)), "fov_deg": math.degrees(float(c.fov))}
+    if getattr(result, "determined", None) is not None:
+        def num(x):
+            x = float(x)
+            return x if math.isfinite(x) else None
+
+        out["determined"] = {n: bool(v) for n, v in result.determined.items()}
+        out["std"] = {n: num(v) if np.ndim(v) == 0 else [num(x) for x in np.asarray(v)] for n, v in result.std.items()}
+        sd = out["std"].get("sun_direction")
+        out["std"]["sun_direction_deg"] = None if sd is None else math.degrees(sd)
+        out["loss_bound"] = float(result.loss_bound)
+        out["glitter"] = float(result.glitter)
     return out
 
 
