@@ -23,8 +23,22 @@ Axes: (1) distance of the initial guess (sun angle d, colours off by a factor e^
 leaving the frame at high sun); (4) view angle (pitch, down to grazing) with the sun at the
 mirror elevation; (5) roughness (the slope variance scaled from mirror-like to very rough).
 
+Horizon sweep (``--horizon``, its own results): the view of issue 13 -- a 30-wave sea (steepness
+k h 0.02-0.2 per wave, omega 0.8-3 rad/s), camera 10 m high, pitch 20 deg, vertical fov 50
+deg (the horizon in the image), 48^2, float64, noise-free, the default colours -- with the
+sun in front of the camera (azimuth 0 and 0.3 rad off the view), at the frame's edge (0.6
+rad), beside it (pi/2) and behind it (pi), at elevations 0.15, 0.3, 0.45 and 0.7 rad, on
+``--seas`` sea states (random waves per seed), one random initial guess each. Per problem the
+true sun's glitter fraction (its share of the weighted image energy) puts it in one of three
+bins: *in frame* (>= 1e-3), *flank only* (1e-8 to 1e-3: only the lobe's edge is in the
+frame) and *none* (< 1e-8, the library's own "seen" threshold); *recovered* = sun within 0.01 deg and every colour within 1e-4 (the noise-free bar
+above); *false success* = reported success and not recovered. Where no glitter is in the
+frame the right outcome is a failure that says the sun direction is undetermined with the
+sky and sea colours still right (1e-4) and flagged determined.
+
 Usage: ``python experiments/stability_lighting.py [--quick]``; writes
-``experiments/results/stability_lighting.{json,png}``.
+``experiments/results/stability_lighting.{json,png}``; ``--horizon [--seas N]`` runs the
+horizon sweep alone and writes ``stability_lighting_horizon.{json,png}``.
 """
 
 from __future__ import annotations
@@ -176,6 +190,117 @@ def sweep_roughness(P, n, rows, methods):
                   f" reported {r['reported']:.2f}")
 
 
+HORIZON_AZIMUTHS = (("front", 0.0), ("front, 0.3 rad", 0.3), ("frame edge, 0.6 rad", 0.6),
+                    ("beside", math.pi / 2), ("behind", math.pi))
+HORIZON_ELEVATIONS = (0.15, 0.3, 0.45, 0.7)
+
+
+def horizon_scene(seed, n=48, n_waves=30):
+    """The issue's view (module docstring) on the sea state of ``seed``: waves, camera, geometry."""
+    from jaxocean import camera as cam
+    from jaxocean import render
+    from jaxocean.waves import GRAVITY, make_waves
+
+    rng = np.random.default_rng(seed)
+    om = np.sort(rng.uniform(0.8, 3.0, n_waves))
+    amp = rng.uniform(0.02, 0.2, n_waves) * GRAVITY / om**2
+    waves = make_waves(amp, om, rng.uniform(-1.0, 1.0, n_waves), rng.uniform(0, 2 * np.pi, n_waves),
+                       dtype=jnp.float64)
+    camera = cam.make_camera(height=10.0, pitch=math.radians(20), fov=math.radians(50), resolution=(n, n),
+                             dtype=jnp.float64)
+    return waves, camera, render.geometry(waves, camera, 0.0, plan=None)
+
+
+def _glitter_fraction(geo, camera, truth, image):
+    lf = fit.lighting_fit
+    w = lf._weights("display", None, image.shape[:2], image.dtype, image, 1.0, "bruneton", 0.9)
+    data = lf._prepare(image, geo.normal, geo.slope_variance, camera, w, 0.0)
+    b = lf._sun_term(data, shading.sun_direction(truth))[..., None] * truth.sun_color
+    return float(jnp.sum((w * b) ** 2) / jnp.sum((w * image) ** 2))
+
+
+def sweep_horizon(seas, n, rows):
+    fitter = jax.jit(jax.vmap(lambda img, init, geo, camera: fit.lighting(
+        img, geo, camera, init=init, throw=False, batching="sequential"), in_axes=(0, 0, None, None)))
+    for label, az in HORIZON_AZIMUTHS:
+        recs = []
+        t0 = time.perf_counter()
+        for sea in range(seas):
+            waves, camera, geo = horizon_scene(1000 + sea, n)
+            truths = [shading.make_lighting(sun_azimuth=az, sun_elevation=el, dtype=jnp.float64)
+                      for el in HORIZON_ELEVATIONS]
+            images = jnp.stack([lfx.shade(geo, camera, t) for t in truths])
+            keys = jax.random.split(jax.random.key(100 * sea + int(10 * az)), len(truths))
+            inits = lfx.stack([fit.random_lighting(k, dtype=jnp.float64) for k in keys])
+            res = jax.block_until_ready(fitter(images, inits, geo, camera))
+            e = lfx.errors(res.lighting, lfx.stack(truths))
+            ok = lfx.success_of(e)
+            for i, (t, img) in enumerate(zip(truths, images)):
+                recs.append(dict(
+                    sea=sea, elevation=float(t.sun_elevation), glitter=_glitter_fraction(geo, camera, t, img),
+                    recovered=bool(ok[i]), reported=bool(res.success[i]), sun_deg=float(e["sun_angle_deg"][i]),
+                    color_rel=float(max(e[c][i] for c in fit.COLOR_FIELDS)),
+                    sky_sea_rel=float(max(e["sky_color"][i], e["sea_color"][i])),
+                    determined={k: bool(v[i]) for k, v in res.determined.items()},
+                    loss=float(res.loss[i]), loss_bound=float(res.loss_bound[i]), steps=int(res.steps[i])))
+        wall = time.perf_counter() - t0
+        inside = [r for r in recs if r["glitter"] >= 1e-3]
+        flank = [r for r in recs if 1e-8 <= r["glitter"] < 1e-3]
+        outside = [r for r in recs if r["glitter"] < 1e-8]
+        row = dict(axis="sun position (horizon in view)", position=label, azimuth=az, n=len(recs),
+                   in_frame=len(inside),
+                   recovered_in_frame=float(np.mean([r["recovered"] for r in inside])) if inside else None,
+                   reported_success=float(np.mean([r["reported"] for r in recs])),
+                   false_success=int(sum(r["reported"] and not r["recovered"] for r in recs)),
+                   missed_reported_failed=int(sum((not r["reported"]) and not r["recovered"] for r in inside)),
+                   flank_only=len(flank), flank_recovered=int(sum(r["recovered"] and r["reported"] for r in flank)),
+                   flank_reported_failed=int(sum(not r["reported"] for r in flank)),
+                   out_of_frame=len(outside),
+                   undetermined_said=int(sum((not r["reported"]) and not r["determined"]["sun_direction"]
+                                             for r in outside)),
+                   sky_sea_right_out_of_frame=int(sum(r["sky_sea_rel"] < 1e-4 and r["determined"]["sky_color"]
+                                                      and r["determined"]["sea_color"] for r in outside)),
+                   wall_s_with_compile=wall, loadavg_1min=os.getloadavg()[0], problems=recs)
+        rows.append(row)
+        print(f"  {label:22s} n {row['n']:3d} in frame {row['in_frame']:3d} recovered {row['recovered_in_frame']} "
+              f"false {row['false_success']} flank {row['flank_only']} (recovered {row['flank_recovered']}, failed "
+              f"{row['flank_reported_failed']}) none {row['out_of_frame']} undetermined said {row['undetermined_said']} "
+              f"sky/sea right {row['sky_sea_right_out_of_frame']} ({wall:.0f} s)", flush=True)
+
+
+def plot_horizon(rows):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(9, 4.5))
+    x = np.arange(len(rows))
+    n = np.array([r["n"] for r in rows], float)
+    rec = np.array([(r["recovered_in_frame"] or 0.0) * r["in_frame"] for r in rows]) / n
+    miss = np.array([r["missed_reported_failed"] for r in rows]) / n
+    undet = np.array([r["undetermined_said"] for r in rows]) / n
+    flank_ok = np.array([r["flank_recovered"] for r in rows]) / n
+    flank_failed = np.array([r["flank_reported_failed"] for r in rows]) / n
+    false = np.array([r["false_success"] for r in rows]) / n
+    parts = [(rec, "C2", "glitter in frame: recovered, success"),
+             (miss, "C1", "glitter in frame: missed, reported failed"),
+             (flank_ok, "C8", "flank only: recovered, success"),
+             (flank_failed, "C7", "flank only: reported failed"),
+             (undet, "C0", "no glitter: 'sun direction undetermined'"),
+             (false, "C3", "false success")]
+    bottom = np.zeros(len(rows))
+    for v, c, label in parts:
+        ax.bar(x, v, bottom=bottom, color=c, label=label)
+        bottom = bottom + v
+    ax.set_xticks(x, [r["position"] for r in rows])
+    ax.set(ylabel="fraction of problems", ylim=(0, 1.05))
+    ax.legend(fontsize=8, loc="lower left")
+    ax.set_title("fit.lighting, horizon in view (48^2, float64, noise-free; sun < 0.01 deg and colours < 1e-4)",
+                 fontsize=9)
+    benchutil.save_figure(fig, "stability_lighting_horizon")
+
+
 def plot(rows):
     import matplotlib
 
@@ -217,7 +342,19 @@ def plot(rows):
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--horizon", action="store_true", help="run the horizon sweep alone")
+    parser.add_argument("--seas", type=int, default=4, help="sea states of the horizon sweep")
     args = parser.parse_args(argv)
+    if args.horizon:
+        rows = []
+        t0 = time.perf_counter()
+        with jax.enable_x64(True):
+            print("[sun position, horizon in view]")
+            sweep_horizon(args.seas, 48, rows)
+        benchutil.save("stability_lighting_horizon", rows, dict(seas=args.seas, resolution=48))
+        plot_horizon(rows)
+        print(f"done in {time.perf_counter() - t0:.0f} s")
+        return
     P = 6 if args.quick else 16
     n = 48 if args.quick else 64
     rows = []
