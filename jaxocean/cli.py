@@ -686,8 +686,8 @@ def cmd_fit_lighting(args):
     _write_json(args.out, report)
     print(f"-> {args.out}")
     if not report["success"]:
-        print("jaxocean: the lighting fit did not converge (or the sun's glitter is not in view); "
-              "see success/loss in the JSON", file=sys.stderr)
+        print(f"jaxocean: the lighting fit failed: {fit.lighting_fit.failure_message(result)} "
+              f"(the JSON has the fitted values and which parameters the image determines)", file=sys.stderr)
         return EXIT_PROBLEMS
     return EXIT_OK
 

@@ -76,27 +76,28 @@ def tiny_scene(tmp_path_factory):
     return root / "scene"
 
 
-def test_fit_lighting_recovers_the_sun(tiny_scene, tmp_path, capsys):
+def test_fit_lighting_says_what_the_frame_determines(tiny_scene, tmp_path, capsys):
+    # 16 x 16 pixels of a steep view hold almost no glitter: the sun is not determined (its
+    # colour comes out ~1e-4 of the truth), the sky and sea colours are. The fit says so and
+    # exits 1 instead of reporting a success
     out = tmp_path / "fit.json"
     assert cli.main(["fit-lighting", str(tiny_scene / "frame_00000.exr"), "--scene", str(tiny_scene),
-                     "--out", str(out)]) == 0
+                     "--out", str(out)]) == 1
     fit = json.loads(out.read_text())
-    assert fit["success"] is True and fit["rms_residual"] < 1e-3
-    # 16 x 16 pixels of half-float geometry hold little glitter: the sun is found to a few degrees
-    assert abs(fit["lighting"]["sun_elevation_deg"] - math.degrees(SUN_ELEVATION)) < 3.0
-    assert abs(fit["lighting"]["sun_azimuth_deg"] - math.degrees(SUN_AZIMUTH)) < 3.0
-    assert fit["lighting"]["sky_color"] == pytest.approx([0.35, 0.55, 0.9], rel=1e-2)
+    assert fit["success"] is False and fit["rms_residual"] < 1e-3
+    assert fit["determined"] == {"sea_color": True, "sky_color": True, "sun_color": False, "sun_direction": False}
+    assert fit["lighting"]["sky_color"] == pytest.approx([0.35, 0.55, 0.9], rel=1e-3)
     assert fit["camera"]["resolution"] == [16, 16]
-    text = capsys.readouterr().out
-    assert "sun elevation" in text and "vs the scene's lighting" in text
+    captured = capsys.readouterr()
+    assert "sun elevation" in captured.out and "vs the scene's lighting" in captured.out
+    assert "sun direction undetermined" in captured.err
     # the same camera given by options (same shapes: no recompilation)
     again = tmp_path / "again.json"
     assert cli.main(["fit-lighting", str(tiny_scene / "frame_00000.exr"), "--camera-height", "6",
                      "--camera-pitch-deg", repr(math.degrees(0.9)), "--camera-fov-deg", repr(math.degrees(0.8)),
-                     "--camera-yaw-deg", repr(math.degrees(0.4)), "--out", str(again)]) == 0
+                     "--camera-yaw-deg", repr(math.degrees(0.4)), "--out", str(again)]) == 1
     light, first = json.loads(again.read_text())["lighting"], fit["lighting"]
-    assert [light["sun_azimuth"], light["sun_elevation"]] == pytest.approx([first["sun_azimuth"],
-                                                                            first["sun_elevation"]], abs=1e-4)
+    assert light["sky_color"] == pytest.approx(first["sky_color"], rel=1e-6)
 
 
 # The command's default scene (60 JONSWAP waves) at 16 x 16 pixels: its sub-pixel waves make the

@@ -1,5 +1,5 @@
 """What a fit's final loss must be for its answer to explain the data, and which fitted
-parameters the data determine. Shared by the image fits (lighting; camera to follow).
+parameters the data determine. Shared by the image fits (lighting, camera).
 
 Protocol
 --------

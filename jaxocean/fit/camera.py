@@ -80,6 +80,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
 from jaxocean.errors import is_concrete
+from jaxocean.fit import _plausibility
 from jaxocean.fit import lighting as lf
 from jaxocean.fit import solvers
 from jaxocean.fit.solvers import FitError
@@ -96,8 +97,9 @@ DEFAULT_LEVELS = (4.0, 2.0, 1.0)
 #: +-15% height / +-0.04 rad pitch still recover the camera (experiments/LIGHTING.md).
 DEFAULT_COARSE_STEPS = 12
 #: success needs ``loss <= NOISE_FACTOR * noise**2 + LOSS_FLOOR * (weighted mean square image)``
-NOISE_FACTOR = 1.5
-LOSS_FLOOR = 1e-6
+#: (the rule of :mod:`jaxocean.fit._plausibility`, shared with fit.lighting)
+NOISE_FACTOR = _plausibility.NOISE_FACTOR
+LOSS_FLOOR = _plausibility.LOSS_FLOOR
 
 
 class CameraFit(NamedTuple):
@@ -237,15 +239,6 @@ def _score(fn, y, args):
     return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
 
-def _loss_bound(image, weight, noise):
-    """The largest loss a right camera can leave: ``NOISE_FACTOR * noise^2`` plus
-    ``LOSS_FLOOR`` times the weighted mean square of the image (the model's own consistency:
-    rounding, hit refinement to 1e-4 m)."""
-    w2 = weight * weight
-    energy = jnp.sum(w2 * image * image) / jnp.sum(w2)
-    return NOISE_FACTOR * noise * noise + LOSS_FLOOR * energy
-
-
 def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
     args = (image, weight, waves, t, init, hg, light)
     dtype = image.dtype
@@ -284,7 +277,7 @@ def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
     loss = 2 * out.loss
     hist = None if out.history is None else 2 * jnp.stack(hists)
     success = out.success & jnp.isfinite(loss) & (c.height > 0) & (jnp.abs(c.pitch) < jnp.pi / 2)
-    success = success & (loss <= _loss_bound(image, weight, noise))
+    success = success & (loss <= _plausibility.loss_bound(image, weight, noise))
     if st.fit_lighting:
         success = success & (light.sun_elevation > 0)
     return c, light, loss, steps, success, hist
