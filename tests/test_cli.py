@@ -188,7 +188,7 @@ def test_reedit_with_new_camera_and_sun(tiny_scene, tmp_path, capsys):
     fit = tmp_path / "fit.json"
     assert cli.main(["fit-lighting", str(out / "frame_00000.exr"), "--scene", str(out), "--out", str(fit)]) == 1
     assert json.loads(fit.read_text())["success"] is False
-    assert "did not converge" in capsys.readouterr().err
+    assert "sun direction undetermined: no sun glitter in the image" in capsys.readouterr().err
 
 
 def test_reedit_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
