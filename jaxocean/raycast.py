@@ -59,7 +59,7 @@ import numpy as np
 from jaxocean import surface
 from jaxocean.waves import Waves
 
-__all__ = ["Hits", "refine_hits", "hit_residual", "step", "DEFAULT_TOLERANCE", "MAX_ITERATIONS",
+__all__ = ["Hits", "refine_hits", "hit_residual", "hit_reach", "step", "DEFAULT_TOLERANCE", "MAX_ITERATIONS",
            "MIN_CONDITION"]
 
 DEFAULT_TOLERANCE = 1e-4  # m: a point has converged when its fixed-point step is this small
@@ -93,6 +93,17 @@ def hit_residual(waves: Waves, origin, direction, xy, t, weights=None):
     """Horizontal distance [m] between the surface point p(xy, t) and its pixel ray, taken at
     the point's own height: zero when ``xy`` is a hit."""
     return jnp.linalg.norm(step(waves, origin, direction, xy, t, weights) - xy, axis=-1)
+
+
+def hit_reach(waves: Waves, direction, weights=None):
+    """Radius [m] of the disc around a ray's plane hit in which every hit of the ray lies:
+    ``sum(h w) (1 + cot(incidence))`` -- the surface point is within ``sum(h w)`` of the mean
+    plane vertically and of its rest position horizontally. ``direction (..., 3)`` unit rays
+    going down; ``weights`` the displacement weights, ``(..., N)`` or ``(N,)`` (None: all 1)."""
+    amplitude = jnp.abs(waves.amplitude) if weights is None else jnp.abs(waves.amplitude) * weights
+    down = jnp.maximum(-direction[..., 2], jnp.finfo(direction.dtype).tiny)
+    cot = jnp.linalg.norm(direction[..., :2], axis=-1) / down
+    return jnp.sum(amplitude, axis=-1) * (1.0 + cot)
 
 
 def _step_jacobian(waves, origin, direction, xy, t, weights):
@@ -157,11 +168,7 @@ def _iterate(waves, origin, direction, xy0, t, weights, active, max_iterations, 
         strayed = strayed | (~done & ~use_newton)
         return jnp.where(done[..., None], xy, new), done | small, strayed, k + 1
 
-    # every hit lies within sum(h w) (1 + cot(incidence)) of the plane hit: the surface point
-    # is within sum(h w) of it vertically and horizontally (w the displacement weights)
-    amplitude = jnp.abs(waves.amplitude) if weights is None else jnp.abs(waves.amplitude) * weights
-    cot = jnp.linalg.norm(direction[..., :2], axis=-1) / jnp.maximum(-direction[..., 2], jnp.finfo(xy0.dtype).tiny)
-    reach = jnp.sum(amplitude, axis=-1) * (1.0 + cot) + tolerance
+    reach = hit_reach(waves, direction, weights) + tolerance
     start = (xy0, ~active, jnp.zeros(active.shape, bool), jnp.zeros((), jnp.int32))
     xy, done, strayed, k = jax.lax.while_loop(cond, body, start)
     _, jx, jy = _step_jacobian(waves, origin, direction, xy, t, weights)

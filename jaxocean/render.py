@@ -155,9 +155,7 @@ def _needs_refinement(waves, hit, grid_cell, *, n_min, n_max):
     fp_min = jnp.min(jnp.where(mask, hit.footprint, jnp.inf))
     fp_min = jnp.where(jnp.isfinite(fp_min), fp_min, 1.0)  # no sea pixel: nothing to refine
     w_disp = hierarchy.weights(waves, fp_min[None], n_min=n_min, n_max=n_max, grid_cell=grid_cell).displacement[0]
-    down = jnp.maximum(-hit.direction[..., 2], 1e-6)
-    cot = jnp.linalg.norm(hit.direction[..., :2], axis=-1) / down
-    shift = jnp.sum(waves.amplitude * w_disp) * (1.0 + cot)  # plane-hit error bound [m]
+    shift = raycast.hit_reach(waves, hit.direction, w_disp)  # plane-hit error bound [m]
     return jnp.any(mask & (shift >= 0.5 * hit.footprint))
 
 
@@ -188,16 +186,14 @@ def _geometry_at(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, refi
     """The body of :func:`geometry` given the camera's sea hits (shared with :func:`_shade_at`
     inside :func:`render`'s single compiled function). ``refine``: 0 (rows path), a positive
     iteration cap (hits path) or ``"auto"`` (the choice of :func:`needs_refinement`, made
-    here). ``positions=False`` (the renderer, which shades normals only): on the rows path
-    the three displacement sums are not computed (5 of the product's 8 channels) and
-    ``position`` is None."""
+    here). ``positions=False`` (the renderer, which shades normals only): the displacement is
+    not computed (on the rows path 5 of the product's 8 channels; on the hits path the
+    per-pixel displacement at the hit) and ``position`` is None."""
     kw = dict(n_min=n_min, n_max=n_max, active=active, positions=positions)
     if refine == "auto":
         needed = _needs_refinement(waves, hit, grid_cell, n_min=n_min, n_max=n_max)
         rows = functools.partial(_rows_geometry, **kw)
         hits = functools.partial(_hits_geometry, refine=MAX_REFINE_ITERATIONS, **kw)
-        if not positions:  # the branches must return one structure: drop the hits path's positions
-            hits = (lambda f: lambda *a: f(*a)._replace(position=None))(hits)
         return jax.lax.cond(needed, hits, rows, waves, camera, t, grid_cell, hit)
     if refine == 0:
         return _rows_geometry(waves, camera, t, grid_cell, hit, **kw)
@@ -222,14 +218,13 @@ def _rows_geometry(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, po
 
 def _hits_geometry(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, positions, refine):
     """Hits path: each pixel's converged hit on the displaced surface, geometry per pixel."""
-    del positions  # the per-pixel displacement is computed for the hits anyway
     evaluated = waves if active is None else _select(waves, active)
     ws_all = hierarchy.weights(waves, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
     ws = hierarchy.weights(evaluated, hit.footprint, n_min=n_min, n_max=n_max, grid_cell=grid_cell)
     origin, direction = _sea_rays(camera, hit)
     hits = refine_hits(evaluated, origin, direction, hit.xy, t, ws.displacement, active=hit.mask,
                        max_iterations=refine)
-    disp = surface.displacement(evaluated, hits.xy, t, ws)
+    disp = surface.displacement(evaluated, hits.xy, t, ws) if positions else None
     normal = surface.normal(evaluated, hits.xy, t, ws)
     sx2, sy2 = surface.slope_variance(waves, ws_all)
     return _assemble(hit, hits.xy, disp, normal, jnp.stack([sx2, sy2], -1), hits.converged)
