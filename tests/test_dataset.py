@@ -145,3 +145,15 @@ def test_dataset_json_records_settings(clean):
     root, _ = clean
     settings = json.loads((root / "dataset.json").read_text())
     assert settings["resolution"] == [12, 16] and settings["ranges"]["n_waves"] == 8
+
+
+def test_frames_brighter_than_half_floats_are_stored_exactly(tmp_path):
+    # a sun this bright puts glitter beyond 65504: the frame keeps float32 RGB instead of failing
+    ranges = dataset.SceneRanges(sun_scale=(20000.0, 20001.0), sun_azimuth=(0.0, 0.01), sun_elevation=(0.55, 0.6),
+                                 pitch=(0.55, 0.6))
+    dataset.simulate(tmp_path, 1, 1, (24, 24), seed=1, ranges=ranges, progress=False)
+    scene = dataset.sample_scene(jax.random.fold_in(jax.random.key(1), 0), ranges, (24, 24), 1)
+    images, _ = dataset.render_scene(scene)
+    assert float(np.abs(images).max()) > 65504.0
+    frame = dataset.Dataset(tmp_path).frame(0, 0)
+    np.testing.assert_array_equal(frame.image, np.asarray(images[0], np.float32))

@@ -7,7 +7,8 @@ A dataset is a directory::
     dataset.json                 generation settings (seed, counts, resolution, ranges, version)
     scene_00000/scene.json       waves, spectrum, camera, lighting, frame times, seed
     scene_00000/frame_00000.exr  R G B + normal.X/Y/Z, roughness, slope_variance.X/Y, mask
-                                 (see jaxocean.io.exr)
+                                 (see jaxocean.io.exr); R G B in half floats unless the
+                                 frame's radiance exceeds their range (then float32)
     ...
     splits.json                  {"train": [...], "val": [...], "test": [...]} scene indices
     manifest.json                every file with its size and SHA-256
@@ -55,7 +56,7 @@ from jaxocean import render, shading, spectrum
 from jaxocean.errors import InvalidValueError
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, atomic_write, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
-from jaxocean.io.sequence import frame_name
+from jaxocean.io.sequence import HALF_MAX, frame_name
 
 __all__ = [
     "SceneRanges",
@@ -281,8 +282,11 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
     for f in range(images.shape[0]):
         frame_geo = {"normal": geo.normal[f], "roughness": geo.roughness[f], "mask": geo.mask[f],
                      "slope_variance": geo.slope_variance[f]}
+        # a frame whose glitter exceeds the half-float range keeps its RGB in float32
+        # (exact values, same reader) rather than failing the dataset
+        frame_half = half and bool(np.abs(images[f]).max() < HALF_MAX)
         write_frame(directory / frame_name(f), images[f], frame_geo,
-                    {"scene": index, "frame": f, "time": float(scene.times[f])}, half=half)
+                    {"scene": index, "frame": f, "time": float(scene.times[f])}, half=frame_half)
     write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
                                          spectrum=scene.spectrum, times=scene.times, seed=seed,
                                          extra={"scene_index": index}))
