@@ -478,9 +478,7 @@ def section_precision(args, out):
     problems, the colours solved (NNLS, in float32) at the *exact* true sun direction -- the
     best any solver can return in float32 -- against the default fit's colours and its
     ``success`` flag."""
-    import importlib
-
-    lfm = importlib.import_module("jaxocean.fit.lighting")
+    from jaxocean.fit import _photometry as ph
     n_prob = 16 if args.quick else 100
     n = 64 if args.quick else 128
     print(f"[precision] float32 colour floor on {n_prob} problems at {n}^2")
@@ -492,10 +490,10 @@ def section_precision(args, out):
     def oracle(img, truth, geo, camera):  # float32 NNLS colours at the true sun direction
         weight = fit.tonemap_weights(img)
         weight = jnp.where(shading.tonemap(img) > 0.9, 0.0, weight)
-        data = lfm._prepare(img, geo.normal, geo.slope_variance, camera, weight, jnp.zeros((), img.dtype))
+        data = ph.prepare(img, geo.normal, geo.slope_variance, camera, weight, jnp.zeros((), img.dtype))
         d = shading.sun_direction(truth)
         fixed = {k: getattr(truth, k) for k in fit.COLOR_FIELDS}
-        return lfm._project_colors(data, d, fixed, fit.COLOR_FIELDS)
+        return ph.project_colors(data, d, fixed, fit.COLOR_FIELDS)
 
     orc = jax.jit(jax.vmap(oracle, in_axes=(0, 0, None, None)))
     rows = []

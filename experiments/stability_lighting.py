@@ -212,10 +212,12 @@ def horizon_scene(seed, n=48, n_waves=30):
 
 
 def _glitter_fraction(geo, camera, truth, image):
-    lf = fit.lighting_fit
-    w = lf._weights("display", None, image.shape[:2], image.dtype, image, 1.0, "bruneton", 0.9)
-    data = lf._prepare(image, geo.normal, geo.slope_variance, camera, w, 0.0)
-    b = lf._sun_term(data, shading.sun_direction(truth))[..., None] * truth.sun_color
+    from jaxocean.fit import _image_inputs as inp
+    from jaxocean.fit import _photometry as ph
+
+    w = inp.pixel_weights("display", None, image.shape[:2], image.dtype, image, 1.0, "bruneton", 0.9)
+    data = ph.prepare(image, geo.normal, geo.slope_variance, camera, w, 0.0)
+    b = ph.sun_term(data, shading.sun_direction(truth))[..., None] * truth.sun_color
     return float(jnp.sum((w * b) ** 2) / jnp.sum((w * image) ** 2))
 
 

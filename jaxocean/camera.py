@@ -75,6 +75,7 @@ __all__ = [
     "make_camera",
     "make_orthographic",
     "validate_camera",
+    "camera_to_dict",
     "camera_frame",
     "camera_position",
     "pixel_angle",
@@ -222,6 +223,25 @@ def _float_dtype(*values):
     """The floating dtype the camera computes in: the inputs' own, promoted to float if needed."""
     dtype = jnp.result_type(*values)
     return dtype if jnp.issubdtype(dtype, jnp.inexact) else jnp.result_type(float)
+
+
+def camera_to_dict(camera: Camera, *, degrees: bool = False) -> dict:
+    """A JSON-ready dict of a camera: every leaf (``height``, ``pitch``, ``yaw``, ``fov``,
+    ``x``, ``y``, ``ortho_width``) as a float, or nested lists of floats for a batched camera
+    (float64 values, exact), plus ``resolution`` ``[H, W]`` and ``projection``. The leaves are
+    what ``scene.json`` stores (:mod:`jaxocean.io.scene` reads them back).
+
+    ``degrees=True`` adds ``pitch_deg``, ``yaw_deg`` and ``fov_deg`` for a person reading a
+    report (the radians stay the values a reader uses). Host-side: the leaves must be concrete.
+    """
+    out = {f.name: np.asarray(getattr(camera, f.name), np.float64).tolist()
+           for f in dataclasses.fields(Camera) if not f.metadata.get("static")}
+    out["resolution"] = list(camera.resolution)
+    out["projection"] = camera.projection
+    if degrees:
+        for name in ("pitch", "yaw", "fov"):
+            out[f"{name}_deg"] = np.degrees(np.asarray(out[name], np.float64)).tolist()
+    return out
 
 
 # --------------------------------------------------------------------------- validation

@@ -15,7 +15,7 @@ Exit codes: 0 success, 1 a check found problems or a fit did not converge (its J
 still written, with ``success: false``), 2 bad input (the message names it), 130
 interrupted (the message says what was kept; only ``simulate`` resumes). Errors print
 ``jaxocean: error: ...`` on stderr, not a traceback. Every file is written atomically
-(:func:`jaxocean.io.atomic_write`).
+(:func:`jaxocean.files.atomic_write`).
 
 Bad input refused before any work: a resolution and frame count whose render would not fit
 in memory (estimated from ``H x W x frames``, compared with the available memory), counts
@@ -55,6 +55,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from jaxocean.files import json_safe, write_json
 
 __all__ = ["main", "build_parser"]
 
@@ -419,26 +421,6 @@ def _scene_from_file(path):
     return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
 
 
-def _json_safe(data):
-    """``data`` with every non-finite float replaced by None (strict JSON has no NaN / inf):
-    a failed fit's NaN parameters are written as null."""
-    if isinstance(data, dict):
-        return {key: _json_safe(value) for key, value in data.items()}
-    if isinstance(data, (list, tuple)):
-        return [_json_safe(value) for value in data]
-    if isinstance(data, float) and not math.isfinite(data):
-        return None
-    return data
-
-
-def _write_json(path, data) -> Path:
-    """``data`` as indented strict JSON (non-finite numbers as null), written atomically."""
-    from jaxocean.io import atomic_write
-
-    text = json.dumps(_json_safe(data), indent=1, allow_nan=False) + "\n"
-    return atomic_write(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
-
-
 def _read_json(path, what: str) -> dict:
     path = Path(path)
     if not path.is_file():
@@ -509,18 +491,6 @@ def _check_frames(frames, n: int, where: str):
     if bad:
         raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")
     return list(frames)
-
-
-def _camera_dict(camera) -> dict:
-    return {"height": float(camera.height), "pitch": float(camera.pitch), "fov": float(camera.fov),
-            "yaw": float(camera.yaw), "pitch_deg": math.degrees(float(camera.pitch)),
-            "fov_deg": math.degrees(float(camera.fov)), "yaw_deg": math.degrees(float(camera.yaw)),
-            "resolution": list(camera.resolution)}
-
-
-def _finite_list(values):
-    """Floats, None where not finite (strict JSON has no NaN)."""
-    return [float(v) if math.isfinite(float(v)) else None for v in np.ravel(np.asarray(values, np.float64))]
 
 
 def _rgb(values) -> str:
@@ -622,7 +592,7 @@ def cmd_demo(args):
                                                              str(out / "animation.gif"), "contact_sheet": str(sheet)}}
     print(f"rendered in {render_s:.2f} s (compile included)\n  frames:        {render_dir}/frame_*.exr|png\n"
           f"  animation:     {out / 'animation.gif'}\n  contact sheet: {sheet}")
-    _write_json(out / "summary.json", summary)  # what is done is kept if a later stage fails
+    write_json(out / "summary.json", summary)  # what is done is kept if a later stage fails
     from jaxocean import demo
 
     if "lighting" in stages:
@@ -632,7 +602,7 @@ def cmd_demo(args):
         print(f"  {'converged' if r['success'] else 'FAILED'} in {r['steps']} steps "
               f"({r['wall_s_with_compile']:.1f} s with compile): sun {r['sun_error_deg']:.2e} deg off, "
               f"max display error {r['max_display_error']:.1e}\n  figure:        {r['figure']}")
-        _write_json(out / "summary.json", summary)
+        write_json(out / "summary.json", summary)
     if "waves" in stages:
         print("waves: fit a 4-wave swell from 8 frames of its geometry, then forecast frames 0, 100, 500 ...",
               flush=True)
@@ -644,12 +614,13 @@ def cmd_demo(args):
               + ", ".join(f"frame {f}: {e:.3f} deg" for f, e in zip(r["forecast_frames"],
                                                                       r["forecast_normal_error_deg"]))
               + "\n  figures:       " + ", ".join(r["figures"]))
-        _write_json(out / "summary.json", summary)
+        write_json(out / "summary.json", summary)
     return EXIT_OK
 
 
 def cmd_fit_lighting(args):
     from jaxocean import fit
+    from jaxocean.camera import camera_to_dict
     from jaxocean.io import read_frame, read_scene
 
     _check_out_file(args.out)
@@ -670,7 +641,7 @@ def cmd_fit_lighting(args):
     print(f"fitting the lighting of {args.frame} ({frame.image.shape[0]}x{frame.image.shape[1]}; "
           f"compilation included)")
     result = fit.lighting(frame.image, frame, camera, throw=False)
-    report = {**fit.fit_to_dict(result), "frame": str(args.frame), "camera": _camera_dict(camera)}
+    report = {**fit.fit_to_dict(result), "frame": str(args.frame), "camera": camera_to_dict(camera, degrees=True)}
     light = report["lighting"]
     print(f"  sun azimuth   {light['sun_azimuth_deg']:8.3f} deg\n"
           f"  sun elevation {light['sun_elevation_deg']:8.3f} deg\n"
@@ -683,7 +654,7 @@ def cmd_fit_lighting(args):
         print(f"  vs the scene's lighting: sun direction off by {float(err['sun_angle_deg']):.3g} deg; largest "
               f"relative colour errors sun {float(err['sun_color']):.2g}, sky {float(err['sky_color']):.2g}, "
               f"sea {float(err['sea_color']):.2g}")
-    _write_json(args.out, report)
+    write_json(args.out, report)
     print(f"-> {args.out}")
     if not report["success"]:
         print(f"jaxocean: the lighting fit failed: {fit.lighting_fit.failure_message(result)} "
@@ -788,11 +759,11 @@ def cmd_fit_waves(args):
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite
     report = {"source": str(scene_dir), "frames": frames, "n_waves": int(result.n_waves),
-              "loss": _finite_list(result.loss)[0],
-              "normal_error_deg": _finite_list(np.degrees(result.normal_error))[0],
-              "roughness_error": _finite_list(result.roughness_error)[0], "steps": int(result.steps),
-              "success": success, "time_s": _finite_list(result.time_s)[0],
-              "uncertainty": {name: _finite_list(leaf) for name, leaf in zip(w._fields, result.uncertainty)}}
+              "loss": json_safe(float(result.loss)),
+              "normal_error_deg": json_safe(math.degrees(float(result.normal_error))),
+              "roughness_error": json_safe(float(result.roughness_error)), "steps": int(result.steps),
+              "success": success, "time_s": json_safe(float(result.time_s)),
+              "uncertainty": {name: json_safe(np.ravel(leaf)) for name, leaf in zip(w._fields, result.uncertainty)}}
     print(f"  {report['n_waves']} wave(s); loss {float(result.loss):.3e}, mean normal error "
           f"{float(np.degrees(result.normal_error)):.3g} deg, roughness error {float(result.roughness_error):.3g}; "
           f"{report['steps']} step(s), {float(result.time_s):.1f} s; success: {success}")
@@ -807,7 +778,7 @@ def cmd_fit_waves(args):
               f"{len(m['spurious'])} spurious" + (f"; largest errors |dh| {worst['amplitude']:.3g} m, |domega| "
                                                    f"{worst['omega']:.3g} rad/s, |dtheta| {worst['theta_deg']:.3g} "
                                                    f"deg, |dphi| {worst['phase_deg']:.3g} deg" if worst else ""))
-    _write_json(args.out, scene_to_dict(waves=w if finite else None, camera=scene.camera, lighting=scene.lighting,
+    write_json(args.out, scene_to_dict(waves=w if finite else None, camera=scene.camera, lighting=scene.lighting,
                                         times=all_times, extra={"wave_fit": report}))
     print(f"-> {args.out}")
     if not success:

@@ -51,7 +51,7 @@ def lighting_stage(out: Path, scene, image, geometry, *, seed: int = 5) -> dict:
     views = [(label, fit.reedit(scene.waves, scene.camera, result.lighting, t, **kw)) for label, kw in edits]
     truth, fitted = fit.lighting_to_dict(scene.lighting), fit.lighting_to_dict(result.lighting)
     sun_error = float(fit.lighting_error(result.lighting, scene.lighting)["sun_angle_deg"])
-    row_fit = [plots.display(image), plots.display(model), _error_rgb(error)]
+    row_fit = [plots.display(image), plots.display(model), plots.log_to_rgb(error, vmin=1e-6, vmax=1e-1)]
     edit_titles = ", ".join(e for e, _ in edits)
     row_edit = [plots.display(v) for _, v in views]
     path = plots.contact_sheet(out / "lighting_fit.png", [row_fit, row_edit],
@@ -63,15 +63,6 @@ def lighting_stage(out: Path, scene, image, geometry, *, seed: int = 5) -> dict:
     return dict(success=bool(result.success), steps=int(result.steps), loss=float(result.loss),
                 wall_s_with_compile=wall, sun_error_deg=sun_error, max_display_error=float(error.max()),
                 fitted=fitted, truth=truth, figure=str(path))
-
-
-def _error_rgb(error, lo=1e-6, hi=1e-1):
-    """A log-scaled colour map of a per-pixel error (magma: black at ``lo``, white at ``hi``)."""
-    import matplotlib
-
-    e = np.log10(np.clip(np.asarray(error, np.float64), lo, hi))
-    t = (e - math.log10(lo)) / (math.log10(hi) - math.log10(lo))
-    return (matplotlib.colormaps["magma"](t)[..., :3] * 255 + 0.5).astype(np.uint8)
 
 
 def _swell(n_waves: int, seed: int):
@@ -148,9 +139,4 @@ def _wave_chart(path: Path, truth, fitted) -> Path:
     ax.legend(fontsize=8)
     ax.set_title("recovered waves against the truth", fontsize=9)
     fig.tight_layout()
-    path = Path(path)
-    from jaxocean.io import atomic_write
-
-    atomic_write(path, lambda temporary: fig.savefig(temporary, dpi=110, format="png"))
-    plt.close(fig)
-    return path
+    return plots.save_figure(fig, path, dpi=110)

@@ -35,7 +35,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
-from jaxocean._math import safe_sqrt
+from jaxocean._math import angle_between
 from jaxocean.errors import check_values, is_concrete
 from jaxocean.waves import Waves, validate
 
@@ -145,9 +145,7 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
             if m is not None:
                 mask = mask & m
     mask = jnp.broadcast_to(jnp.asarray(mask, bool), pn.shape[:-1]).astype(pn.dtype)
-    cos = jnp.clip(jnp.sum(pn * tn, -1), -1.0, 1.0)
-    cross = jnp.cross(pn, tn)
-    angle = jnp.arctan2(safe_sqrt(jnp.sum(cross * cross, -1)), cos)
+    angle = angle_between(pn, tn)
     count = jnp.maximum(jnp.sum(mask, axis=(-2, -1)), 1.0)
     normal = jnp.sum(angle * mask, axis=(-2, -1)) / count
     rough = jnp.sum(jnp.abs(pr - tr) * mask, axis=(-2, -1)) / count

@@ -23,7 +23,7 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 
-from jaxocean._math import smoothstep
+from jaxocean._roughness import normal_weight
 from jaxocean.errors import check_values
 from jaxocean.waves import Waves, wavelength
 
@@ -41,11 +41,6 @@ class WaveWeights(NamedTuple):
     roughness: jnp.ndarray
 
 
-def _filter(lam, scale, n_min, n_max):
-    # lambda / scale in "footprints per wavelength"; broadcast (..., 1) against (N,)
-    return smoothstep(n_min, n_max, lam / jnp.asarray(scale)[..., None])
-
-
 def weights(waves: Waves, footprint, *, n_min: float = DEFAULT_N_MIN, n_max: float = DEFAULT_N_MAX,
             grid_cell=None) -> WaveWeights:
     """Per-wave displacement / normal / roughness weights for pixels of size ``footprint``."""
@@ -53,10 +48,10 @@ def weights(waves: Waves, footprint, *, n_min: float = DEFAULT_N_MIN, n_max: flo
         raise ValueError(f"need n_max > n_min; got n_min={n_min}, n_max={n_max}")
     check_values(jnp.asarray(footprint) > 0, "footprint must be > 0 m", footprint)
     lam = wavelength(waves)
-    w_normal = _filter(lam, footprint, n_min, n_max)
+    w_normal = normal_weight(lam, footprint, n_min, n_max)
     cell = footprint if grid_cell is None else grid_cell
     w_disp = w_normal if grid_cell is None else jnp.broadcast_to(
-        _filter(lam, cell, n_min, n_max), jnp.broadcast_shapes(jnp.shape(cell), jnp.shape(footprint)) + lam.shape)
+        normal_weight(lam, cell, n_min, n_max), jnp.broadcast_shapes(jnp.shape(cell), jnp.shape(footprint)) + lam.shape)
     return WaveWeights(displacement=w_disp, normal=w_normal, roughness=1.0 - w_normal)
 
 

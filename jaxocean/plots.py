@@ -4,9 +4,16 @@ Protocol: functions take linear images / geometry as arrays (numpy or jax) and w
 files atomically; nothing here is differentiable or used inside a model.
 
 * ``normal_to_rgb(normal (H,W,3)) -> uint8 (H,W,3)``: the usual (n + 1) / 2 encoding.
-* ``roughness_to_rgb(roughness (H,W), vmax=None) -> uint8 (H,W,3)``: log10 colour map.
+* ``roughness_to_rgb(roughness (H,W), mask=None, vmin=1e-5, vmax=1e-1) -> uint8 (H,W,3)``:
+  :func:`log_to_rgb` with the range of sea roughness.
+* ``log_to_rgb(values (H,W), mask=None, vmin, vmax) -> uint8 (H,W,3)``: a log10 colour map
+  (magma: black at ``vmin``, white at ``vmax``) of any positive per-pixel quantity (an
+  error map, say).
+* ``display(linear_image, exposure=1.0, mode="bruneton") -> uint8 (H,W,3)``: tone-mapped.
 * ``contact_sheet(path, rows, col_titles=None, row_titles=None, title=None)``: a grid of
   images (each uint8 or float in [0, 1]) saved as one PNG.
+* ``save_figure(fig, path, dpi=100) -> Path``: a matplotlib figure as PNG, atomically, then
+  closed.
 """
 
 from __future__ import annotations
@@ -15,7 +22,9 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["normal_to_rgb", "roughness_to_rgb", "display", "contact_sheet"]
+from jaxocean.files import atomic_write
+
+__all__ = ["normal_to_rgb", "roughness_to_rgb", "log_to_rgb", "display", "contact_sheet", "save_figure"]
 
 
 def normal_to_rgb(normal, mask=None):
@@ -27,9 +36,16 @@ def normal_to_rgb(normal, mask=None):
 
 
 def roughness_to_rgb(roughness, mask=None, vmin=1e-5, vmax=1e-1):
+    """Roughness sigma^2 on a log10 colour map from ``vmin`` to ``vmax`` (sky black)."""
+    return log_to_rgb(roughness, mask, vmin, vmax)
+
+
+def log_to_rgb(values, mask=None, vmin=1e-6, vmax=1e-1):
+    """Positive values on a log10 magma colour map: black at ``vmin`` (and below), white at
+    ``vmax`` (and above); pixels outside ``mask`` black."""
     import matplotlib
 
-    r = np.log10(np.clip(np.asarray(roughness, np.float64), vmin, vmax))
+    r = np.log10(np.clip(np.asarray(values, np.float64), vmin, vmax))
     s = (r - np.log10(vmin)) / (np.log10(vmax) - np.log10(vmin))
     rgb = matplotlib.colormaps["magma"](s)[..., :3]
     if mask is not None:
@@ -68,9 +84,14 @@ def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    from jaxocean.io.exr import atomic_write
+    return save_figure(fig, path)
+
+
+def save_figure(fig, path, dpi: int = 100) -> Path:
+    """Save a matplotlib figure as PNG atomically, close it, return the path."""
+    import matplotlib.pyplot as plt
 
     try:
-        return atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+        return atomic_write(Path(path), lambda tmp: fig.savefig(tmp, dpi=dpi, format="png"))
     finally:
         plt.close(fig)

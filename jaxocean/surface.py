@@ -36,7 +36,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxocean._math import inv_sqrt, materialize, safe_normalize, safe_sqrt, sincos, tiny
+from jaxocean._math import inv_sqrt, materialize, safe_normalize, sincos, tiny
+from jaxocean._roughness import wave_slope_variance
 from jaxocean.hierarchy import WaveWeights
 from jaxocean.waves import Waves, validate, wavenumber
 
@@ -151,8 +152,7 @@ def slope_variance(waves: Waves, weights=None):
     Not clamped: the renderer applies the minimum roughness.
     """
     _check(waves)
-    kh2 = (waves.amplitude * wavenumber(waves)) ** 2
-    per_wave = kh2 / (1.0 + safe_sqrt(1.0 - kh2))
+    per_wave = wave_slope_variance((waves.amplitude * wavenumber(waves)) ** 2)
     w = _level(weights, "roughness")
     if w is not None:
         per_wave = per_wave * w

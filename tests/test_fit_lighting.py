@@ -18,9 +18,8 @@ from hypothesis import strategies as st
 from jaxocean import camera as cam
 from jaxocean import fit, render, shading
 from jaxocean.errors import InvalidValueError
+from jaxocean.fit import _photometry as ph
 from jaxocean.waves import GRAVITY, make_waves
-
-lf = fit.lighting_fit  # the module (fit.lighting is the function)
 
 
 def _sea(n=16, seed=0, scale=1.0):
@@ -107,20 +106,20 @@ def test_pq_direction_is_smooth_at_the_zenith(x64):
 
 def test_precomputed_sun_term_equals_the_shader(scene, x64):
     geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
-    data = lf._prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
+    data = ph.prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
                        jnp.ones((16, 16, 3)), 0.0)
     for el in (-0.01, 0.001, 0.2, 1.3):
         light = shading.sun_direction(shading.make_lighting(sun_azimuth=0.1, sun_elevation=el))
         ref = jnp.where(data.sea, shading.sun_radiance_factor(data.normal, data.sx2, data.sy2, data.view, light), 0)
-        np.testing.assert_allclose(lf._sun_term(data, light), ref, rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(ph.sun_term(data, light), ref, rtol=1e-12, atol=1e-300)
 
 
 def test_model_columns_reproduce_the_renderer(scene, x64):
     geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
     truth = scene["truths"][0]
-    data = lf._prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
+    data = ph.prepare(jnp.asarray(scene["images"][0]), geo.normal, geo.slope_variance, camera,
                        jnp.ones((16, 16, 3)), 0.0)
-    model = lf._model(data, shading.sun_direction(truth), {n: getattr(truth, n) for n in fit.COLOR_FIELDS})
+    model = ph.model(data, shading.sun_direction(truth), {n: getattr(truth, n) for n in fit.COLOR_FIELDS})
     np.testing.assert_allclose(model, scene["images"][0], rtol=1e-12)
 
 
@@ -325,9 +324,9 @@ def test_gradient_through_a_fit_matches_finite_differences(scene, singles, x64):
     image = jnp.asarray(scene["images"][0])
     init = singles["inits"][0]
     # a glitter-shaped perturbation of the image, off the true sun: it moves the fitted sun
-    data = lf._prepare(image, geo.normal, geo.slope_variance, camera, jnp.ones_like(image), 0.0)
+    data = ph.prepare(image, geo.normal, geo.slope_variance, camera, jnp.ones_like(image), 0.0)
     off = shading.sun_direction(truth._replace(sun_azimuth=truth.sun_azimuth + 0.02))
-    pattern = lf._sun_term(data, off)[..., None] * truth.sun_color
+    pattern = ph.sun_term(data, off)[..., None] * truth.sun_color
 
     def params(s):
         light = fit.lighting(image + s * pattern, geo, camera, init=init, throw=False).lighting

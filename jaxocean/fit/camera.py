@@ -81,7 +81,8 @@ from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
 from jaxocean.errors import is_concrete
 from jaxocean.fit import _plausibility
-from jaxocean.fit import lighting as lf
+from jaxocean.fit import _image_inputs as inp
+from jaxocean.fit import _photometry as ph
 from jaxocean.fit import solvers
 from jaxocean.fit.solvers import FitError
 from jaxocean.shading import Lighting
@@ -166,23 +167,23 @@ def _data(y, args, fit, plan, scale=1.0):
                           n_max=scale * hierarchy.DEFAULT_N_MAX)
     # pixels whose ray-surface hit is not unique (grazing rays) have no exact model: left out
     usable = geo.converged.reshape(geo.converged.shape + (1,) * (jnp.ndim(weight) - 2))
-    return lf._prepare(image, geo.normal, geo.slope_variance, c, jnp.where(usable, weight, 0.0), hg)
+    return ph.prepare(image, geo.normal, geo.slope_variance, c, jnp.where(usable, weight, 0.0), hg)
 
 
 def _sun_and_colors(y, data, light, fit, fit_lighting):
     """Sun direction and colours of parameters ``y``: with ``fit_lighting`` the sun's ``(p, q)``
     after the camera fields and the colours projected at ``data``, else the known ``light``'s."""
-    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
+    fixed = {n: getattr(light, n) for n in ph.COLOR_FIELDS}
     if not fit_lighting:
         return shading.sun_direction(light), fixed
-    direction = lf.pq_to_direction(y[len(fit):])
-    return direction, lf._project_colors(data, direction, fixed, lf.COLOR_FIELDS)
+    direction = ph.pq_to_direction(y[len(fit):])
+    return direction, ph.project_colors(data, direction, fixed, ph.COLOR_FIELDS)
 
 
 def _residual(y, args, fit, fit_lighting, plan, scale):
     data = _data(y, args, fit, plan, scale)
     direction, colors = _sun_and_colors(y, data, args[6], fit, fit_lighting)
-    return lf._residual_from_model(data, lf._model(data, direction, colors))
+    return ph.residual_from_model(data, ph.model(data, direction, colors))
 
 
 @functools.lru_cache(maxsize=None)
@@ -219,9 +220,9 @@ def _sun_start(y_cam, args, st: _Static):
     (the coarsest level's)."""
     data = _data(y_cam, args, st.fit, st.plans[0], st.levels[0])
     light = args[6]
-    fixed = {n: getattr(light, n) for n in lf.COLOR_FIELDS}
-    init_pq = lf.sun_to_pq(light.sun_azimuth, light.sun_elevation).astype(data.target.dtype)
-    return lf._starts(data, init_pq, fixed, lf.COLOR_FIELDS, grid=st.grid, n_starts=1)[0]
+    fixed = {n: getattr(light, n) for n in ph.COLOR_FIELDS}
+    init_pq = ph.sun_to_pq(light.sun_azimuth, light.sun_elevation).astype(data.target.dtype)
+    return ph.starts(data, init_pq, fixed, ph.COLOR_FIELDS, grid=st.grid, n_starts=1)[0]
 
 
 def _lighting_at(y, args, st: _Static, level: int):
@@ -230,7 +231,7 @@ def _lighting_at(y, args, st: _Static, level: int):
     if not st.fit_lighting:
         return args[6]
     data = _data(y, args, st.fit, st.plans[level], st.levels[level])
-    return lf._finish(data, y[len(st.fit):], _sun_and_colors(y, data, args[6], st.fit, True)[1])
+    return ph.finish(data, y[len(st.fit):], _sun_and_colors(y, data, args[6], st.fit, True)[1])
 
 
 def _score(fn, y, args):
@@ -264,7 +265,7 @@ def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
             return solvers.solve(st.solver, fn, y0, args, max_steps=limit, rtol=st.rtol, atol=st.atol,
                                  history=st.history, options=dict(st.options))
 
-        outs = jax.lax.map(run_one, starts) if spec.traceable else lf._host_map(run_one, starts)
+        outs = jax.lax.map(run_one, starts) if spec.traceable else ph.host_map(run_one, starts)
         best = jnp.argmin(jnp.where(jnp.isfinite(outs.loss), outs.loss, jnp.inf))
         out = jax.tree.map(lambda a: a[best], outs)
         answers = outs.params
@@ -325,11 +326,11 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     Returns:
         :class:`CameraFit`.
     """
-    image = lf._check_image(image, init)
+    image = inp.check_image(image, init)
     dtype = image.dtype
     if init.projection != "perspective":
         raise ValueError("camera fits need a perspective camera (an orthographic one has no height or pitch to see)")
-    lf._check_resolution(image, init)
+    inp.check_resolution(image, init)
     if isinstance(fit, str):
         fit = (fit,)
     unknown = [f for f in fit if f not in CAMERA_FIELDS]
@@ -357,11 +358,11 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     lighting = jax.tree.map(lambda a: jnp.asarray(a, dtype), lighting)
     waves = jax.tree.map(lambda a: jnp.asarray(a, dtype), waves)
     init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
-    weight = lf._weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
+    weight = inp.pixel_weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
     traced = not is_concrete(image, weight, waves, init, lighting, t)
-    lf._check_tracing("fit.camera", traced, throw, spec, solver)
-    used = lf._weights("uniform", mask, image.shape[:2], dtype)
-    lf._validate_values(image, weight, None, init, ("sun_direction",), used)
+    inp.check_tracing("fit.camera", traced, throw, spec, solver)
+    used = inp.pixel_weights("uniform", mask, image.shape[:2], dtype)
+    inp.validate_values(image, weight, None, init, ("sun_direction",), used)
     if not traced:
         image = jnp.where(used > 0, image, 0.0)
     if isinstance(plan, str):
@@ -377,7 +378,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         if plan is not None:
             plan = render.RenderPlan(active=tuple(int(i) for i in plan.active), refine=int(plan.refine))
         plans = (plan,) * len(levels)
-    max_steps, rtol, atol = lf._solver_limits(solver, dtype, max_steps, rtol, atol)
+    max_steps, rtol, atol = inp.solver_limits(solver, dtype, max_steps, rtol, atol)
     st = _Static(fit=fit, fit_lighting=bool(fit_lighting), solver=solver, max_steps=max_steps, rtol=rtol, atol=atol,
                  search=tuple(int(n) for n in search), height_span=float(height_span), pitch_span=float(pitch_span),
                  n_starts=int(n_starts), grid=int(grid), history=bool(history),

@@ -108,9 +108,14 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
-from jaxocean._math import safe_norm, safe_normalize, smoothstep
-from jaxocean.errors import InvalidValueError, check_values, is_concrete
+from jaxocean._math import angle_between
+from jaxocean.errors import is_concrete
+from jaxocean.files import json_safe
+from jaxocean.fit import _image_inputs as inp
+from jaxocean.fit import _photometry as ph
 from jaxocean.fit import _plausibility, solvers
+from jaxocean.fit._image_inputs import tonemap_weights
+from jaxocean.fit._photometry import COLOR_FIELDS, nnls_small, pq_to_direction, pq_to_sun, sun_to_pq
 from jaxocean.fit.solvers import FitError
 from jaxocean.shading import Lighting
 
@@ -137,21 +142,13 @@ __all__ = [
 ]
 
 FIT_FIELDS = ("sun_direction", "sun_color", "sky_color", "sea_color")
-COLOR_FIELDS = ("sun_color", "sky_color", "sea_color")
 STRUCTURES = ("varpro", "plain")
 
 #: Ranges of the random colours of :func:`random_lighting` (log-uniform per channel), linear RGB.
 COLOR_RANGES = {"sun_color": (1.0, 40.0), "sky_color": (0.05, 1.0), "sea_color": (0.002, 0.1)}
 
 _HALF_PI = math.pi / 2
-_GLINT_QUANTILE = 0.99
-_GRID_PIXELS = 4096
-_MIRROR_K = 32
-_GRID_KEEP = 8
 _ROUGH_LEVELS = (1e-2, 1e-3)
-_ROUGH_STARTS = 2
-_ROUGH_STEPS = 30
-_ROUGH_GRID = 12
 # The sun is "seen" when its glitter carries at least this fraction of the (weighted) image
 # energy; below it (a sun behind the camera lights the sea through the BRDF's far tails,
 # 1e-20 and less) its direction is undetermined and the fit is reported as failed.
@@ -161,8 +158,6 @@ DETERMINED_SUN_DEG = 0.5
 #: a fitted colour is determined when every channel's standard deviation is below this
 #: fraction of the colour's brightest channel
 DETERMINED_COLOR_REL = 0.1
-_DEFAULT_TOL = {"float32": (1e-6, 1e-6), "float64": (1e-10, 1e-10)}
-_DEFAULT_MAX_STEPS = {"adam": 400}
 
 
 class LightingFit(NamedTuple):
@@ -210,400 +205,13 @@ class LightingFit(NamedTuple):
 # --------------------------------------------------------------------------- parameterisation
 
 
-def sun_to_pq(azimuth, elevation):
-    """Sun azimuth / elevation [rad] -> azimuthal-equidistant ``(p, q)``, shape ``(..., 2)``."""
-    r = _HALF_PI - jnp.asarray(elevation)
-    return jnp.stack([r * jnp.cos(azimuth), r * jnp.sin(azimuth)], axis=-1)
-
-
-def pq_to_sun(pq):
-    """``(p, q)`` -> ``(azimuth, elevation)`` [rad]; azimuth 0 at the zenith (where it is undefined)."""
-    pq = jnp.asarray(pq)
-    p, q = pq[..., 0], pq[..., 1]
-    r = safe_norm(pq)
-    ok = r > 0
-    azimuth = jnp.where(ok, jnp.arctan2(jnp.where(ok, q, 0.0), jnp.where(ok, p, 1.0)), 0.0)
-    return azimuth, _HALF_PI - r
-
-
-def pq_to_direction(pq):
-    """``(p, q)`` -> unit vector towards the sun, ``(..., 3)``: ``(sin r p/r, sin r q/r, cos r)``,
-    ``r = |(p, q)|`` the zenith angle. Smooth everywhere, the zenith included."""
-    pq = jnp.asarray(pq)
-    r = safe_norm(pq)
-    s = jnp.sinc(r / jnp.pi)  # sin(r) / r, exact and smooth at 0
-    return jnp.concatenate([s[..., None] * pq, jnp.cos(r)[..., None]], axis=-1)
-
-
 # --------------------------------------------------------------------------- small NNLS
-
-
-def nnls_small(gram, rhs, ridge=None):
-    """Exact non-negative least squares ``min_{x >= 0} x^T G x - 2 b^T x`` for a few unknowns.
-
-    ``gram (..., k, k)`` symmetric positive semi-definite, ``rhs (..., k)``; returns
-    ``x (..., k)``. Every one of the ``2^k`` active sets is solved and the best feasible one
-    kept -- exact (the NNLS optimum is the least-squares solution on its own support that
-    also satisfies the KKT conditions; the set with the smallest KKT violation is taken),
-    branch free, jittable, vmappable and differentiable almost everywhere. Columns are scaled to unit
-    norm first; ``ridge`` (default ``8 eps``) keeps empty columns solvable (their ``x`` is 0).
-    """
-    gram, rhs = jnp.asarray(gram), jnp.asarray(rhs)
-    k = gram.shape[-1]
-    dtype = gram.dtype
-    d, ridge = _column_scale(gram, ridge)
-    gn = gram / (d[..., :, None] * d[..., None, :])
-    bn = rhs / d
-    masks = np.array([[(s >> i) & 1 for i in range(k)] for s in range(2**k)], dtype=bool)  # (2^k, k)
-    m = jnp.asarray(masks, dtype)
-    eye = jnp.eye(k, dtype=dtype)
-    g_sub = gn[..., None, :, :] * m[:, :, None] * m[:, None, :] + eye * (1 - m)[:, :, None] + ridge * eye
-    b_sub = bn[..., None, :] * m
-    x_sub = _small_solve(g_sub, b_sub) * m  # (..., 2^k, k)
-    # Pick the active set by its KKT violation, not by comparing objective values: those
-    # differ by less than float32 resolution when a few bright pixels dominate |y|^2.
-    # On the support x >= 0; off it the gradient G x - b >= 0 (no descent into x_i > 0).
-    grad = jnp.einsum("...ij,...sj->...si", gn, x_sub) - bn[..., None, :]
-    violation = jnp.sum(m * jnp.maximum(-x_sub, 0) + (1 - m) * jnp.maximum(-grad, 0), axis=-1)
-    # ties (degenerate problems): prefer the larger support, i.e. the later subset index
-    best = (2**k - 1) - jnp.argmin(violation[..., ::-1], axis=-1)
-    x = jnp.take_along_axis(x_sub, best[..., None, None], axis=-2)[..., 0, :]
-    return x / d
-
-
-def _small_solve(a, b):
-    """``a^-1 b`` for ``k <= 3`` by cofactors: elementwise arithmetic (cheap to compile and
-    to differentiate, unlike a batched LU), fine for the well-conditioned scaled systems here."""
-    k = a.shape[-1]
-    if k == 1:
-        return b / a[..., 0]
-    if k == 2:
-        det = a[..., 0, 0] * a[..., 1, 1] - a[..., 0, 1] * a[..., 1, 0]
-        x0 = a[..., 1, 1] * b[..., 0] - a[..., 0, 1] * b[..., 1]
-        x1 = a[..., 0, 0] * b[..., 1] - a[..., 1, 0] * b[..., 0]
-        return jnp.stack([x0, x1], -1) / det[..., None]
-    if k != 3:
-        raise AssertionError(k)
-    c0 = jnp.cross(a[..., 1, :], a[..., 2, :])  # rows of the adjugate's transpose
-    c1 = jnp.cross(a[..., 2, :], a[..., 0, :])
-    c2 = jnp.cross(a[..., 0, :], a[..., 1, :])
-    det = jnp.sum(a[..., 0, :] * c0, -1)
-    # a^-1 = [c0 c1 c2] / det (columns), so a^-1 b = (c0 b0 + c1 b1 + c2 b2) / det
-    x = c0 * b[..., 0:1] + c1 * b[..., 1:2] + c2 * b[..., 2:3]
-    return x / det[..., None]
 
 
 # --------------------------------------------------------------------------- data
 
 
-class _Data(NamedTuple):
-    """Lighting-independent per-pixel terms, ``(H, W, ...)`` (sky pixels hold a flat sea
-    seen from the zenith in the geometric fields, as in :func:`jaxocean.render.shade`).
-
-    Besides the geometry, the view-only factors of the sun BRDF are precomputed (tangent
-    frame, ``z_V``, Smith's ``Lambda_V``, the slope-pdf normalisation): the residual then
-    evaluates only the sun-dependent half of :func:`jaxocean.shading.sun_radiance_factor`,
-    which halves the compiled program and the work per step (tests check the two agree).
-    """
-
-    normal: jax.Array  # unit
-    sx2: jax.Array  # clamped slope variances
-    sy2: jax.Array
-    view: jax.Array  # unit
-    sea: jax.Array  # bool
-    sky_term: jax.Array  # S
-    sea_term: jax.Array  # E
-    target: jax.Array  # (H, W, 3)
-    weight: jax.Array  # (H, W, 3), w (residual = w (model - target))
-    t_x: jax.Array  # tangent frame
-    t_y: jax.Array
-    z_view: jax.Array  # max(V.N, MIN_COSINE)
-    lambda_view: jax.Array  # Smith Lambda of the view
-    pdf_norm: jax.Array  # 1 / (2 pi sigma_x sigma_y)
-
-
-def _prepare(image, normal, slope_var, camera, weight, horizon_gradient) -> _Data:
-    dtype = image.dtype
-    hit = cam.intersect_sea(camera)
-    sea = hit.mask
-    up = jnp.zeros(3, dtype).at[2].set(1.0)
-    view = jnp.where(sea[..., None], hit.view.astype(dtype), up)
-    normal = jnp.where(sea[..., None], normal, up)
-    normal, view = safe_normalize(normal), safe_normalize(view)
-    floor = shading.MIN_SLOPE_VARIANCE_AXIS
-    sx2 = jnp.maximum(slope_var[..., 0], floor)
-    sy2 = jnp.maximum(slope_var[..., 1], floor)
-    ones, zeros = jnp.ones(3, dtype), jnp.zeros(3, dtype)
-    unit = Lighting(jnp.zeros((), dtype), jnp.ones((), dtype), ones, ones, zeros)
-    terms = shading.shade_components(normal, sx2, sy2, view, unit, horizon_gradient=horizon_gradient)
-    sky_weight = shading.sky_radiance(hit.direction.astype(dtype), unit, horizon_gradient=horizon_gradient)[..., 0]
-    sky_term = jnp.where(sea, terms.fresnel * terms.reflected[..., 0], sky_weight)
-    sea_term = jnp.where(sea, 1.0 - terms.fresnel, 0.0)
-    t_x, t_y = shading.tangent_frame(normal)
-    z_view = jnp.maximum(_dot(view, normal), shading.MIN_COSINE)
-    lambda_view = shading.smith_lambda(z_view, shading.projected_variance(view, normal, sx2, sy2))
-    pdf_norm = 1.0 / (2.0 * jnp.pi * jnp.sqrt(sx2 * sy2))
-    return _Data(normal, sx2, sy2, view, sea, sky_term, sea_term, image, weight, t_x, t_y, z_view, lambda_view,
-                 pdf_norm)
-
-
-def _dot(a, b):
-    return jnp.sum(a * b, axis=-1)
-
-
-def _sun_term(data: _Data, light):
-    """``B_sun`` of every pixel for the unit sun vector ``light`` (3,): the sun-dependent part of
-    :func:`jaxocean.shading.sun_radiance_factor` on the precomputed view terms (same formula,
-    Bruneton 2010: ``F p / (4 z_V (H.N)^4 (1 + Lambda_L + Lambda_V))`` times the horizon fade)."""
-    n, v = data.normal, data.view
-    half = safe_normalize(light + v, fallback=n)
-    h_n = jnp.maximum(_dot(half, n), shading.MIN_COSINE)
-    zeta_x = _dot(half, data.t_x) / h_n
-    zeta_y = _dot(half, data.t_y) / h_n
-    slope_pdf = jnp.exp(-0.5 * (zeta_x**2 / data.sx2 + zeta_y**2 / data.sy2)) * data.pdf_norm
-    fresnel = shading.FRESNEL_NORMAL + (1.0 - shading.FRESNEL_NORMAL) * jnp.clip(1.0 - _dot(v, half), 0.0, 1.0) ** 5
-    z_light = jnp.maximum(_dot(light, n), shading.MIN_COSINE)
-    a2 = _dot(light, data.t_x) ** 2
-    b2 = _dot(light, data.t_y) ** 2
-    total = a2 + b2
-    ok = total > jnp.finfo(total.dtype).tiny
-    var_light = jnp.where(ok, (data.sx2 * a2 + data.sy2 * b2) / jnp.where(ok, total, 1.0), 0.5 * (data.sx2 + data.sy2))
-    shadowing = 1.0 + shading.smith_lambda(z_light, var_light) + data.lambda_view
-    brdf = fresnel * slope_pdf / (4.0 * z_light * data.z_view * h_n**4 * shadowing)
-    b = brdf * z_light * smoothstep(0.0, shading.SUN_HORIZON_FADE, light[..., 2])
-    return jnp.where(data.sea, b, 0.0)
-
-
-def _columns(data: _Data, direction):
-    """``{name: (H, W)}`` of the three colour columns for a sun direction."""
-    return {"sun_color": _sun_term(data, direction), "sky_color": data.sky_term, "sea_color": data.sea_term}
-
-
-def _model(data: _Data, direction, colors: dict):
-    cols = _columns(data, direction)
-    return sum(cols[name][..., None] * colors[name] for name in COLOR_FIELDS)
-
-
-def _norm2(data: _Data):
-    return jnp.sum(data.weight * data.weight)
-
-
-def _residual_from_model(data: _Data, model):
-    return (data.weight * (model - data.target)).reshape(-1) / jnp.sqrt(_norm2(data))
-
-
-def _project_colors(data: _Data, direction, fixed: dict, free: tuple, cols=None):
-    """Variable projection: the non-negative least-squares colours of ``free`` for a sun
-    direction, the others held at ``fixed``. Returns ``{name: (3,)}`` for all three."""
-    cols = _columns(data, direction) if cols is None else cols
-    known = sum((cols[n][..., None] * fixed[n] for n in COLOR_FIELDS if n not in free),
-                jnp.zeros_like(data.target))
-    colors = {n: fixed[n] for n in COLOR_FIELDS if n not in free}
-    if not free:
-        return colors
-    a = jnp.stack([cols[n] for n in free], axis=-1).reshape(-1, len(free))  # (P, k)
-    w2 = (data.weight * data.weight).reshape(-1, 3)  # (P, 3)
-    y = (data.target - known).reshape(-1, 3)
-    gram = jnp.einsum("pc,pi,pj->cij", w2, a, a)
-    rhs = jnp.einsum("pc,pi,pc->ci", w2, a, y)
-    x = nnls_small(gram, rhs)  # (3 channels, k)
-    # One step of iterative refinement: the normal equations square the condition of the
-    # columns (sky and sea terms are nearly collinear: cond(gram) up to 2e6), which in
-    # float32 costs the colours 1e-5..7e-5 relative even at the exact sun direction; the
-    # correction from the residual computed pixel by pixel brings that to 4e-7..6e-6
-    # (measured on the 128^2 accuracy problems).
-    r = y - jnp.einsum("pi,ci->pc", a, x)
-    x = _refine_on_support(gram, x, jnp.einsum("pc,pi,pc->ci", w2, a, r))
-    for i, n in enumerate(free):
-        colors[n] = x[:, i]
-    return colors
-
-
-def _column_scale(gram, ridge=None):
-    """Column norms ``d`` of a Gram matrix ``(..., k, k)`` (1 for empty columns) and the
-    ridge (default ``8 eps``) of the unit-norm problem: the scaling of :func:`nnls_small`."""
-    dtype = gram.dtype
-    ridge = 8 * jnp.finfo(dtype).eps if ridge is None else ridge
-    diag = jnp.diagonal(gram, axis1=-2, axis2=-1)
-    ok = diag > jnp.finfo(dtype).tiny
-    return jnp.where(ok, jnp.sqrt(jnp.where(ok, diag, 1.0)), 1.0), ridge
-
-
-def _refine_on_support(gram, x, correction_rhs, ridge=None):
-    """``max(x + G_S^-1 b_S, 0)`` on the support ``S`` of ``x`` (``x > 0``): one step of
-    iterative refinement of a non-negative least-squares solution, ``b = A^T W (y - A x)``
-    the gradient of the residual computed from the pixels. Columns scaled as in
-    :func:`nnls_small`."""
-    k = gram.shape[-1]
-    dtype = gram.dtype
-    d, ridge = _column_scale(gram, ridge)
-    m = (x > 0).astype(dtype)
-    eye = jnp.eye(k, dtype=dtype)
-    g = gram / (d[..., :, None] * d[..., None, :]) * m[..., :, None] * m[..., None, :] + eye * (1 - m)[..., :, None] \
-        + ridge * eye
-    dx = _small_solve(g, correction_rhs / d * m) * m / d
-    return jnp.maximum(x + dx, 0.0)
-
-
-def _varpro_residual(pq, args):
-    data, fixed, free = args[0], args[1], args[2]
-    direction = pq_to_direction(pq)
-    colors = _project_colors(data, direction, fixed, free)
-    return _residual_from_model(data, _model(data, direction, colors))
-
-
-def _varpro_loss(data, pq, fixed, free):
-    r = _varpro_residual(pq, (data, fixed, free))
-    return jnp.sum(r * r)
-
-
 # --------------------------------------------------------------------------- starts
-
-
-def _glint_excess(data: _Data):
-    """``(excess (H, W), mirror (H, W, 3), candidate (H, W) bool)``: the radiance (summed over
-    channels) that a sun-free fit (non-negative sky and sea colours) leaves unexplained, the
-    mirror direction of the view about each pixel's normal, and the sea pixels whose mirror
-    direction is above the horizon and whose pixel is finite."""
-    sea_ok = data.sea & jnp.all(jnp.isfinite(data.target), axis=-1)
-    target = jnp.where(sea_ok[..., None], data.target, 0.0)
-    a = jnp.stack([data.sky_term, data.sea_term], -1).reshape(-1, 2)
-    w2 = (data.weight * data.weight).reshape(-1, 3)
-    y = target.reshape(-1, 3)
-    x = nnls_small(jnp.einsum("pc,pi,pj->cij", w2, a, a), jnp.einsum("pc,pi,pc->ci", w2, a, y))  # (3, 2)
-    excess = jnp.sum(target - (a @ x.T).reshape(target.shape), axis=-1)
-    r = shading.reflect(data.view, data.normal)
-    return excess, r, sea_ok & (r[..., 2] > 0)
-
-
-def _direction_pq(direction, dtype):
-    """Unit directions ``(..., 3)`` -> ``(p, q)`` with the elevation raised to at least 0.02 rad."""
-    direction = direction.at[..., 2].set(jnp.maximum(direction[..., 2], 0.02))
-    direction = safe_normalize(direction)
-    el = jnp.arcsin(jnp.clip(direction[..., 2], -1.0, 1.0))
-    az = jnp.arctan2(direction[..., 1], direction[..., 0])
-    return sun_to_pq(az, el).astype(dtype)
-
-
-def _glint_pq(data: _Data, dtype):
-    """Sun estimate from the glints: where a glint is, the sun lies in the mirror direction of
-    the view about the macro normal. Glints are the pixels the sky and sea alone cannot
-    explain: the excess over a sun-free fit (non-negative sky and sea colours), so bright
-    sky reflections near the horizon do not count; saturated pixels do (they are glints)."""
-    excess, r, cand = _glint_excess(data)
-    e = jnp.where(cand, excess, jnp.nan)
-    any_cand = jnp.any(cand)
-    thr = jnp.maximum(jnp.nanquantile(jnp.where(any_cand, e, 0.0), _GLINT_QUANTILE), 0.0)
-    w = jnp.where(e > thr, e - thr, 0.0)  # NaN compares False
-    w = jnp.where(jnp.sum(w) > 0, w, jnp.where(e >= thr, 1.0, 0.0))
-    return _direction_pq(safe_normalize(jnp.sum(w[..., None] * r, axis=(0, 1))), dtype)
-
-
-def _mirror_pq(data: _Data, k: int, dtype):
-    """``(k, 2)`` candidates: the mirror directions of the ``k`` sea pixels with the largest
-    glint excess, one each (not averaged). A glint pixel whose normal's slope lobe is
-    narrow lies within about its slope spread of the sun, and the brightest glints are the
-    narrowest (the lobe's peak scales as ``1 / sigma^2``)."""
-    excess, r, cand = _glint_excess(data)
-    score = jnp.where(cand, excess, -jnp.inf).reshape(-1)
-    k = min(k, score.shape[0])
-    _, idx = jax.lax.top_k(score, k)
-    return _direction_pq(r.reshape(-1, 3)[idx], dtype)
-
-
-_RAY_ELEVATIONS = np.radians(np.geomspace(0.2, 60.0, 16))
-
-
-def _glint_ray(glint_pq, dtype):
-    """Candidates along the glint estimate's azimuth (16 elevations, 0.2 to 60 deg,
-    geometric). The glint's azimuth is accurate but its elevation is biased for a low sun
-    (measured at 1 deg: estimates of 2.4-4.2 deg), where the glitter is a band a few pixels
-    high at the horizon and the loss is flat until within ~0.5 deg of the sun; no cell of
-    the sky grid lies that close to the horizon."""
-    az, _ = pq_to_sun(glint_pq)
-    el = jnp.asarray(_RAY_ELEVATIONS, dtype)
-    return sun_to_pq(jnp.broadcast_to(az, el.shape), el).astype(dtype)
-
-
-def _grid_pq(n: int, dtype):
-    """A square ``n x n`` grid of (p, q) over the upper hemisphere (cells of pi / n rad)."""
-    c = (np.arange(n) + 0.5) / n * math.pi - _HALF_PI
-    p, q = np.meshgrid(c, c, indexing="ij")
-    pq = np.stack([p.reshape(-1), q.reshape(-1)], -1)
-    pq = pq[(pq**2).sum(-1) < (_HALF_PI * 0.999) ** 2]
-    return jnp.asarray(pq, dtype)
-
-
-def _subsample(data: _Data, stride: int) -> _Data:
-    if stride == 1:
-        return data
-    return jax.tree.map(lambda a: a[::stride, ::stride], data)
-
-
-def _losses(data, cands, fixed, free):
-    """Variable-projection losses ``(n,)`` of candidate suns ``(n, 2)`` (non-finite -> inf)."""
-    losses = jax.lax.map(lambda pq: _varpro_loss(data, pq, fixed, free), cands, batch_size=64)
-    return jnp.where(jnp.isfinite(losses), losses, jnp.inf)
-
-
-def _rough_only(data: _Data, threshold) -> _Data:
-    """``data`` with the weight of every sea pixel smoother than ``threshold`` (slope variance
-    ``sigma_x^2 + sigma_y^2``) set to 0; sky pixels keep theirs."""
-    keep = ~data.sea | (data.sx2 + data.sy2 >= threshold)
-    return data._replace(weight=jnp.where(keep[..., None], data.weight, 0.0))
-
-
-def _starts(data, init_pq, fixed, free, *, grid: int, n_starts: int, glint: bool = True,
-            rough_levels: tuple = (), tol: tuple = (1e-6, 1e-6)):
-    """The ``n_starts`` lowest-loss candidates (no gradient: the solution, not the path to it,
-    is differentiated). Candidates: ``init``; with ``glint`` the glint estimate, the ray along
-    its azimuth and the mirror directions of the brightest glints (scored on the full image);
-    the best of the ``grid`` (scored on a sub-sampled image); and with ``rough_levels`` the
-    answers of short solves on the rough pixels alone (module docstring, *Starts*)."""
-    data, init_pq, fixed = jax.lax.stop_gradient((data, init_pq, fixed))
-    dtype = data.target.dtype
-    H, W = data.target.shape[:2]
-    stride = max(1, math.ceil(math.sqrt(H * W / _GRID_PIXELS)))
-    small = _subsample(data, stride)
-    cands = [init_pq[None]]
-    if glint:
-        g = _glint_pq(data, dtype)
-        cands.append(g[None])
-        cands.append(_glint_ray(g, dtype))
-        cands.append(_mirror_pq(data, _MIRROR_K, dtype))
-    cands = jnp.concatenate(cands, 0)
-    losses = _losses(data, cands, fixed, free)
-    grid_pq = _grid_pq(grid, dtype) if grid > 0 else cands[:0]
-    if grid > 0:
-        best = grid_pq[jnp.argsort(_losses(small, grid_pq, fixed, free))[:_GRID_KEEP]]
-        cands = jnp.concatenate([cands, best], 0)
-        losses = jnp.concatenate([losses, _losses(data, best, fixed, free)], 0)
-    if rough_levels:
-        pool = jnp.concatenate([cands, _grid_pq(_ROUGH_GRID, dtype)], 0)
-
-        def level(seeds, threshold):
-            rough = _rough_only(data, threshold)
-            trial = jnp.concatenate([seeds, pool], 0)
-            starts = trial[jnp.argsort(_losses(_subsample(rough, stride), trial, fixed, free))[:_ROUGH_STARTS]]
-            outs = jax.lax.map(lambda y0: solvers.solve("lm", _varpro_bound(free), y0, (rough, fixed),
-                                                        max_steps=_ROUGH_STEPS, rtol=tol[0], atol=tol[1]).params,
-                               starts)
-            return outs, outs
-
-        seeds0 = jnp.broadcast_to(init_pq, (_ROUGH_STARTS, 2))
-        _, found = jax.lax.scan(level, seeds0, jnp.asarray(rough_levels, dtype))
-        found = _clip_pq(found.reshape(-1, 2))
-        cands = jnp.concatenate([cands, found], 0)
-        losses = jnp.concatenate([losses, _losses(data, found, fixed, free)], 0)
-    order = jnp.argsort(losses)
-    return cands[order[:n_starts]]
-
-
-def _clip_pq(pq):
-    """``(p, q)`` pulled inside the horizon circle (``|(p, q)| <= 0.999 pi / 2``)."""
-    r = safe_norm(pq)
-    limit = _HALF_PI * 0.999
-    return jnp.where((r > limit)[..., None], pq * (limit / jnp.maximum(r, limit))[..., None], pq)
 
 
 # --------------------------------------------------------------------------- plain structure
@@ -649,13 +257,13 @@ def _plain_pack(init_pq, init_colors, fit, log_colors, dtype):
 def _plain_residual(y, args):
     data, init_pq, init_colors, fit, log_colors = args[0], args[1], args[2], args[3], args[4]
     pq, colors = _plain_unpack(y, init_pq, init_colors, fit, log_colors)
-    return _residual_from_model(data, _model(data, pq_to_direction(pq), colors))
+    return ph.residual_from_model(data, ph.model(data, pq_to_direction(pq), colors))
 
 
 def _display_residual(y, args):
     data, init_pq, init_colors, observed, used, fit, exposure, mode = args
     pq, colors = _plain_unpack(y, init_pq, init_colors, fit, True)
-    model = _model(data, pq_to_direction(pq), colors)
+    model = ph.model(data, pq_to_direction(pq), colors)
     r = used * (shading.tonemap(model, exposure, mode) - observed)
     return r.reshape(-1) / jnp.sqrt(jnp.sum(used))
 
@@ -686,7 +294,7 @@ def _refine_display(data, used, pq, colors, init_colors, st: _Static):
     # angles, crawls along the colours: in float32 its trust region only grows when a step's
     # actual-to-predicted reduction ratio exceeds 0.99, which rounding of the loss rarely
     # lets through (measured at 64^2: 50 steps, loss down 1%, every refinement out of steps).
-    _, jac = solvers._value_and_jacfwd(lambda y, a: _display_residual(y, (*a, st.fit, st.exposure, st.tonemap)),
+    _, jac = solvers.value_and_jacobian(lambda y, a: _display_residual(y, (*a, st.fit, st.exposure, st.tonemap)),
                                        jax.lax.stop_gradient(y0), jax.lax.stop_gradient(args))
     col = jnp.sqrt(jnp.sum(jac * jac, axis=0))
     scale = jnp.where(col > jnp.finfo(dtype).tiny / jnp.finfo(dtype).eps, 1.0 / jnp.where(col > 0, col, 1.0), 1.0)
@@ -721,27 +329,20 @@ class _Static(NamedTuple):
     tonemap: str
 
 
-def _finish(data, pq, colors):
-    az, el = pq_to_sun(pq)
-    dtype = data.target.dtype
-    return Lighting(az.astype(dtype), el.astype(dtype), colors["sun_color"].astype(dtype),
-                    colors["sky_color"].astype(dtype), colors["sea_color"].astype(dtype))
-
-
-def _final(data: _Data, pq, init_colors, free, colors=None):
+def _final(data: ph.Data, pq, init_colors, free, colors=None):
     """One evaluation at the solution: colours (projected unless given), the loss
     ``0.5 |r|^2`` and the weighted energy of the sun's glitter."""
     direction = pq_to_direction(pq)
-    cols = _columns(data, direction)
+    cols = ph.columns(data, direction)
     if colors is None:
-        colors = _project_colors(data, direction, init_colors, free, cols)
+        colors = ph.project_colors(data, direction, init_colors, free, cols)
     model = sum(cols[name][..., None] * colors[name] for name in COLOR_FIELDS)
-    r = _residual_from_model(data, model)
+    r = ph.residual_from_model(data, model)
     sun = cols["sun_color"][..., None] * colors["sun_color"]
     return colors, 0.5 * jnp.sum(r * r), jnp.sum((data.weight * sun) ** 2)
 
 
-def _solve_core(data: _Data, used, init: Lighting, st: _Static):
+def _solve_core(data: ph.Data, used, init: Lighting, st: _Static):
     """Everything after preparation; with ``space="display"`` a display-space refinement
     follows (its loss is the reported one, its steps are added)."""
     pq, colors, loss, steps, success, hist, sun_energy = _solve_linear(data, init, st)
@@ -753,7 +354,7 @@ def _solve_core(data: _Data, used, init: Lighting, st: _Static):
     return pq, colors, loss, steps, success, hist, sun_energy
 
 
-def _solve_linear(data: _Data, init: Lighting, st: _Static):
+def _solve_linear(data: ph.Data, init: Lighting, st: _Static):
     """The linear-radiance fit: returns (pq, colors, loss, steps, success, history, sun energy)."""
     dtype = data.target.dtype
     init_pq = sun_to_pq(init.sun_azimuth, init.sun_elevation).astype(dtype)
@@ -767,17 +368,17 @@ def _solve_linear(data: _Data, init: Lighting, st: _Static):
             loss = 2 * half_loss
             hist = jnp.full((st.max_steps + 1,), loss) if st.history else None
             return init_pq, colors, loss, jnp.asarray(0, jnp.int32), jnp.isfinite(loss), hist, sun_energy
-        starts = _starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint,
+        starts = ph.starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint,
                          rough_levels=_ROUGH_LEVELS if st.glint else (), tol=(st.rtol, st.atol))
 
         def run_one(y0):
-            return solvers.solve(st.solver, _varpro_bound(st.free), y0, (data, init_colors),
+            return solvers.solve(st.solver, ph.varpro_bound(st.free), y0, (data, init_colors),
                                  max_steps=st.max_steps, rtol=st.rtol, atol=st.atol,
                                  history=st.history, options=options)
 
         # lax.map, not vmap: one un-batched copy of the solver loop (batching its while loop
         # and conds doubles the compiled program); under an outer vmap it is batched anyway
-        outs = jax.lax.map(run_one, starts) if spec.traceable else _host_map(run_one, starts)
+        outs = jax.lax.map(run_one, starts) if spec.traceable else ph.host_map(run_one, starts)
         losses = jnp.where(jnp.isfinite(outs.loss), outs.loss, jnp.inf)
         best = jnp.argmin(losses)
         out = jax.tree.map(lambda a: a[best], outs)
@@ -808,14 +409,6 @@ def _solve_linear(data: _Data, init: Lighting, st: _Static):
 
 
 @functools.lru_cache(maxsize=None)
-def _varpro_bound(free: tuple):
-    def fn(pq, args):
-        return _varpro_residual(pq, (args[0], args[1], free))
-
-    return solvers.dense_jacobian(fn)
-
-
-@functools.lru_cache(maxsize=None)
 def _plain_bound(fit: tuple, log_colors: bool):
     def fn(y, args):
         return _plain_residual(y, (args[0], args[1], args[2], fit, log_colors))
@@ -823,12 +416,7 @@ def _plain_bound(fit: tuple, log_colors: bool):
     return solvers.dense_jacobian(fn)
 
 
-def _host_map(fn, starts):
-    outs = [fn(starts[i]) for i in range(starts.shape[0])]
-    return jax.tree.map(lambda *xs: jnp.stack(xs), *outs)
-
-
-def _uncertainty(data: _Data, pq, colors, st: _Static, noise):
+def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise):
     """``(std, determined)`` dicts of the answer (see :class:`LightingFit`): Gauss-Newton
     standard deviations from ``J^T J`` of the linear-colour residual of the fitted fields
     (built column by column, ``O(pixels)`` memory) at the stated noise."""
@@ -862,9 +450,9 @@ def _uncertainty(data: _Data, pq, colors, st: _Static, noise):
 
 
 def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, st: _Static):
-    data = _prepare(image, normal, slope_var, camera, weight, horizon_gradient)
+    data = ph.prepare(image, normal, slope_var, camera, weight, horizon_gradient)
     pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
-    light = _finish(data, pq, colors)
+    light = ph.finish(data, pq, colors)
     if st.space == "display":  # the reported loss is the display-space MSE over the used pixels
         bound = _plausibility.loss_bound(shading.tonemap(data.target, st.exposure, st.tonemap), used, noise)
     else:
@@ -927,40 +515,6 @@ def _geometry_fields(geometry, resolution, dtype):
     return normal, slope_var, mask
 
 
-def _check_image(image, camera):
-    """``image`` as a floating ``(H, W, 3)`` array matching the validated ``camera``'s
-    resolution (integers become the default float dtype). Shared by every image fit."""
-    image = jnp.asarray(image)
-    if image.ndim != 3 or image.shape[-1] != 3:
-        raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
-    if not jnp.issubdtype(image.dtype, jnp.floating):
-        image = image.astype(jnp.zeros(()).dtype)
-    cam.validate_camera(camera)
-    return image
-
-
-def _check_resolution(image, camera) -> None:
-    if tuple(image.shape[:2]) != tuple(camera.resolution):
-        raise ValueError(f"image is {image.shape[:2]} (H, W) but the camera's resolution is {camera.resolution}")
-
-
-def _check_tracing(name: str, traced: bool, throw: bool, spec, solver: str) -> None:
-    """Under jit/vmap a fit can neither raise on failure nor use a host solver."""
-    if traced and throw:
-        raise ValueError(f"{name} under jit/vmap cannot raise on failure: pass throw=False and read .success")
-    if traced and not spec.traceable:
-        raise ValueError(f"solver {solver!r} runs on the host and cannot be used under jit/vmap")
-
-
-def _solver_limits(solver: str, dtype, max_steps, rtol, atol) -> tuple[int, float, float]:
-    """``(max_steps, rtol, atol)`` with the defaults of ``solver`` and the working precision
-    filled in (50 steps, 400 for Adam; tolerances 1e-6 in float32, 1e-10 in float64)."""
-    if max_steps is None:
-        max_steps = _DEFAULT_MAX_STEPS.get(solver, 50)
-    d_rtol, d_atol = _DEFAULT_TOL["float64" if dtype == jnp.float64 else "float32"]
-    return int(max_steps), float(d_rtol if rtol is None else rtol), float(d_atol if atol is None else atol)
-
-
 def _check_fit_names(fit) -> tuple:
     if isinstance(fit, str):
         fit = (fit,)
@@ -971,68 +525,6 @@ def _check_fit_names(fit) -> tuple:
     if not fit:
         raise ValueError(f"fit= names nothing to fit; expected a non-empty subset of {FIT_FIELDS}")
     return tuple(f for f in FIT_FIELDS if f in fit)  # canonical order: static config is hashable
-
-
-WEIGHT_MODES = ("display", "uniform")
-
-
-def _weights(weights, mask, resolution, dtype, image=None, exposure=1.0, tonemap="bruneton", saturation=None):
-    H, W = resolution
-    w = jnp.ones((H, W, 3), dtype)
-    if isinstance(weights, str):
-        if weights not in WEIGHT_MODES:
-            raise ValueError(f"weights must be an array or one of {WEIGHT_MODES}; got {weights!r}")
-        if weights == "uniform":
-            weights = None
-        else:  # the tone map's slope at the observed radiance (NaN pixels: checked later)
-            finite = jnp.where(jnp.isfinite(image), image, 0.0)
-            weights = tonemap_weights(finite, exposure, tonemap)
-            if saturation is not None:
-                weights = jnp.where(shading.tonemap(finite, exposure, tonemap) > saturation, 0.0, weights)
-    if weights is not None:
-        weights = jnp.asarray(weights, dtype)
-        if weights.shape == (H, W):
-            weights = weights[..., None]
-        if weights.shape not in ((H, W, 1), (H, W, 3)):
-            raise ValueError(f"weights must be (H, W) or (H, W, 3) = {(H, W, 3)}; got {weights.shape}")
-        if is_concrete(weights):
-            check_values(np.isfinite(np.asarray(weights)), "weights must be finite", weights)
-            check_values(np.asarray(weights) >= 0, "weights must be >= 0", weights)
-        w = w * weights
-    if mask is not None:
-        mask = jnp.asarray(mask)
-        if mask.shape != (H, W):
-            raise ValueError(f"mask must be (H, W) = {(H, W)}; got {mask.shape}")
-        w = jnp.where(mask[..., None], w, 0.0)
-    return w
-
-
-def _validate_values(image, weight, geo_mask, camera, fit, used=None):
-    """Value checks before any work (concrete inputs only). ``used``: the pixels the caller
-    selected (mask), ``weight``: their weights."""
-    if not is_concrete(image, weight, camera, used):
-        return
-    img = np.asarray(image)
-    w = np.asarray(weight)
-    bad = ~np.isfinite(img)
-    used_bad = bad & ((w > 0) if used is None else (np.asarray(used) > 0))
-    if used_bad.any():
-        n = int(np.any(used_bad, axis=-1).sum())
-        first = np.argwhere(np.any(used_bad, axis=-1))[0].tolist()
-        raise InvalidValueError(f"image has {n} NaN/inf pixel(s) (first at (row, col) = {first}); "
-                                f"exclude them with mask= (and set their values to 0)")
-    if not (w > 0).any():
-        raise InvalidValueError("the pixel selection is empty: mask/weights exclude every pixel")
-    sea = np.asarray(cam.intersect_sea(camera).mask)
-    if geo_mask is not None and is_concrete(geo_mask):
-        gm = np.asarray(geo_mask).astype(bool)
-        n = int((gm != sea).sum())
-        if n:
-            raise InvalidValueError(f"geometry.mask disagrees with the camera's sea mask on {n} pixel(s): "
-                                    f"was the geometry made with another camera?")
-    needs_sea = [f for f in fit if f in ("sun_direction", "sun_color", "sea_color")]
-    if needs_sea and not (np.any(w > 0, axis=-1) & sea).any():
-        raise InvalidValueError(f"no selected pixel sees the sea: cannot fit {needs_sea}")
 
 
 def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_FIELDS, solver: str = "lm",
@@ -1092,9 +584,9 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     Returns:
         :class:`LightingFit`.
     """
-    image = _check_image(image, camera)
+    image = inp.check_image(image, camera)
     dtype = image.dtype
-    _check_resolution(image, camera)
+    inp.check_resolution(image, camera)
     fit = _check_fit_names(fit)
     spec = solvers.get_solver(solver)
     if structure not in STRUCTURES:
@@ -1107,18 +599,18 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     normal, slope_var, geo_mask = _geometry_fields(geometry, image.shape[:2], dtype)
     if space not in ("linear", "display"):
         raise ValueError(f"space must be 'linear' or 'display'; got {space!r}")
-    weight = _weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
-    used = _weights("uniform", mask, image.shape[:2], dtype)
+    weight = inp.pixel_weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
+    used = inp.pixel_weights("uniform", mask, image.shape[:2], dtype)
     init = shading.make_lighting(dtype=dtype) if init is None else init
     shading.validate_lighting(init)
     init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
     traced = not is_concrete(image, normal, slope_var, weight, init, camera)
-    _check_tracing("fit.lighting", traced, throw, spec, solver)
-    _validate_values(image, weight, geo_mask, camera, fit, used)
+    inp.check_tracing("fit.lighting", traced, throw, spec, solver)
+    inp.validate_values(image, weight, geo_mask, camera, fit, used)
     # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN)
     image = jnp.where(used > 0, image, 0.0) if not traced else image
 
-    max_steps, rtol, atol = _solver_limits(solver, dtype, max_steps, rtol, atol)
+    max_steps, rtol, atol = inp.solver_limits(solver, dtype, max_steps, rtol, atol)
     free = tuple(n for n in COLOR_FIELDS if n in fit)
     st = _Static(fit=fit, free=free, solver=solver, structure=structure, max_steps=max_steps, rtol=rtol, atol=atol,
                  grid=int(grid), n_starts=int(n_starts), glint=bool(glint), history=bool(history),
@@ -1203,28 +695,13 @@ def random_lighting(key, *, sun_azimuth=(-math.pi, math.pi), sun_elevation=(math
     return Lighting(az, el, color(k_sun, "sun_color"), color(k_sky, "sky_color"), color(k_sea, "sea_color"))
 
 
-def tonemap_weights(image, exposure=1.0, mode: str = "bruneton"):
-    """Per-pixel residual weights ``(H, W, 3)``: the slope of :func:`jaxocean.shading.tonemap`
-    at ``image``. With them, a linear-radiance residual approximates the residual of the
-    tone-mapped display values (to first order), so noise added to display values is
-    weighted correctly while the fit stays linear in the colours. Saturated pixels get
-    (almost) zero weight."""
-    image = jnp.asarray(image)
-    _, slope = jax.jvp(lambda x: shading.tonemap(x, exposure, mode), (image,), (jnp.ones_like(image),))
-    return slope
-
-
 def lighting_error(fitted: Lighting, truth: Lighting) -> dict:
     """Errors of a fitted lighting: ``sun_angle_deg`` (angle between the sun directions) and,
     per colour, the largest relative channel error. Works on batches (leading axes)."""
     def vec(light):
         return shading.sun_direction(light) if jnp.ndim(light.sun_azimuth) == 0 else jax.vmap(shading.sun_direction)(light)
 
-    a, b = vec(fitted), vec(truth)
-    cos = jnp.clip(jnp.sum(a * b, -1), -1.0, 1.0)
-    # arctan2 of |cross| and dot: accurate for tiny angles (arccos is not)
-    angle = jnp.arctan2(safe_norm(jnp.cross(a, b)), cos)
-    out = {"sun_angle_deg": jnp.degrees(angle)}
+    out = {"sun_angle_deg": jnp.degrees(angle_between(vec(fitted), vec(truth)))}
     for n in COLOR_FIELDS:
         f, t = getattr(fitted, n), getattr(truth, n)
         out[n] = jnp.max(jnp.abs(f - t) / jnp.maximum(jnp.abs(t), jnp.finfo(jnp.asarray(t).dtype).tiny), axis=-1)
@@ -1258,16 +735,10 @@ def fit_to_dict(result) -> dict:
         "wall_time_s": float(result.wall_time),
     }
     if hasattr(result, "camera"):
-        c = result.camera
-        out["camera"] = {"height": float(c.height), "pitch": float(c.pitch), "fov": float(c.fov),
-                         "pitch_deg": math.degrees(float(c.pitch)), "fov_deg": math.degrees(float(c.fov))}
+        out["camera"] = cam.camera_to_dict(result.camera, degrees=True)
     if getattr(result, "determined", None) is not None:
-        def num(x):
-            x = float(x)
-            return x if math.isfinite(x) else None
-
         out["determined"] = {n: bool(v) for n, v in result.determined.items()}
-        out["std"] = {n: num(v) if np.ndim(v) == 0 else [num(x) for x in np.asarray(v)] for n, v in result.std.items()}
+        out["std"] = json_safe(dict(result.std))
         sd = out["std"].get("sun_direction")
         out["std"]["sun_direction_deg"] = None if sd is None else math.degrees(sd)
         out["loss_bound"] = float(result.loss_bound)

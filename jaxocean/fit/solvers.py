@@ -70,6 +70,7 @@ __all__ = [
     "solve",
     "loss_of",
     "dense_jacobian",
+    "value_and_jacobian",
 ]
 
 
@@ -139,7 +140,7 @@ def dense_jacobian(residual_fn):
     def jvp(primals, tangents):
         y, args = primals
         y_dot, args_dot = tangents
-        r, jac = _value_and_jacfwd(residual_fn, y, args)
+        r, jac = value_and_jacobian(residual_fn, y, args)
         if isinstance(y_dot, SymbolicZero):
             out = jnp.zeros_like(r)
         else:
@@ -167,7 +168,11 @@ def dense_jacobian(residual_fn):
 _JACOBIAN_BLOCK = 8
 
 
-def _value_and_jacfwd(fn, y, args):
+def value_and_jacobian(fn, y, args):
+    """``(fn(y, args), J)`` with the dense forward-mode Jacobian ``J (m, n)`` of ``fn`` with
+    respect to ``y (n,)``, its columns computed in vmapped blocks of ``_JACOBIAN_BLOCK`` (see
+    above). ``fn(y, args) -> (m,)``. What :func:`dense_jacobian` linearises with; for the
+    fits that need a Jacobian themselves (column scaling, ``J^T J`` uncertainties)."""
     n = y.shape[0]
     basis = jnp.eye(n, dtype=y.dtype)
     blocks = []
@@ -176,6 +181,10 @@ def _value_and_jacfwd(fn, y, args):
             basis[lo:lo + _JACOBIAN_BLOCK])
         blocks.append(cols)
     return r, blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks, axis=-1)
+
+
+#: the former private name, still imported by fit.waves; use :func:`value_and_jacobian`
+_value_and_jacfwd = value_and_jacobian
 
 
 def _finite(x):

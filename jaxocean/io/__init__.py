@@ -7,8 +7,8 @@ A rendered or observed sequence is a directory::
     frame_00001.exr
     ...
 
-* :mod:`jaxocean.io.exr`     -- :func:`write_frame` / :func:`read_frame`, the channel
-  protocol, and :func:`atomic_write`, through which every writer here goes.
+* :mod:`jaxocean.io.exr`     -- :func:`write_frame` / :func:`read_frame` and the channel
+  protocol.
 * :mod:`jaxocean.io.scene`   -- :func:`scene_to_dict` / :func:`scene_from_dict`,
   :func:`write_scene` / :func:`read_scene`.
 * :mod:`jaxocean.io.sequence` -- :func:`write_sequence`: a rendered sequence (EXR + PNG
@@ -16,7 +16,8 @@ A rendered or observed sequence is a directory::
 * :mod:`jaxocean.io.images`  -- :func:`load_image` / :func:`load_video` (display-referred
   pixels back to linear radiance) and :func:`save_png` previews.
 
-Writes are atomic: a file under its final name is always complete, so an interrupted job
+Writes are atomic (:func:`jaxocean.files.atomic_write`, re-exported here as
+:func:`atomic_write`): a file under its final name is always complete, so an interrupted job
 resumes by skipping the files that exist. Reading errors name the file
 (:class:`FileFormatError`, :class:`MissingFileError`). This is host-side code: readers
 return NumPy arrays (frames, images) or JAX pytrees (scenes); nothing here is jitted.

@@ -54,7 +54,8 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import render, shading, spectrum
 from jaxocean.errors import InvalidValueError
-from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, atomic_write, read_frame, write_frame
+from jaxocean.files import write_json
+from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
 from jaxocean.io.sequence import HALF_MAX, frame_name
 
@@ -208,10 +209,6 @@ def _settings(n_scenes, n_frames, resolution, seed, ranges, half):
     return json.loads(json.dumps(settings))  # the form it takes on disk, for comparisons
 
 
-def _write_json(path: Path, payload) -> None:
-    atomic_write(path, lambda tmp: tmp.write_text(json.dumps(payload, indent=1)))
-
-
 def _scene_complete(directory: Path, n_frames: int) -> bool:
     return (directory / SCENE_FILENAME).exists() and all((directory / frame_name(f)).exists()
                                                          for f in range(n_frames))
@@ -237,7 +234,7 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
             raise InvalidValueError(f"{settings_path}: dataset was made with other settings ({', '.join(changed)}); "
                                     "use a new --out directory or the same settings to resume")
     else:
-        _write_json(settings_path, settings)
+        write_json(settings_path, settings)
 
     todo = [i for i in range(n_scenes) if not _scene_complete(scene_dir(out, i), n_frames)]
     stats = dict(scenes=n_scenes, generated=len(todo), skipped=n_scenes - len(todo), render_s=0.0, write_s=0.0)
@@ -268,7 +265,7 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
         if bar is not None:
             bar.close()
     stats["wall_s"] = time.perf_counter() - t_start
-    _write_json(out / SPLITS_FILENAME, split_scenes(n_scenes, seed))
+    write_json(out / SPLITS_FILENAME, split_scenes(n_scenes, seed))
     _write_manifest(out, n_scenes, n_frames)
     stats["frames_per_s"] = stats["generated"] * n_frames / max(stats["wall_s"], 1e-9)
     stats["bytes"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
@@ -300,7 +297,7 @@ def _write_manifest(out: Path, n_scenes: int, n_frames: int) -> None:
         for name in [SCENE_FILENAME] + [frame_name(f) for f in range(n_frames)]:
             p = d / name
             files[str(p.relative_to(out))] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
-    _write_json(out / MANIFEST_FILENAME, {"files": files})
+    write_json(out / MANIFEST_FILENAME, {"files": files})
 
 
 def check(directory, *, read_frames: bool = True, progress: bool = False) -> list[str]:

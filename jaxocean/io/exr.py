@@ -51,7 +51,7 @@ Every value round-trips exactly.
 
 Atomicity and resuming. A frame is written to a hidden temporary file in the destination
 directory (``.{name}.tmp-{pid}``), flushed to disk, then renamed over the final name
-(:func:`atomic_write`). A file under a frame's final name is therefore always complete, even
+(:func:`jaxocean.files.atomic_write`). A file under a frame's final name is therefore always complete, even
 if the process dies mid-write: a generator that is restarted can skip every frame whose file
 exists. A killed process may leave its temporary file behind; it is never read and may be
 deleted. Everything is validated (shapes, finite values, half range, metadata) before the
@@ -81,12 +81,13 @@ import tempfile
 import threading
 import warnings
 from pathlib import Path
-from typing import Any, Callable, NamedTuple
+from typing import NamedTuple
 
 import numpy as np
 import OpenEXR
 
 from jaxocean.errors import InvalidValueError, check_finite
+from jaxocean.files import atomic_write
 
 __all__ = [
     "RGB_CHANNELS",
@@ -165,67 +166,12 @@ class IncompleteFrameWarning(UserWarning):
     the isotropic roughness and need not reproduce its image."""
 
 
-def _require_file(path, what: str) -> Path:
+def require_file(path, what: str) -> Path:
     """``Path(path)``, or :class:`MissingFileError` if it is not an existing file."""
     path = Path(path)
     if not path.is_file():
         raise MissingFileError(path, f"no such {what}")
     return path
-
-
-# --------------------------------------------------------------------------- atomic writes
-
-
-def atomic_write(path, write: Callable[[Path], Any]) -> Path:
-    """Create or replace ``path`` atomically: ``write(temporary_path)`` then rename.
-
-    ``write`` receives the path of a temporary file in the destination directory
-    (``.{name}.tmp-{pid}``; same directory, so the final rename never crosses file systems)
-    and must create it. The file is flushed to disk, then ``os.replace``-d onto ``path``:
-    readers see either the old file or the complete new one, never a partial file. If
-    ``write`` raises, the temporary file is removed and ``path`` is left as it was. Missing
-    parent directories are created. Every writer of :mod:`jaxocean.io` goes through here.
-
-    Returns:
-        ``path`` as a :class:`pathlib.Path`.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    temporary = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        write(temporary)
-        _fsync(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        # BaseException: a KeyboardInterrupt mid-write must not leave the temporary behind.
-        temporary.unlink(missing_ok=True)
-        raise
-    _fsync_directory(path.parent)
-    return path
-
-
-def _fsync(path: Path) -> None:
-    """Flush a file's data to disk, so that the rename can never expose an empty file after
-    a power cut (the rename may reach the disk before the data otherwise)."""
-    fd = os.open(path, os.O_RDONLY)
-    try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-
-
-def _fsync_directory(directory: Path) -> None:
-    """Persist the rename itself; best effort (not every platform can open a directory)."""
-    try:
-        fd = os.open(directory, os.O_RDONLY)
-    except OSError:
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)
 
 
 # --------------------------------------------------------------------------- writing
@@ -539,7 +485,7 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
             ``expect_resolution``. The message names the file (and the channels); what
             the OpenEXR library prints about a damaged file does not reach stdout / stderr.
     """
-    path = _require_file(path, "EXR frame file")
+    path = require_file(path, "EXR frame file")
     _check_magic(path)
     error = None
     with _captured_output() as printed:

@@ -33,7 +33,8 @@ import imageio.v3 as iio
 import numpy as np
 
 from jaxocean.errors import check_finite
-from jaxocean.io.exr import FileFormatError, _require_file, atomic_write, read_frame
+from jaxocean.files import atomic_write
+from jaxocean.io.exr import FileFormatError, read_frame, require_file
 from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
 
 __all__ = ["VIDEO_SUFFIXES", "load_image", "load_video", "save_png"]
@@ -63,7 +64,7 @@ def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
         ValueError: unknown ``space``.
     """
     _check_space(space)
-    path = _require_file(path, "image file")
+    path = require_file(path, "image file")
     if path.suffix.lower() == _EXR_SUFFIX:
         return read_frame(path, warn_incomplete=False).image  # the image alone: no geometry used
     try:
@@ -87,7 +88,7 @@ def load_video(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
         ValueError: unknown ``space``.
     """
     _check_space(space)
-    path = _require_file(path, "video file")
+    path = require_file(path, "video file")
     if path.suffix.lower() in VIDEO_SUFFIXES and not _video_plugin_available():
         raise ImportError(
             f"reading the video {str(path)!r} needs an imageio video plugin, and neither PyAV nor "

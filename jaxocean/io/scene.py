@@ -29,7 +29,7 @@ JAX's default float dtype (float32, float64 under ``jax_enable_x64``): float32 s
 restored exactly, float64 scenes exactly under x64. Non-finite numbers are refused (strict
 JSON has none).
 
-Writes are atomic (:func:`jaxocean.io.exr.atomic_write`); reading errors name the file
+Writes are atomic (:func:`jaxocean.files.write_json`); reading errors name the file
 (:class:`SceneError`, :class:`jaxocean.io.exr.MissingFileError`).
 """
 
@@ -43,9 +43,10 @@ from typing import Any, NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean.camera import Camera, validate_camera
+from jaxocean.camera import Camera, camera_to_dict, validate_camera
 from jaxocean.errors import InvalidValueError, check_finite
-from jaxocean.io.exr import FileFormatError, _require_file, atomic_write
+from jaxocean.files import write_json
+from jaxocean.io.exr import FileFormatError, require_file
 from jaxocean.shading import Lighting, validate_lighting
 from jaxocean.spectrum import Spectrum, validate_spectrum
 from jaxocean.waves import Waves, validate
@@ -144,10 +145,9 @@ def _namedtuple_to_json(value, section: str) -> dict:
 
 def _camera_to_json(camera: Camera) -> dict:
     validate_camera(camera)
-    out = {name: _leaf_to_json(getattr(camera, name), f"camera.{name}") for name in _CAMERA_LEAVES}
-    out["resolution"] = list(camera.resolution)
-    out["projection"] = camera.projection
-    return out
+    for name in _CAMERA_LEAVES:
+        _leaf_to_json(getattr(camera, name), f"camera.{name}")  # real and finite, or a ValueError naming it
+    return camera_to_dict(camera)
 
 
 def _leaf_to_json(leaf, where: str):
@@ -319,8 +319,7 @@ def write_scene(dir_or_path, scene_dict) -> Path:
     if isinstance(scene_dict, Scene):
         scene_dict = scene_to_dict(**{name: getattr(scene_dict, name) for name in _SECTIONS})
     scene_from_dict(scene_dict)
-    text = json.dumps(scene_dict, indent=2, allow_nan=False) + "\n"
-    return atomic_write(_scene_path(dir_or_path), lambda temporary: temporary.write_text(text, encoding="utf-8"))
+    return write_json(_scene_path(dir_or_path), scene_dict)
 
 
 def read_scene(path) -> Scene:
@@ -331,7 +330,7 @@ def read_scene(path) -> Scene:
         SceneFileError: malformed JSON (with line and column) or a dict that
             :func:`scene_from_dict` rejects; the message names the file.
     """
-    path = _require_file(_scene_path(path), "scene file")
+    path = require_file(_scene_path(path), "scene file")
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as error:

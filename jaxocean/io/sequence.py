@@ -9,7 +9,7 @@ of the first frame and ``scene.json``. ``scene`` is anything with ``waves``, ``c
 ``geometry`` has ``normal (T, H, W, 3)``, ``roughness (T, H, W)``, ``mask (T, H, W)`` and
 (as a :class:`jaxocean.render.Geometry` does) ``slope_variance (T, H, W, 2)``, which is
 stored so that each frame's geometry reproduces its image (:mod:`jaxocean.io.exr`).
-Every file is written atomically (:func:`jaxocean.io.exr.atomic_write`). The CLI's
+Every file is written atomically (:func:`jaxocean.files.atomic_write`). The CLI's
 ``render``, ``demo`` and ``forecast`` and :func:`jaxocean.fit.reedit_scene` all write
 through here.
 
@@ -28,7 +28,9 @@ from pathlib import Path
 
 import numpy as np
 
-from jaxocean.io.exr import atomic_write, write_frame
+from jaxocean import plots
+from jaxocean.files import atomic_write
+from jaxocean.io.exr import write_frame
 from jaxocean.io.images import save_png
 from jaxocean.io.scene import SCENE_FILENAME, scene_to_dict, write_scene
 
@@ -57,8 +59,6 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     """
     import imageio.v3 as iio
     from tqdm.auto import tqdm
-
-    from jaxocean import plots
 
     out = Path(out)
     images = np.asarray(images, np.float32)
