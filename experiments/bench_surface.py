@@ -11,7 +11,7 @@ dot products) at the same points, one frame at a time under ``lax.map`` so that 
 (``surface._on_grid_reference``, the implementation before on_grid's custom tangent rule) is
 timed too, in the same run.
 
-The machine may be shared: the 1/5/15-minute load averages before and after the run are
+Other jobs may run on the machine: the 1/5/15-minute load averages before and after the run are
 stored in the JSON meta, and the summary gives the forward+grad / forward ratio of the same
 run, which is less sensitive to load than either time.
 

@@ -71,7 +71,7 @@ def interleaved_medians(calls: dict, rounds: int = 7, block: int = 11) -> dict:
 
 def machine_info() -> dict:
     """The machine, and its 1/5/15-minute load average when the results are saved (the
-    development machine is shared: loaded runs are slower)."""
+    development machine also runs other jobs: loaded runs are slower)."""
     return dict(platform=platform.platform(), processor=platform.processor(), cpus=os.cpu_count(),
                 jax=jax.__version__, backend=jax.default_backend(),
                 devices=[str(d) for d in jax.devices()], load_average=list(os.getloadavg()))

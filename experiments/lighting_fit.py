@@ -33,7 +33,7 @@ elevation 5-35 deg, colours log-uniform in ``fit.COLOR_RANGES``; initial guesses
    its ``success`` flag against the tight bar (false successes).
 
 Usage: ``python experiments/lighting_fit.py [--quick | --full] [--only accuracy,noise,...]``
-(default about 10 min per section on the shared 2-core machine; ``--full`` runs the accuracy
+(default about 10 min per section on a loaded 2-core machine; ``--full`` runs the accuracy
 section at the sizes reported in ``LIGHTING.md``); writes
 ``experiments/results/lighting_fit.json`` and ``lighting_fit_*.png``.
 """
@@ -642,7 +642,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small sizes for a fast pass")
     parser.add_argument("--full", action="store_true",
                         help="accuracy: 100 problems for every fast method, 20 for the baselines, the Adam "
-                             "learning-rate sweep (about 40 min on the shared 2-core machine)")
+                             "learning-rate sweep (about 40 min on a loaded 2-core machine)")
     parser.add_argument("--draws", type=int, default=0, help="noise: draws per point (default 100; 12 with --quick)")
     parser.add_argument("--draws-128", type=int, default=0, help="noise: draws per point at 128^2 (default --draws)")
     parser.add_argument("--camera-starts", type=int, default=None,

@@ -1,4 +1,4 @@
-"""Gradient-safe numerical helpers shared by every module.
+"""Gradient-safe numerical helpers used by every module.
 
 Protocol: pure elementwise functions on JAX arrays, any shape, float32 or float64.
 Each helper is finite in value *and* gradient over its whole input range; the

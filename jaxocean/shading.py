@@ -8,7 +8,7 @@ Inputs are per-pixel geometry and one :class:`Lighting`; outputs are linear radi
 * ``sigma2_x``, ``sigma2_y``  ``(...)`` sub-pixel slope variances along the tangent axes
   ``T_x``, ``T_y`` of :func:`tangent_frame` (dimensionless). Each is clamped at
   ``MIN_SLOPE_VARIANCE_AXIS`` so that the roughness ``sigma2_x + sigma2_y`` is at least
-  ``MIN_SLOPE_VARIANCE`` (DESIGN section 4): a perfectly flat, unfiltered sea is a very
+  ``MIN_SLOPE_VARIANCE`` (docs/design.md, *Slope variance*): a perfectly flat, unfiltered sea is a very
   narrow lobe, never a Dirac, and every term stays finite.
 * ``view``  ``(..., 3)`` unit vector from the surface point towards the camera.
 * ``light`` ``(..., 3)`` unit vector from the surface point towards the sun
@@ -24,7 +24,7 @@ Every function is elementwise over the leading axes ``(...)`` (arguments broadca
 jittable and vmappable, float32 by default and float64 under ``jax_enable_x64``. Values and
 gradients are finite over the whole valid domain -- flat sea, zero roughness, grazing views,
 the sun on or below the horizon, a normal parallel to +x -- by clamping and the double-
-``where`` pattern (DESIGN section 3).
+``where`` pattern (docs/design.md, *Gradient safety*).
 
 The image model (Bruneton, Neyret & Holzschuch 2010, "Real-time realistic ocean lighting
 using seamless transitions from geometry to BRDF")::
@@ -39,7 +39,7 @@ using seamless transitions from geometry to BRDF")::
 
 The image is linear in the three colours and ``F_mean`` does not depend on the lighting at
 all; :func:`shade_components` returns the three terms so that a lighting fit can solve the
-colours in closed form (DESIGN section 6), and :func:`shade_pixel` is that decomposition
+colours in closed form (docs/design.md, *Inverse methods*), and :func:`shade_pixel` is that decomposition
 composed -- one implementation of the physics.
 
 Display: :func:`tonemap` maps linear radiance to display values in [0, 1]
@@ -94,7 +94,7 @@ __all__ = [
 ]
 
 MIN_SLOPE_VARIANCE = 2e-5
-"""Floor of the scalar roughness sigma^2 = sigma_x^2 + sigma_y^2 (DESIGN section 4)."""
+"""Floor of the scalar roughness sigma^2 = sigma_x^2 + sigma_y^2 (docs/design.md, *Slope variance*)."""
 
 MIN_SLOPE_VARIANCE_AXIS = 0.5 * MIN_SLOPE_VARIANCE
 """Floor of each axis' slope variance; it makes the scalar floor hold."""

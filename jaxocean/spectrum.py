@@ -631,8 +631,8 @@ def sample_waves(key, spectrum: Spectrum, n_waves: int, *, band=None, bins: str 
       Gauss-Legendre rule, so sum h^2 / 2 is the band's m0 (``band_m0``) to float
       rounding (measured: 1e-7 relative in float32, 1e-15 in float64, for N = 60 and 240).
     * Directions: drawn from the Mitsuyasu spreading D(theta; w_i) by inverse CDF (the
-      energy of a bin goes to one direction: in expectation this is DESIGN's
-      h = sqrt(2 S D dw dtheta)). Angles in [-pi, pi).
+      energy of a bin goes to one direction: in expectation this is the sampling rule
+      h = sqrt(2 S D dw dtheta) of docs/design.md, *Spectra*). Angles in [-pi, pi).
     * Phases: uniform in [0, 2 pi).
     * Steepness: waves with k h > ``max_steepness`` have h lowered to the limit.
       ``steepness_policy="clamp"`` (default) does so and, when values are concrete, emits

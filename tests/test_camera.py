@@ -221,7 +221,7 @@ def test_horizon_splits_sky_from_sea():
     np.testing.assert_allclose(np.asarray(hit.footprint)[sky], 10.0 * float(pixel_angle(camera)), rtol=1e-6)
 
 
-GRADIENT_RESOLUTION = (9, 12)  # shared, so the jitted gradient below compiles once
+GRADIENT_RESOLUTION = (9, 12)  # one for all tests, so the jitted gradient below compiles once
 
 
 @jax.jit

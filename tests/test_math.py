@@ -1,4 +1,4 @@
-"""The shared numerical helpers of jaxocean._math: fast float32 sincos, inv_sqrt, and the
+"""The numerical helpers of jaxocean._math: fast float32 sincos, inv_sqrt, and the
 component split and materialisation whose derivative rules shape what XLA compiles."""
 
 import jax

@@ -182,7 +182,7 @@ def test_sampling_is_reproducible_by_key():
         assert not np.array_equal(getattr(a.waves, name), getattr(c.waves, name)), name
 
 
-# (one compiled sampler per (n, bins): the pairs are shared between tests to keep them fast)
+# (one compiled sampler per (n, bins): the pairs are reused between tests to keep them fast)
 @pytest.mark.parametrize("n, bins", [(60, "geometric"), (240, "linear")])
 def test_sampled_energy_equals_band_m0(key, n, bins):
     sea = sample_waves(key, SEA, n, bins=bins)

@@ -1,6 +1,6 @@
 """Fitting applications: optimistix / jaxopt / optax solvers through the forward models.
 
-* :mod:`jaxocean.fit.solvers`  one registry of solvers (name -> runner) shared by every fit
+* :mod:`jaxocean.fit.solvers`  one registry of solvers (name -> runner) used by every fit
 * :mod:`jaxocean.fit.lighting` sun direction and sun / sky / sea colours from an image and
   its geometry (variable projection: colours in closed form, two sun angles searched)
 * :mod:`jaxocean.fit.camera`   camera height, pitch (and field of view) from an image and

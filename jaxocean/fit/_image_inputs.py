@@ -1,4 +1,4 @@
-"""Input checks and pixel weights shared by the image fits (fit.lighting, fit.camera).
+"""Input checks and pixel weights common to the image fits (fit.lighting, fit.camera).
 
 Public within the package, not part of the user API (``tonemap_weights`` and
 ``WEIGHT_MODES`` are re-exported by :mod:`jaxocean.fit.lighting`).

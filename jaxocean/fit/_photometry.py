@@ -1,4 +1,4 @@
-"""The photometric model of one frame given its geometry, shared by the image fits.
+"""The photometric model of one frame given its geometry, common to the image fits.
 
 Used by :mod:`jaxocean.fit.lighting` and :mod:`jaxocean.fit.camera`; public within the
 package, not part of the user API (the user-facing names are re-exported by fit.lighting).

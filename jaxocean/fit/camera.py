@@ -98,7 +98,7 @@ DEFAULT_LEVELS = (4.0, 2.0, 1.0)
 #: +-15% height / +-0.04 rad pitch still recover the camera (experiments/LIGHTING.md).
 DEFAULT_COARSE_STEPS = 12
 #: success needs ``loss <= NOISE_FACTOR * noise**2 + LOSS_FLOOR * (weighted mean square image)``
-#: (the rule of :mod:`jaxocean.fit._plausibility`, shared with fit.lighting)
+#: (the rule of :mod:`jaxocean.fit._plausibility`, the same as fit.lighting's)
 NOISE_FACTOR = _plausibility.NOISE_FACTOR
 LOSS_FLOOR = _plausibility.LOSS_FLOOR
 

@@ -1,4 +1,4 @@
-"""One registry of solvers, shared by every fit: a name -> a runner with one signature.
+"""One registry of solvers, used by every fit: a name -> a runner with one signature.
 
 Protocol
 --------

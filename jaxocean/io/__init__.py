@@ -1,4 +1,4 @@
-"""File formats: OpenEXR frames, ``scene.json``, images and video (DESIGN section 5).
+"""File formats: OpenEXR frames, ``scene.json``, images and video (docs/design.md, *Files*).
 
 A rendered or observed sequence is a directory::
 
