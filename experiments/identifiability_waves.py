@@ -41,7 +41,9 @@ sys.path.insert(0, __file__.rsplit("/", 1)[0])
 import benchutil  # noqa: E402
 import wave_fit  # noqa: E402
 
+from jaxocean import hierarchy  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
+from jaxocean.fit.waves import _lm, _model  # noqa: E402
 from jaxocean.waves import Waves  # noqa: E402
 
 NAME = "identifiability_waves"
@@ -55,23 +57,23 @@ def fisher_std(scene, geo, resolution) -> np.ndarray:
     """1-sigma of every true wave's amplitude per unit normal noise (float64, normals only)."""
     truth = scene.waves
     n = truth.omega.shape[0]
-    n_pad = fw._bucket(n)
+    n_pad = _model.bucket_size(n)
     with jax.enable_x64(True):
         f64 = lambda x: jnp.asarray(np.asarray(x), jnp.float64)  # noqa: E731
         cam64 = jax.tree.map(lambda x: f64(x) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) else x,
                              scene.camera)
-        padded, active = fw._pad_waves(Waves(*(f64(x) for x in truth)), n_pad)
+        padded, active = _model.pad_waves(Waves(*(f64(x) for x in truth)), n_pad)
         normals, times = f64(geo.normal), f64(scene.times)
-        out, n_valid = fw._refine_kernel(fw._pack(padded), active, normals, None, times, cam64,
+        out, n_valid = _lm.refine_kernel(_model.pack(padded), active, normals, None, times, cam64,
                                          jnp.zeros(resolution, jnp.float64), jnp.asarray(0.0), jnp.asarray(0.0),
-                                         n_min=fw.hierarchy.DEFAULT_N_MIN, n_max=fw.hierarchy.DEFAULT_N_MAX,
+                                         n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
                                          max_steps=0, roughness_weight=0.0)
         # residual entries are (n - n_hat)_xy / sqrt(P): noise sigma per component has
         # variance sigma^2 / P in those units; _uncertainty takes sigma^2 = 2 half / dof
         n_obs = 2.0 * n_valid
         dof = n_obs - 4.0 * n
         half = dof / (2.0 * n_valid)
-        std = fw._uncertainty(out.y, out.jtj, active, half, n_obs)
+        std = _lm._uncertainty(out.y, out.jtj, active, half, n_obs)
         return np.asarray(std.amplitude[:n], float)
 
 

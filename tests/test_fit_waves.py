@@ -19,6 +19,7 @@ from jaxocean.errors import InvalidValueError
 import jaxocean.fit as fit_package
 from jaxocean.fit import spectrum_fit as fit_spectrum
 from jaxocean.fit import waves_fit as fw
+from jaxocean.fit.waves import _inputs, _lm, _model
 from jaxocean.fit.solvers import FitError
 from jaxocean.waves import GRAVITY, Waves, make_waves
 
@@ -183,13 +184,13 @@ def test_structured_jacobian_matches_autodiff_through_render(x64):
     c = persp()
     truth = make_waves([0.03, 0.02, 0.006], [2.8, 3.6, 9.0], [0.4, 2.1, -1.2], [0.5, 4.0, 2.0])
     normals, _ = fw.predict(truth, c, TIMES[:2])
-    weight = fw._weights(normals, c)
-    y = fw._pack(truth) * 1.01
-    samples = fw._samples(normals[..., :2], weight, jnp.asarray(TIMES[:2]), c)
-    r, J = fw._jacobian(y.reshape(4, 3), jnp.ones(3), samples, 1.0, 1.5)
+    weight = _inputs.valid_weights(normals, c)
+    y = _model.pack(truth) * 1.01
+    samples = _inputs.all_samples(normals[..., :2], weight, jnp.asarray(TIMES[:2]), c)
+    r, J = _model.jacobian(y.reshape(4, 3), jnp.ones(3), samples, 1.0, 1.5)
 
     def residual(yy):
-        pred, _ = fw.predict(fw._to_waves(yy, 3), c, TIMES[:2])
+        pred, _ = fw.predict(_model.to_waves(yy, 3), c, TIMES[:2])
         return ((pred[..., :2] - normals[..., :2]) * weight[..., None]).reshape(-1)
 
     np.testing.assert_allclose(r, residual(y), atol=1e-12)
@@ -199,7 +200,7 @@ def test_structured_jacobian_matches_autodiff_through_render(x64):
 def _delta_method_std(y, cov, n):
     """Reference: (h, omega, theta, phi) standard deviations by the delta method with
     autodiff and an explicit float64 inverse."""
-    jac = jax.jacfwd(lambda yy: jnp.stack(fw._to_waves(yy, n)))(y)  # (4, N, 4N)
+    jac = jax.jacfwd(lambda yy: jnp.stack(_model.to_waves(yy, n)))(y)  # (4, N, 4N)
     return np.sqrt(np.einsum("qip,pr,qir->qi", jac, cov, jac))
 
 
@@ -207,11 +208,11 @@ def _delta_method_std(y, cov, n):
 def test_wave_uncertainty_is_the_delta_method_covariance(x64, seed):
     rng = np.random.default_rng(seed)
     n, n_obs, sigma2 = 3, 200.0, 1e-4
-    y = fw._pack(Waves(*(jnp.asarray(x, jnp.float64) for x in few_waves())))
+    y = _model.pack(Waves(*(jnp.asarray(x, jnp.float64) for x in few_waves())))
     a = rng.standard_normal((60, 4 * n)) * rng.uniform(0.1, 10.0, 4 * n)  # columns of unequal scale
     jtj = a.T @ a
     half = 0.5 * sigma2 * (n_obs - 4 * n)  # so that 2 half / dof = sigma2
-    std = fw._uncertainty(y, jnp.asarray(jtj), jnp.ones(n, bool), half, n_obs)
+    std = _lm._uncertainty(y, jnp.asarray(jtj), jnp.ones(n, bool), half, n_obs)
     expected = _delta_method_std(y, sigma2 * np.linalg.inv(jtj), n)
     np.testing.assert_allclose(np.stack([np.asarray(s) for s in std]), expected, rtol=1e-6)
 
@@ -226,7 +227,7 @@ def test_wave_uncertainty_is_positive_when_the_normal_matrix_is_near_singular():
     base = rng.standard_normal((400, 2 * n))
     a = np.concatenate([base, base + 1e-4 * rng.standard_normal((400, 2 * n))], 1) * rng.uniform(0.1, 10, 4 * n)
     jtj = jnp.asarray(a.T @ a, jnp.float32)
-    std = fw._uncertainty(fw._pack(w), jtj, jnp.ones(n, bool), 0.5 * 1e-4 * 368, 400.0)
+    std = _lm._uncertainty(_model.pack(w), jtj, jnp.ones(n, bool), 0.5 * 1e-4 * 368, 400.0)
     for leaf in std:
         assert np.all(np.isfinite(np.asarray(leaf))) and np.all(np.asarray(leaf) > 0)
 
@@ -341,10 +342,20 @@ def test_spectrum_tail_waves_and_errors(sampled_sea):
         fit_spectrum.spectrum(waves, roughness=np.zeros((2, 4, 4)))
 
 
-def test_render_plan_of_the_fit_model_is_the_rows_path():
-    # the fit's forward model is render.geometry with every wave evaluated, unrefined
-    plan = fw._plan(4)
-    assert isinstance(plan, render.RenderPlan) and plan.refine == 0 and plan.active == (0, 1, 2, 3)
+def test_the_fit_model_is_the_renderers_rows_path_with_every_wave():
+    # predict (the fit's forward model) is render.geometry on plane hits with all waves
+    # evaluated: frame by frame the same normals and roughness
+    c = persp()
+    truth = few_waves()
+    normals, rough = fw.predict(truth, c, TIMES[:2])
+    rows_all = render.RenderPlan(active=(0, 1, 2), refine=0)
+    for i, t in enumerate(TIMES[:2]):
+        g = render.geometry(truth, c, t, plan=rows_all)
+        np.testing.assert_allclose(np.asarray(normals[i]), np.asarray(g.normal), rtol=1e-6, atol=1e-6)
+        np.testing.assert_allclose(np.asarray(rough[i]), np.asarray(g.roughness), rtol=1e-6, atol=1e-9)
+    # a plan that skips a wave is a different model: the comparison above can fail
+    g = render.geometry(truth, c, TIMES[0], plan=render.RenderPlan(active=(0, 1), refine=0))
+    assert float(jnp.max(jnp.abs(normals[0] - g.normal))) > 1e-3
 
 
 def test_package_exports_the_fits_and_their_modules():

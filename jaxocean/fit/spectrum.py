@@ -184,6 +184,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     Eager (the wave selection is data dependent)."""
     from jaxocean.fit import solvers
     from jaxocean.fit.waves import resolvable
+    from jaxocean.fit.waves._model import fitted_roughness_rows
 
     t0 = time.perf_counter()
     validate(waves, max_steepness=None)
@@ -226,7 +227,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
         fp_row = np.asarray(hit.footprint)[:, W // 2]
         rows = mask.any(1)
         r_row = np.array([r[i][mask[i]].mean() if rows[i] else 0.0 for i in range(r.shape[0])])
-        fitted_share = _fitted_roughness(waves, fp_row, n_min, n_max)
+        fitted_share = fitted_roughness_rows(waves, fp_row, n_min, n_max)
         informative = rows & (r_row > 2.0 * shading.MIN_SLOPE_VARIANCE)
         if informative.any():
             rough_rows = (jnp.asarray(fp_row[informative], dtype), jnp.asarray(r_row[informative], dtype),
@@ -313,18 +314,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
                        n_waves=int(len(om)), omega_band=(float(edges[0]), float(edges[-1])),
                        peak_observed=peak_observed, alpha=float(alpha),
                        time_s=time.perf_counter() - t0)
-
-
-def _fitted_roughness(waves, fp_row, n_min, n_max):
-    om = np.asarray(waves.omega, np.float64)
-    h = np.asarray(waves.amplitude, np.float64)
-    k = om * om / GRAVITY
-    lam = 2 * np.pi / k
-    x = lam[None, :] / np.asarray(fp_row)[:, None]
-    q = np.clip((x - n_min) / (n_max - n_min), 0, 1)
-    w_r = 1.0 - q * q * (3 - 2 * q)
-    kh2 = np.minimum((k * h) ** 2, 1.0)
-    return w_r @ (kh2 / (1 + np.sqrt(1 - kh2)))
 
 
 def _direction_mle(om, th, wp, weight=None):

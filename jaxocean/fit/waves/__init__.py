@@ -1,0 +1,106 @@
+"""Wave fitting: the component waves ``{h, omega, theta, phi}`` behind a sequence of geometry.
+
+Protocol
+--------
+Inputs describe one scene (map batches of scenes with ``jax.vmap`` through :func:`refine`):
+
+* ``normals``   ``(T, H, W, 3)`` unit normals of the normal-level waves, as
+  :func:`jaxocean.render.geometry` returns them (world frame, z up);
+* ``roughness`` ``(T, H, W)`` slope variance sigma^2 of the sub-pixel waves (or None);
+* ``camera``    the :class:`jaxocean.camera.Camera` the geometry was seen with
+  (``camera.resolution == (H, W)``);
+* ``times``     ``(T,)`` frame times [s], strictly increasing, ``T >= 2``.
+
+The model is the renderer's own: :func:`jaxocean.render.geometry` on its rows fast path
+(no hit refinement, Nyquist weights per image row), so a fitted wave that is partly
+sub-pixel is modelled exactly as it was rendered. Sky pixels and pixels whose normal is
+not finite or faces down carry no weight.
+
+Loss (the paper's eq. 5-7)::
+
+    loss = mean_pixels (1 - n . n_hat) + roughness_weight * mean_pixels (rho - rho_hat)^2
+
+and its least-squares form ``0.5 |r|^2`` with ``r = (n - n_hat)_xy / sqrt(P)`` per pixel
+(``P`` valid pixel-frames; ``|dn|^2 = 2 (1 - cos)`` and the z part is of fourth order in
+the slope) plus ``sqrt(2 w / P) (rho - rho_hat)`` per pixel for the roughness.
+
+Pipeline of :func:`waves`:
+
+1. **Spectral estimate** (:func:`spectral_estimate`): the slope field
+   ``s = (-n_x/n_z, -n_y/n_z)`` is resampled onto ground grids (a pyramid of scales, each
+   a ``G x G`` square anchored at the nearest sea pixel and spaced by a multiple of its
+   footprint; for the orthographic camera the pixel grid itself), Fourier transformed in
+   space and projected in time onto the dispersion shell ``omega^2 = g k``:
+   ``P(K) = |sum_t e^{-i omega(K) t} K_hat . F_t(K)|^2``. A wave travelling along ``K``
+   lights up one bin (the opposite direction stays dark), so local maxima of ``P`` give
+   frequencies, directions and -- through the linear solve -- phases.
+2. **Linear amplitudes and phases** (:func:`solve_amplitudes`): to first order in the
+   steepness the slope field is ``sum_i w_i k_i k_hat_i (a_i sin psi0_i + b_i cos psi0_i)``
+   with ``psi0 = omega t - k.X``, linear in ``(a, b) = h (cos phi, sin phi)`` once
+   ``(omega, theta)`` are known (DESIGN section 6).
+3. **Greedy detection with order selection**: candidates from the spectral estimate of the
+   current residual plus a polar grid of waves longer than the largest ground grid are
+   scored on a spread subsample of pixel-frames by the energy a single wave removes,
+   refined in ``(a, b, omega, theta)`` by a single-wave Levenberg-Marquardt, solved jointly
+   for ``(a, b)`` (sidelobes and repeats lose their energy there), added in batches, and
+   the whole set is refined by the structured Levenberg-Marquardt below (without the
+   roughness term: the observed roughness holds waves the model does not have yet). A
+   batch is kept while it lowers the information criterion (``"bic"``:
+   ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
+   ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, the model's own
+   floating-point precision). Optionally the final set is pruned by each wave's Wald
+   statistic against the same penalty. The final refinement adds the roughness term with
+   the sub-pixel tail of waves outside the set fitted by non-negative least squares.
+4. **Refinement** (:func:`refine`): every parameter at once. The default solver
+   ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling) whose
+   normal equations ``J^T J`` are accumulated frame by frame and row block by row block
+   from per-wave forward-mode Jacobians (a wave's parameters touch only its own sines,
+   so ``J`` is built in ``O(pixels x waves)`` and reduced by one matrix product); trial
+   losses go through ``render.geometry``. Any name of :mod:`jaxocean.fit.solvers` is
+   also accepted (``"lm"``, ``"gauss_newton"``, ``"dogleg"``, ``"bfgs"``, ``"lbfgsb"``,
+   ``"adam"``, ``"scipy"``); they see the same residual but materialise the dense
+   Jacobian, which is 20-40x slower at 128^2 x 10 frames x 60 waves.
+
+Parameters inside the solvers are ``(a, b, log omega, theta)`` per wave: no singularity
+at ``h = 0`` and ``omega > 0`` by construction.
+
+Wave uncertainty (:class:`WaveFit` ``uncertainty``) is the Gauss-Newton covariance
+``sigma^2 (J^T J)^-1`` with ``sigma^2 = RSS / (M - 4N)``, mapped to ``(h, omega, theta,
+phi)``: cheap (the solver has ``J^T J``) and meaningful when the residual is noise.
+
+Resolvability (:func:`resolvable`): a wave is individually recoverable when the image
+resolves it somewhere (``lambda >= n_max x`` the smallest footprint) and at least
+``cycles`` of its wavelengths fit into the part of the sea where it is resolved, measured
+along its direction of travel. Longer waves are seen only as a smooth tilt field: the fit
+explains them with some long waves, not with the true ones (``experiments/WAVES.md``).
+"""
+
+from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
+from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
+                                    refine)
+from jaxocean.fit.waves._match import WaveMatch, match, resolvable
+from jaxocean.fit.waves._model import loss, predict
+from jaxocean.fit.waves._select import OrderSelection, waves
+from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
+
+__all__ = [
+    "WaveFit",
+    "SpectralEstimate",
+    "OrderSelection",
+    "WaveMatch",
+    "SOLVER_NAMES",
+    "NOISE_FACTOR",
+    "NORMAL_ERROR_FLOOR",
+    "UNIT_NORMAL_TOLERANCE",
+    "normal_error_bound",
+    "waves",
+    "refine",
+    "spectral_estimate",
+    "spectral_init",
+    "solve_amplitudes",
+    "loss",
+    "predict",
+    "resolvable",
+    "match",
+    "check_inputs",
+]

@@ -1,0 +1,422 @@
+"""The structured Levenberg-Marquardt of the wave fit, :func:`refine` and the fit's result.
+
+Protocol: :func:`refine` takes a scene (see :mod:`jaxocean.fit.waves`) and ``init`` waves
+``(N,)`` and returns a :class:`WaveFit`; :func:`refine_kernel` is its jitted core on the
+packed parameters ``y (4N,)`` with an ``active (N,)`` mask of real (not padding) waves;
+:func:`registry_refine` runs a :mod:`jaxocean.fit.solvers` solver on the same residual.
+:func:`normal_error_bound` is the largest mean normal angle [rad] a successful fit may leave.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import hierarchy
+from jaxocean._math import safe_sqrt
+from jaxocean.errors import is_concrete
+from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chunked, clean_inputs, subsample,
+                                        valid_weights)
+from jaxocean.fit.waves._model import (bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
+                                       rough_data, rough_residual, to_waves, unpack)
+from jaxocean.waves import Waves, validate
+
+
+#: solver names accepted by :func:`waves` / :func:`refine`: ours first, then the registry's.
+SOLVER_NAMES = ("structured", "lm", "gauss_newton", "dogleg", "bfgs", "lbfgsb", "adam", "scipy")
+# plausibility of a fit (see waves(): success): the mean normal angle of a fit that explains
+# its data is about sqrt(pi/2) sigma for per-component noise sigma; allowed up to 1.5x that,
+# and never below 1 mrad (noise-free fits reach 1e-5 rad; half-float EXR frames ~1e-4)
+NOISE_FACTOR = 1.5
+NORMAL_ERROR_FLOOR = 1e-3
+_CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
+
+
+class WaveFit(NamedTuple):
+    """Result of :func:`waves` / :func:`refine` (arrays only, so ``jax.vmap`` can return it).
+
+    * ``waves``        fitted :class:`~jaxocean.waves.Waves` ``(N,)``, sorted by frequency
+      by :func:`waves` (``refine`` keeps the input order).
+    * ``uncertainty``  ``Waves`` of 1-sigma standard deviations of (h, omega, theta, phi).
+    * ``loss``         the paper's loss (:mod:`jaxocean.fit.waves`) at the fit.
+    * ``normal_error`` mean angle [rad] between fitted and observed normals.
+    * ``roughness_error`` mean absolute roughness difference.
+    * ``steps``        solver steps of the final refinement (``waves``: summed over the whole
+      pipeline).
+    * ``success``      the solver converged to its tolerances with a finite loss (and, when
+      :func:`waves` selects the count, the selection stopped by itself: a fit stopped by
+      ``max_waves`` is reported failed -- the sea holds more than the cap allows; and
+      :func:`waves` leaves a mean normal error within :func:`normal_error_bound` of its
+      ``noise``: a converged fit that does not explain the data is reported failed).
+    * ``n_waves``      number of fitted waves.
+    * ``time_s``       wall time [s] of the eager call (NaN under tracing).
+    * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
+    """
+
+    waves: Waves
+    uncertainty: Waves
+    loss: jax.Array
+    normal_error: jax.Array
+    roughness_error: jax.Array
+    steps: jax.Array
+    success: jax.Array
+    n_waves: jax.Array
+    time_s: jax.Array
+    history: jax.Array | None = None
+
+
+def _chunk_size(n_pad):
+    return int(max(64, min(8192, _CHUNK_FLOATS // (30 * max(n_pad, 1)))))
+
+
+def _gauss_newton(y, active, chunks: Samples, n_min, n_max):
+    """``J^T J`` over the (sub)sampled chunks."""
+    n = active.shape[0]
+    P = unpack(y, n)
+    act = active.astype(y.dtype)
+
+    def body(jtj, ch):
+        _, J = jacobian(P, act, ch, n_min, n_max)
+        return jtj + J.T @ J, None
+
+    jtj, _ = jax.lax.scan(body, jnp.zeros((4 * n, 4 * n), y.dtype), chunks)
+    return jtj
+
+
+# =============================================================================== structured LM
+
+
+class _LMOut(NamedTuple):
+    y: jax.Array
+    loss: jax.Array
+    steps: jax.Array
+    success: jax.Array
+    jtj: jax.Array
+    history: jax.Array
+
+
+def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max):
+    """``0.5 |r|^2`` through ``render.geometry`` (normals) plus the roughness rows."""
+    n = active.shape[0]
+    w = to_waves(y, n)
+    w = w._replace(amplitude=w.amplitude * active)
+    n_pred, _ = predict_jit(w, camera, times, n_min, n_max)
+    d = (n_pred[..., :2] - normals[..., :2])
+    half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
+    rr = rough_residual(y, active, rough, tail_rows, n_min, n_max)
+    return half + 0.5 * jnp.sum(rr * rr)
+
+
+def _hessian_samples(n_pad: int, m_total: int) -> int:
+    """Samples for ``J^T J``: ``32 x 4 n_pad`` (32 per parameter), at least 16384, at most
+    all of them; the gradient always uses every sample."""
+    return int(min(m_total, max(16384, 32 * 4 * n_pad)))
+
+
+def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
+                   max_steps, rtol, atol, hessian_samples, history_len, xtol=1e-7):
+    """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
+
+    The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
+    spread subset of ``hessian_samples`` pixel-frames, rescaled by the weight ratio. The
+    accept test uses the exact loss through ``render.geometry``, so an approximate
+    ``J^T J`` only slows convergence near the optimum, it does not move it.
+    """
+    n = active.shape[0]
+    samples = all_samples(normals[..., :2], weight, times, camera, scale)
+    size = _chunk_size(n)
+    sub = subsample(samples, hessian_samples)
+    sub_chunks = chunked(sub, size)
+    ratio = jnp.sum(samples.sw ** 2) / jnp.maximum(jnp.sum(sub.sw ** 2), 1e-30)
+    act4 = jnp.tile(active, 4)
+    dtype = y0.dtype
+
+    def normal_eq(y):
+        # the exact gradient of the very loss the accept test uses (reverse mode through
+        # render.geometry's rank-N rows path), J^T J from the structured subsample
+        jtr = jax.grad(f)(y)
+        jtj = _gauss_newton(y, active, sub_chunks, n_min, n_max) * ratio
+        _, jr = jax.linearize(lambda yy: rough_residual(yy, active, rough, tail_rows, n_min, n_max), y)
+        Jr = jax.vmap(jr, out_axes=1)(jnp.eye(4 * n, dtype=dtype))  # (H, 4N)
+        jtj = jtj + Jr.T @ Jr
+        # inactive (padding) parameters: identity rows, zero gradient
+        jtj = jnp.where(act4[:, None] & act4[None, :], jtj, jnp.diag(jnp.where(act4, 0.0, 1.0)).astype(dtype))
+        jtr = jnp.where(act4, jtr, 0.0)
+        return jtj, jtr
+
+    def f(y):
+        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max)
+
+    f0 = f(y0)
+    jtj0, jtr0 = normal_eq(y0)
+    hist0 = jnp.full((history_len,), f0)
+    eps = jnp.finfo(dtype).eps
+
+    class S(NamedTuple):
+        y: jax.Array
+        f: jax.Array
+        jtj: jax.Array
+        jtr: jax.Array
+        lam: jax.Array
+        nu: jax.Array
+        k: jax.Array
+        done: jax.Array
+        conv: jax.Array
+        hist: jax.Array
+
+    def cond(s):
+        return (~s.done) & (s.k < max_steps)
+
+    def body(s):
+        d = jnp.diag(s.jtj)
+        dmax = jnp.max(d)
+        dsc = jnp.maximum(d, 1e-9 * dmax + 1e-30)
+        A = s.jtj + s.lam * jnp.diag(dsc)
+        step = -jnp.linalg.solve(A, s.jtr)
+        ok_step = jnp.all(jnp.isfinite(step))
+        step = jnp.where(ok_step, step, 0.0)
+        y_try = s.y + step
+        f_try = f(y_try)
+        pred = -(step @ s.jtr) - 0.5 * step @ (s.jtj @ step)
+        actual = s.f - f_try
+        rho = actual / jnp.where(pred > 0, pred, 1.0)
+        accept = ok_step & jnp.isfinite(f_try) & (actual > 0) & (pred > 0) & (rho > 1e-4)
+
+        def on_accept(_):
+            jtj, jtr = normal_eq(y_try)
+            lam = s.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            return y_try, f_try, jtj, jtr, lam, jnp.asarray(2.0, dtype)
+
+        def on_reject(_):
+            return s.y, s.f, s.jtj, s.jtr, s.lam * s.nu, s.nu * 2.0
+
+        y, fv, jtj, jtr, lam, nu = jax.lax.cond(accept, on_accept, on_reject, None)
+        # convergence: a small relative decrease on an accepted step, a negligible step,
+        # a loss at the absolute floor, or damping so large that no step can help
+        rel = jnp.abs(actual) <= rtol * jnp.maximum(s.f, eps)
+        small = jnp.max(jnp.abs(step) / (jnp.abs(s.y) + 1.0)) < xtol
+        floor = fv <= atol
+        stalled = lam > 1e12
+        conv = (accept & rel) | small | floor | stalled
+        hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
+        return S(y, fv, jtj, jtr, lam, nu, s.k + 1, conv | ~jnp.isfinite(fv), conv & jnp.isfinite(fv), hist)
+
+    s0 = S(y0, f0, jtj0, jtr0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32),
+           f0 <= atol, f0 <= atol, hist0)
+    s = jax.lax.while_loop(cond, body, s0)
+    success = s.conv & jnp.isfinite(s.f) & jnp.all(jnp.isfinite(s.y))
+    return _LMOut(s.y, s.f, s.k, success, s.jtj, s.hist)
+
+
+def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
+                   max_steps, roughness_weight, hessian_samples=None, history=False):
+    if hessian_samples is None:
+        hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
+    # max_steps is traced (one compilation serves every step budget); the history's length
+    # is static and only as long as asked for
+    return _refine_jit(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol,
+                       jnp.asarray(max_steps, jnp.int32), n_min=n_min, n_max=n_max,
+                       roughness_weight=roughness_weight, hessian_samples=int(hessian_samples),
+                       history_len=int(max_steps) + 1 if history else 1)
+
+
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len"))
+def _refine_jit(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, *, n_min, n_max,
+                roughness_weight, hessian_samples, history_len):
+    weight = valid_weights(normals, camera)
+    normals, roughness = clean_inputs(normals, roughness, weight)
+    n_valid = jnp.maximum(jnp.sum(weight), 1.0)
+    scale = 1.0 / n_valid
+    rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
+    out = _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
+                         n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
+                         history_len=history_len)
+    return out, n_valid
+
+
+# =============================================================================== generic (registry) path
+
+
+def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *, solver, n_min, n_max,
+                     max_steps, rtol, atol, roughness_weight, history, options):
+    from jaxocean.fit import solvers
+
+    weight = valid_weights(normals, camera)
+    normals, roughness = clean_inputs(normals, roughness, weight)
+    n_valid = jnp.maximum(jnp.sum(weight), 1.0)
+    scale = 1.0 / n_valid
+    rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
+    n = active.shape[0]
+    sw = jnp.sqrt(weight * scale)[..., None]
+
+    def residual(y, args):
+        w = to_waves(y, n)
+        w = w._replace(amplitude=w.amplitude * active)
+        n_pred, _ = predict_jit(w, camera, times, n_min, n_max)
+        r_n = ((n_pred[..., :2] - normals[..., :2]) * sw).ravel()
+        return jnp.concatenate([r_n, rough_residual(y, active, rough, tail_rows, n_min, n_max)])
+
+    out = solvers.solve(solver, residual, y0, None, max_steps=max_steps, rtol=rtol, atol=atol, history=history,
+                        options=options)
+    return out, n_valid, residual
+
+
+# =============================================================================== uncertainty
+
+
+def _uncertainty(y, jtj, active, half_rss, n_obs):
+    """1-sigma of (h, omega, theta, phi) from the Gauss-Newton covariance.
+
+    The variance of each derived quantity ``q(y)`` is the quadratic form ``g^T C g`` with
+    ``g = dq/dy`` and ``C = sigma^2 (J^T J)^-1``, evaluated through the eigenvectors of the
+    Jacobi-scaled ``J^T J`` as ``sigma^2 sum_k (g . v_k)^2 / lambda_k``: a sum of
+    non-negative terms. (The diagonal of an explicit float32 inverse gave negative amplitude
+    variances -- reported as a standard deviation of 0 -- for 13 of the 60 waves at the
+    truth of a Table 2 scene, among them the worst-determined long waves: its Jacobi-scaled
+    ``J^T J`` has a condition number near 1/eps.) Eigenvalues below ``eps x`` the largest
+    are raised to it, so directions the data do not determine get a large, finite variance;
+    standard deviations are not floored (noise-free fits have 1e-10 m).
+    """
+    n = active.shape[0]
+    dof = jnp.maximum(n_obs - 4.0 * jnp.sum(active), 1.0)
+    # half_rss is 0.5 |r|^2 of residuals scaled by 1/sqrt(P); sigma^2 in those units
+    sigma2 = 2.0 * half_rss / dof
+    d = jnp.sqrt(jnp.maximum(jnp.diag(jtj), 1e-30))
+    lam, vec = jnp.linalg.eigh(jtj / d[:, None] / d[None, :])
+    lam = jnp.maximum(lam, jnp.finfo(jtj.dtype).eps * jnp.max(lam))
+    # eigenvector rows by parameter block (a, b, log omega, theta) in unscaled coordinates:
+    # (4, N, 4N), so that a quantity of wave i projects onto the eigenvectors through its own
+    # parameters only
+    rows = (vec / d[:, None]).reshape(4, n, 4 * n)
+    a, b, u, _ = unpack(y, n)
+    h2 = jnp.maximum(a * a + b * b, 1e-30)
+    h = jnp.sqrt(h2)
+
+    def std(*grad):
+        # grad: ((block, d quantity / d parameter (N,)), ...) of each wave's quantity
+        proj = sum(g[:, None] * rows[k] for k, g in grad)  # (N, 4N)
+        return safe_sqrt(sigma2 * jnp.sum(proj * proj / lam, axis=-1), floor=0.0)
+
+    stds = (std((0, a / h), (1, b / h)), std((2, jnp.exp(u))), std((3, jnp.ones_like(a))),
+            std((0, -b / h2), (1, a / h2)))
+    return Waves(*[jnp.where(active, s, 0.0) for s in stds])
+
+
+# =============================================================================== refine (public)
+
+
+def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "structured", max_steps: int = 50,
+           rtol=1e-6, atol=0.0, roughness_weight: float = 1.0, n_min=hierarchy.DEFAULT_N_MIN,
+           n_max=hierarchy.DEFAULT_N_MAX, history: bool = False, options=None, tail_rows=None,
+           throw: bool = False) -> WaveFit:
+    """Refine ``init`` waves (fixed count) against observed geometry; returns a :class:`WaveFit`.
+
+    Pure and traceable for every solver but ``"scipy"``: ``jax.vmap`` over scenes (batched
+    normals, roughness, cameras, times and init waves) works and returns arrays. Gradients
+    of the result with respect to the data flow through the registry solvers' implicit
+    adjoints; the ``"structured"`` solver's loop is not reverse-differentiable (use
+    ``"lm"`` for gradients through a fit). ``tail_rows (H,)``: a fixed roughness offset per
+    row for waves outside the fitted set; without it the roughness term assumes that
+    ``init`` holds every wave (pass ``roughness_weight=0`` otherwise). ``throw``: raise
+    :class:`jaxocean.fit.solvers.FitError` (eagerly) when the solver did not converge.
+    """
+    t0 = time.perf_counter()
+    normals, roughness, times = check_inputs(normals, roughness, camera, times)
+    validate(init, max_steepness=None)
+    if init.omega.ndim != 1:
+        raise ValueError(f"init must have leaves (N,); got {init.omega.shape} (vmap batches of scenes)")
+    if solver not in SOLVER_NAMES:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+    if throw and not is_concrete(normals, init, roughness, times, camera):
+        raise ValueError("fit.refine under jit/vmap cannot raise on failure: pass throw=False and read .success")
+    dtype = normals.dtype
+    init = Waves(*[jnp.asarray(x, dtype) for x in init])
+    H = camera.resolution[0]
+    tail_rows = jnp.zeros(H, dtype) if tail_rows is None else jnp.asarray(tail_rows, dtype)
+    n = init.omega.shape[0]
+    if roughness is None:
+        roughness_weight = 0.0
+    if solver == "structured":
+        # pad to a bucket size so that nearby wave counts share one compilation -- traced or
+        # not (the count is a shape), so a jitted call computes what the eager one does
+        n_pad = bucket_size(n)
+        padded, active = pad_waves(init, n_pad)
+        out, n_valid = refine_kernel(pack(padded), active, normals, roughness, times, camera, tail_rows,
+                                      jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
+                                      max_steps=max_steps, roughness_weight=float(roughness_weight), history=history)
+        y, steps, success, jtj, hist = out.y, out.steps, out.success, out.jtj, out.history
+        half = out.loss
+        res = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
+                      hist if history else None, roughness_weight, n_min, n_max, t0)
+        if n_pad != n:
+            cut = lambda w: Waves(*[x[:n] for x in w])  # noqa: E731
+            res = res._replace(waves=cut(res.waves), uncertainty=cut(res.uncertainty), n_waves=jnp.asarray(n))
+        return maybe_throw(res, throw, max_steps)
+    else:
+        y0 = pack(init)
+        active = jnp.ones(n, bool)
+        out, n_valid, residual = registry_refine(y0, active, normals, roughness, times, camera, tail_rows,
+                                                  solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
+                                                  rtol=rtol, atol=atol, roughness_weight=roughness_weight,
+                                                  history=history, options=options)
+        y, steps, success, hist, half = out.params, out.steps, out.success, out.history, out.loss
+        jtj = dense_jtj(residual, y)
+    res = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
+                  hist if history else None, roughness_weight, n_min, n_max, t0)
+    return maybe_throw(res, throw, max_steps)
+
+
+def normal_error_bound(noise=None) -> float:
+    """Largest mean normal angle [rad] a successful :func:`waves` fit may leave:
+    ``max(NOISE_FACTOR sqrt(pi/2) noise, NORMAL_ERROR_FLOOR)`` (sqrt(pi/2) sigma is the mean
+    angle of per-component Gaussian noise sigma on near-vertical normals). Without
+    ``noise`` the data are taken to be noise-free up to storage precision: noisy geometry
+    (network predictions, real images) needs ``noise=`` or it is reported failed."""
+    sigma = 0.0 if noise is None else float(noise)
+    return max(NOISE_FACTOR * math.sqrt(math.pi / 2) * sigma, NORMAL_ERROR_FLOOR)
+
+
+def maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False, unexplained_bound=None):
+    if throw and is_concrete(res.success) and not bool(res.success):
+        from jaxocean.fit.solvers import FitError
+
+        if unexplained_bound is not None and not capped:
+            raise FitError(f"wave fit leaves a mean normal error of {float(res.normal_error):.3e} rad, above "
+                           f"{unexplained_bound:.1e} rad for its noise: the {int(res.n_waves)} waves do not explain "
+                           "the data (waves near the Nyquist limit? noisy geometry without noise=?); the result "
+                           "is attached as .result", res)
+        if capped:
+            raise FitError(f"wave fit stopped at max_waves={int(res.n_waves)} while the criterion still accepted "
+                           f"waves (normal error {float(res.normal_error):.3e} rad): raise max_waves; the result "
+                           "is attached as .result", res)
+        raise FitError(f"wave fit did not converge within {max_steps} steps (loss {float(res.loss):.3e}, "
+                       f"{int(res.n_waves)} waves); the result is attached as .result", res)
+    return res
+
+
+def dense_jtj(residual, y):
+    # the solvers' blocked forward-mode Jacobian: jax.jacfwd's single vmap of 4N JVPs hits
+    # the XLA:CPU float32 miscompile described in jaxocean.fit.solvers
+    from jaxocean.fit.solvers import _value_and_jacfwd
+
+    _, J = _value_and_jacfwd(residual, y, None)
+    return J.T @ J
+
+
+def fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success, hist,
+            roughness_weight, n_min, n_max, t0):
+    n = active.shape[0]
+    w = to_waves(y, n)
+    unc = _uncertainty(y, jtj, active, half, 2.0 * n_valid)
+    lval, nerr, rerr = metrics(w, normals, roughness, camera, times, roughness_weight, n_min, n_max)
+    elapsed = time.perf_counter() - t0 if is_concrete(y) else float("nan")
+    return WaveFit(waves=w, uncertainty=unc, loss=lval, normal_error=nerr, roughness_error=rerr,
+                   steps=jnp.asarray(steps, jnp.int32), success=jnp.asarray(success), n_waves=jnp.asarray(n),
+                   time_s=jnp.asarray(elapsed, y.dtype), history=hist)
+

@@ -1,0 +1,224 @@
+"""The wave fit's model and its Jacobian (:mod:`jaxocean.fit.waves`).
+
+Protocol: parameters are ``y (4N,)`` = ``(a, b, log omega, theta)`` per wave with ``(a, b) =
+h (cos phi, sin phi)`` (:func:`pack` / :func:`to_waves`); :func:`predict` is the forward
+model (``render.geometry``'s rows path with every wave evaluated: normals ``(T, H, W, 3)``,
+roughness ``(T, H, W)``); :func:`jacobian` is its hand-written residual Jacobian on flat
+samples; :func:`roughness_rows` the model's sub-pixel roughness per image row; :func:`loss`
+the paper's loss (eq. 5-7) and :func:`metrics` the loss, mean normal angle [rad] and mean
+absolute roughness difference of a fit.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import hierarchy, render, shading
+from jaxocean._math import safe_sqrt, sincos, smoothstep
+from jaxocean.fit.waves._inputs import (Samples, check_inputs, clean_inputs, plane_hits, valid_weights)
+from jaxocean.surface import normal_from_sums
+from jaxocean.waves import GRAVITY, Waves, validate
+
+
+BUCKETS = (16, 32, 64, 96, 128, 192, 256, 384, 512)
+
+
+# =============================================================================== parameters
+
+
+def pack(w: Waves):
+    """Waves -> parameter vector ``(4N,)`` = (a, b, log omega, theta)."""
+    return jnp.concatenate([w.amplitude * jnp.cos(w.phase), w.amplitude * jnp.sin(w.phase), jnp.log(w.omega),
+                            w.theta])
+
+
+def unpack(y, n):
+    return y.reshape(4, n)
+
+
+def to_waves(y, n) -> Waves:
+    a, b, u, th = unpack(y, n)
+    r2 = a * a + b * b
+    ok = r2 > 1e-30
+    phase = jnp.where(ok, jnp.arctan2(jnp.where(ok, b, 0.0), jnp.where(ok, a, 1.0)), 0.0)
+    phase = jnp.mod(phase, 2 * jnp.pi)
+    return Waves(safe_sqrt(r2), jnp.exp(u), wrap_angle(th), phase)
+
+
+def wrap_angle(theta):
+    return jnp.mod(theta + jnp.pi, 2 * jnp.pi) - jnp.pi
+
+
+def bucket_size(n: int) -> int:
+    for b in BUCKETS:
+        if n <= b:
+            return b
+    return int(64 * math.ceil(n / 64))
+
+
+def pad_waves(w: Waves, n_pad: int):
+    n = w.omega.shape[-1]
+    pad = n_pad - n
+    if pad == 0:
+        return w, jnp.ones(n, bool)
+    dtype = w.omega.dtype
+    z = jnp.zeros(pad, dtype)
+    padded = Waves(jnp.concatenate([w.amplitude, z]), jnp.concatenate([w.omega, jnp.ones(pad, dtype)]),
+                   jnp.concatenate([w.theta, z]), jnp.concatenate([w.phase, z]))
+    return padded, jnp.arange(n_pad) < n
+
+
+# =============================================================================== forward model
+
+
+def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX):
+    """Normals ``(T, H, W, 3)`` and roughness ``(T, H, W)`` of ``waves_`` at ``times``: the
+    fit's forward model (``render.geometry``'s rows path with every wave evaluated)."""
+    validate(waves_, max_steepness=None)
+    times = jnp.atleast_1d(jnp.asarray(times, waves_.omega.dtype))
+    return predict_jit(waves_, camera, times, n_min, n_max)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def predict_jit(waves_, camera, times, n_min, n_max):
+    plan = render.full_plan(waves_.omega.shape[-1])
+
+    def one(t):
+        g = render.geometry(waves_, camera, t, plan=plan, n_min=n_min, n_max=n_max)
+        return g.normal, g.roughness
+
+    return jax.lax.map(one, times)
+
+
+def _nxy(sums):
+    return normal_from_sums(sums[0], sums[1], sums[2], sums[3], sums[4])[:2]
+
+
+def jacobian(P, act, s: Samples, n_min, n_max):
+    """Residual ``r (S*2,)`` and its Jacobian ``J (S*2, 4N)`` for samples ``s`` (hand-written
+    chain rule: each wave's parameters touch only its own sine and cosine).
+
+    Model per wave: C = w k (a cos psi0 - b sin psi0), S = w k (a sin psi0 + b cos psi0),
+    sums (A_xx, A_xy, A_yy, B_x, B_y) = sum (c^2 C, c s C, s^2 C, c S, s S), normal from the
+    sums; ``P = (a, b, log omega, theta) (4, N)``.
+    """
+    a, b, u, th = P[0], P[1], P[2], P[3]
+    om = jnp.exp(u)
+    k = om * om / GRAVITY
+    c, sn = jnp.cos(th), jnp.sin(th)
+    x = (2 * jnp.pi / k)[None, :] / s.fp[:, None]  # (S, N) wavelength / footprint
+    width = n_max - n_min
+    q = jnp.clip((x - n_min) / width, 0.0, 1.0)
+    w = q * q * (3.0 - 2.0 * q) * act
+    # d(lambda/fp)/d log omega = -2 lambda/fp; x clipped where the smoothstep is flat anyway
+    dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max)) * act
+    proj = s.xy[:, :1] * c + s.xy[:, 1:] * sn  # (S, N)
+    psi0 = om * s.t[:, None] - k * proj
+    sp, cp = sincos(psi0)
+    wk = w * k
+    cn, snn = a * cp - b * sp, a * sp + b * cp
+    C, S = wk * cn, wk * snn
+    cc, cs, ss = c * c, c * sn, sn * sn
+    sums = jnp.stack([C @ cc, C @ cs, C @ ss, S @ c, S @ sn])  # (5, S)
+    G = jax.vmap(jax.jacfwd(_nxy), in_axes=1)(sums)  # (S, 2, 5)
+    nrm = jax.vmap(_nxy, in_axes=1)(sums)  # (S, 2)
+    r = ((nrm - s.target) * s.sw[:, None]).reshape(-1)
+    g = [G[:, :, i:i + 1] for i in range(5)]  # (S, 2, 1) each
+    alpha = g[0] * cc + g[1] * cs + g[2] * ss  # (S, 2, N)
+    beta = g[3] * c + g[4] * sn
+    alpha_t = g[0] * (-2.0 * cs) + g[1] * (cc - ss) + g[2] * (2.0 * cs)
+    beta_t = -g[3] * sn + g[4] * c
+    e = lambda z: z[:, None, :]  # noqa: E731  (S, N) -> (S, 1, N)
+    dpsi_du = om * s.t[:, None] - 2.0 * k * proj
+    dpsi_dth = k * (sn * s.xy[:, :1] - c * s.xy[:, 1:])
+    dwk_du = k * dw_du + 2.0 * wk
+    j_a = e(wk) * (alpha * e(cp) + beta * e(sp))
+    j_b = e(wk) * (beta * e(cp) - alpha * e(sp))
+    j_u = alpha * e(dwk_du * cn - S * dpsi_du) + beta * e(dwk_du * snn + C * dpsi_du)
+    j_t = (beta * e(C) - alpha * e(S)) * e(dpsi_dth) + alpha_t * e(C) + beta_t * e(S)
+    J = jnp.stack([j_a, j_b, j_u, j_t], axis=2) * s.sw[:, None, None, None]  # (S, 2, 4, N)
+    return r, J.reshape(r.shape[0], -1)
+
+
+def roughness_rows(y, active, fp_row, n_min, n_max):
+    """Model roughness per image row ``(H,)`` from the fitted waves (no floor)."""
+    w = to_waves(y, active.shape[0])
+    w = w._replace(amplitude=w.amplitude * active)
+    lam = 2 * jnp.pi * GRAVITY / (w.omega * w.omega)
+    rough_w = 1.0 - smoothstep(n_min, n_max, lam / fp_row[:, None])  # (H, N)
+    kh2 = (w.amplitude * w.omega * w.omega / GRAVITY) ** 2
+    per_wave = kh2 / (1.0 + safe_sqrt(1.0 - kh2))
+    return rough_w @ per_wave
+
+
+def fitted_roughness_rows(waves_: Waves, fp_row, n_min, n_max) -> np.ndarray:
+    """Host-side (NumPy float64) :func:`roughness_rows`: the sub-pixel slope variance
+    ``sum_i (1 - w_n(lambda_i / fp)) (1 - sqrt(1 - k_i^2 h_i^2))`` per image row ``(H,)`` of
+    ``waves_`` for row footprints ``fp_row (H,)`` [m] (steepness capped at ``k h = 1``)."""
+    om = np.asarray(waves_.omega, np.float64)
+    h = np.asarray(waves_.amplitude, np.float64)
+    k = om * om / GRAVITY
+    lam = 2 * np.pi / k
+    q = np.clip((lam[None, :] / np.asarray(fp_row, np.float64)[:, None] - n_min) / (n_max - n_min), 0, 1)
+    kh2 = np.minimum((k * h) ** 2, 1.0)
+    return (1 - q * q * (3 - 2 * q)) @ (kh2 / (1 + np.sqrt(1 - kh2)))
+
+
+class RoughRows(NamedTuple):
+    """Roughness data per image row: ``target (H,)`` mean observed roughness minus the
+    (fixed) tail, ``sw (H,)`` sqrt of the residual weight, ``fp (H,)`` footprints."""
+
+    target: jax.Array
+    sw: jax.Array
+    fp: jax.Array
+
+
+def rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows=None) -> RoughRows:
+    _, fp_row, _ = plane_hits(camera)
+    count = jnp.sum(weight, axis=(0, 2))  # (H,)
+    mean = jnp.sum(roughness * weight, axis=(0, 2)) / jnp.maximum(count, 1.0)
+    if tail_rows is not None:
+        mean = mean - tail_rows
+    sw = jnp.sqrt(2.0 * roughness_weight * count / n_valid)
+    return RoughRows(mean, sw, fp_row)
+
+
+def rough_residual(y, active, rough: RoughRows, tail_rows, n_min, n_max):
+    model = roughness_rows(y, active, rough.fp, n_min, n_max)
+    total = jnp.maximum(model + tail_rows, shading.MIN_SLOPE_VARIANCE) - tail_rows
+    return (total - rough.target) * rough.sw
+
+
+# =============================================================================== losses
+
+
+def loss(waves_: Waves, normals, roughness, camera, times, *, roughness_weight=1.0,
+         n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX):
+    """The paper's loss (eq. 5-7) of ``waves_`` against observed geometry: mean ``1 - cos``
+    of the normal angle plus ``roughness_weight`` times the mean squared roughness
+    difference, over valid sea pixel-frames. Differentiable in the waves and the data."""
+    normals, roughness, times = check_inputs(normals, roughness, camera, times)
+    validate(waves_, max_steepness=None)
+    return metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max)[0]
+
+
+def metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max):
+    weight = valid_weights(normals, camera)
+    normals, roughness = clean_inputs(normals, roughness, weight)
+    n_pred, r_pred = predict_jit(waves_, camera, times, n_min, n_max)
+    n_valid = jnp.maximum(jnp.sum(weight), 1.0)
+    cos = jnp.clip(jnp.sum(n_pred * normals, -1), -1.0, 1.0)
+    one_minus = jnp.sum((1.0 - cos) * weight) / n_valid
+    rough = jnp.sum((r_pred - roughness) ** 2 * weight) / n_valid
+    # angle from the cross product's norm: finite gradient at zero error
+    cross = jnp.cross(n_pred, normals)
+    angle = jnp.arctan2(safe_sqrt(jnp.sum(cross * cross, -1)), cos)
+    return (one_minus + roughness_weight * rough, jnp.sum(angle * weight) / n_valid,
+            jnp.sum(jnp.abs(r_pred - roughness) * weight) / n_valid)
+

@@ -1,0 +1,608 @@
+"""Detection and order selection of the wave fit: :func:`waves` (:mod:`jaxocean.fit.waves`, step 3).
+
+Protocol: :func:`waves` takes a scene and returns a :class:`jaxocean.fit.waves.WaveFit`
+(and the :class:`OrderSelection` path with ``return_selection=True``). Candidates come from
+the spectral estimate of the residual plus a polar grid of long waves, are scored and
+refined one by one on a subsample, solved jointly for their amplitudes, added in batches
+while the information criterion improves, and the whole set is refined by the structured
+Levenberg-Marquardt of :mod:`jaxocean.fit.waves._lm`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import hierarchy, shading
+from jaxocean._math import sincos, smoothstep
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
+from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
+                                        valid_weights)
+from jaxocean.fit.waves._lm import (SOLVER_NAMES, WaveFit, dense_jtj, fit_result, maybe_throw,
+                                    normal_error_bound, refine_kernel, registry_refine)
+from jaxocean.fit.waves._model import (bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle,
+                                       fitted_roughness_rows)
+from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
+from jaxocean.waves import GRAVITY, Waves, validate
+
+
+_CRITERIA = ("bic", "aic", "holdout")
+
+
+class OrderSelection(NamedTuple):
+    """The path of the greedy model-order selection: one entry per tried wave count."""
+
+    n_waves: np.ndarray
+    criterion: np.ndarray
+    rss: np.ndarray
+    accepted: np.ndarray
+
+
+# =============================================================================== candidate scoring
+
+
+def _single_wave_stats(om, th, s: Samples, n_min, n_max):
+    """Sufficient statistics of the single-wave least-squares fit of residual slopes
+    ``s.target`` along ``k_hat``: ``(su, sv, uu, vv, uv)`` with templates
+    ``u = w k sin psi0``, ``v = w k cos psi0`` (weights ``s.sw^2``)."""
+    k = om * om / GRAVITY
+    c, sn = jnp.cos(th), jnp.sin(th)
+    amp = smoothstep(n_min, n_max, (2 * jnp.pi / k) / s.fp) * k
+    psi0 = om * s.t - k * (c * s.xy[:, 0] + sn * s.xy[:, 1])
+    rk = s.target[:, 0] * c + s.target[:, 1] * sn
+    sp, cp = sincos(psi0)
+    wa = s.sw * s.sw * amp
+    wa2 = wa * amp
+    return (jnp.sum(wa * sp * rk), jnp.sum(wa * cp * rk), jnp.sum(wa2 * sp * sp), jnp.sum(wa2 * cp * cp),
+            jnp.sum(wa2 * sp * cp))
+
+
+def _energy_ab(stats):
+    su, sv, uu, vv, uv = stats
+    det = uu * vv - uv * uv
+    ok = det > 1e-9 * (uu * vv) + 1e-30
+    det = jnp.where(ok, det, 1.0)
+    a = jnp.where(ok, (vv * su - uv * sv) / det, 0.0)
+    b = jnp.where(ok, (uu * sv - uv * su) / det, 0.0)
+    return a * su + b * sv, a, b
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4))
+def _score(omega, theta, s: Samples, n_min, n_max):
+    """Energy each single candidate wave removes from the residual slopes, and its (a, b)."""
+
+    def one(x):
+        return _energy_ab(_single_wave_stats(x[0], x[1], s, n_min, n_max))
+
+    return jax.lax.map(one, (omega, theta), batch_size=32)
+
+
+def _single_wave_jac(p, s: Samples, n_min, n_max):
+    """Residual ``(S, 2)`` and Jacobian ``(S, 2, 4)`` of one linear slope template
+    ``w k (a sin psi0 + b cos psi0) k_hat`` against ``s.target``; ``p = (a, b, log omega,
+    theta)``."""
+    a, b, u, th = p[0], p[1], p[2], p[3]
+    om = jnp.exp(u)
+    k = om * om / GRAVITY
+    c, sn = jnp.cos(th), jnp.sin(th)
+    x = (2 * jnp.pi / k) / s.fp
+    width = n_max - n_min
+    q = jnp.clip((x - n_min) / width, 0.0, 1.0)
+    w = q * q * (3.0 - 2.0 * q)
+    dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max))
+    proj = c * s.xy[:, 0] + sn * s.xy[:, 1]
+    psi0 = om * s.t - k * proj
+    sp, cp = sincos(psi0)
+    amp = w * k
+    lin = a * sp + b * cp
+    dlin = a * cp - b * sp  # d lin / d psi0
+    khat = jnp.stack([c, sn])
+    kperp = jnp.stack([-sn, c])
+    model = (amp * lin)[:, None] * khat
+    r = (model - s.target) * s.sw[:, None]
+    d_amp_du = k * dw_du + 2.0 * amp
+    dpsi_du = om * s.t - 2.0 * k * proj
+    dpsi_dth = k * (sn * s.xy[:, 0] - c * s.xy[:, 1])
+    ja = (amp * sp)[:, None] * khat
+    jb = (amp * cp)[:, None] * khat
+    ju = (d_amp_du * lin + amp * dlin * dpsi_du)[:, None] * khat
+    jt = (amp * dlin * dpsi_dth)[:, None] * khat + (amp * lin)[:, None] * kperp
+    J = jnp.stack([ja, jb, ju, jt], -1) * s.sw[:, None, None]
+    return r, J
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _refine_candidates(omega, theta, s: Samples, n_min, n_max, iters):
+    """Single-wave Levenberg-Marquardt in (a, b, log omega, theta) on the residual slopes,
+    vmapped over candidates; returns refined (omega, theta), removed energy, (a, b)."""
+
+    def one(om, th):
+        e0, a0, b0 = _energy_ab(_single_wave_stats(om, th, s, n_min, n_max))
+        p0 = jnp.stack([a0, b0, jnp.log(om), th])
+
+        def rss(p):
+            r, _ = _single_wave_jac(p, s, n_min, n_max)
+            return jnp.sum(r * r)
+
+        def step(carry, _):
+            p, f, lam = carry
+            r, J = _single_wave_jac(p, s, n_min, n_max)
+            J = J.reshape(-1, 4)
+            A = J.T @ J
+            g = J.T @ r.reshape(-1)
+            d = jnp.maximum(jnp.diag(A), 1e-12 * jnp.max(jnp.diag(A)) + 1e-30)
+            dp = -jnp.linalg.solve(A + lam * jnp.diag(d), g)
+            dp = dp.at[2:].set(jnp.clip(dp[2:], -0.05, 0.05))
+            p_new = p + jnp.where(jnp.all(jnp.isfinite(dp)), dp, 0.0)
+            f_new = rss(p_new)
+            ok = f_new < f
+            return (jnp.where(ok, p_new, p), jnp.where(ok, f_new, f), jnp.where(ok, lam * 0.3, lam * 4.0)), None
+
+        (p, _, _), _ = jax.lax.scan(step, (p0, rss(p0), jnp.asarray(1e-3, p0.dtype)), None, length=iters)
+        e, a, b = _energy_ab(_single_wave_stats(jnp.exp(p[2]), p[3], s, n_min, n_max))
+        return jnp.exp(p[2]), wrap_angle(p[3]), e, a, b
+
+    return jax.vmap(one)(omega, theta)
+
+
+@functools.partial(jax.jit, static_argnums=(4, 5))
+def _joint_ab(omega, theta, valid, s: Samples, n_min, n_max):
+    """Joint least-squares (a, b) of ``B`` candidate waves on residual slopes, and each
+    one's partial energy (the RSS increase if it alone were dropped): sidelobes and
+    repeats of one wave lose their energy once the main lobe is in the same solve."""
+    B = omega.shape[0]
+    k = omega * omega / GRAVITY
+    khat = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)  # (B, 2)
+    amp = smoothstep(n_min, n_max, (2 * jnp.pi / k)[None, :] / s.fp[:, None]) * k * valid  # (S, B)
+    psi0 = omega * s.t[:, None] - (s.xy @ (k[:, None] * khat).T)  # (S, B)
+    sw = s.sw[:, None, None]
+    sp, cp = sincos(psi0)
+    U = jnp.concatenate([(amp * sp)[:, None, :] * khat.T[None], (amp * cp)[:, None, :]
+                         * khat.T[None]], -1) * sw  # (S, 2, 2B)
+    U = U.reshape(-1, 2 * B)
+    r = (s.target * s.sw[:, None]).reshape(-1)
+    G = U.T @ U
+    G = G + 1e-7 * jnp.diag(jnp.diag(G)) + jnp.diag(jnp.where(jnp.tile(valid, 2) > 0, 0.0, 1.0)).astype(G.dtype)
+    x = jnp.linalg.solve(G, U.T @ r)
+    Ginv = jnp.linalg.inv(G)
+    idx = jnp.stack([jnp.arange(B), jnp.arange(B) + B], -1)  # (B, 2)
+    blocks = Ginv[idx[:, :, None], idx[:, None, :]]  # (B, 2, 2)
+    xb = x[idx]  # (B, 2)
+    partial = jnp.einsum("bi,bi->b", xb, jnp.linalg.solve(blocks, xb[..., None])[..., 0])
+    return x[:B], x[B:], partial
+
+
+@functools.partial(jax.jit, static_argnums=(4, 5))
+def _residual_slopes(waves_, normals, camera, times, n_min, n_max):
+    weight = valid_weights(normals, camera)
+    normals, _ = clean_inputs(normals, None, weight)
+    pred, _ = predict_jit(waves_, camera, times, n_min, n_max)
+    return slope_field(normals) - slope_field(pred), weight
+
+
+def _long_wave_grid(omega_lo, omega_hi, n_omega, n_theta, dtype):
+    om = np.geomspace(omega_lo, omega_hi, n_omega)
+    th = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
+    O, Th = np.meshgrid(om, th, indexing="ij")
+    return jnp.asarray(O.ravel(), dtype), jnp.asarray(Th.ravel(), dtype)
+
+
+def _pad_to(x, n, fill):
+    x = np.asarray(x)
+    if x.shape[0] >= n:
+        return x[:n]
+    return np.concatenate([x, np.full(n - x.shape[0], fill, x.dtype)])
+
+
+# =============================================================================== greedy fit
+
+
+def _criterion_value(kind, rss, m, n, noise, floor2):
+    """``rss``: residual sum of squares of the normal components; ``m`` their number."""
+    rss = max(float(rss), m * floor2, 1e-300)
+    if noise is not None:
+        pen = 4 * n * math.log(m) if kind != "aic" else 8 * n
+        return rss / float(noise) ** 2 + pen
+    if kind == "aic":
+        return m * math.log(rss / m) + 8 * n
+    return m * math.log(rss / m) + 4 * n * math.log(m)
+
+
+def _kvec(om, th):
+    k = np.asarray(om, np.float64) ** 2 / GRAVITY
+    return np.stack([k * np.cos(th), k * np.sin(th)], -1)
+
+
+def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | None = None,
+          solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
+          noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=0.0,
+          roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
+          score_samples: int = 32768, prune: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
+          n_max=hierarchy.DEFAULT_N_MAX,
+          throw: bool = False, history: bool = False, return_selection: bool = False, verbose: bool = False):
+    """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
+
+    * ``n_waves``: fit exactly this many waves (no order selection); ``None`` selects the
+      count by ``criterion`` (``"bic"``, ``"aic"`` or ``"holdout"``: the last frame is held
+      out and a batch is kept while it lowers the held-out normal error), up to
+      ``max_waves``. ``noise``: known noise sigma of the normal components (used instead of
+      the residual estimate). ``noise_floor``: the smallest residual sigma the criterion
+      believes in (default ``200 eps`` of the dtype: 2.4e-5 in float32, 4.4e-14 in float64;
+      in float32 the precision of a phase ``k . X`` of a few thousand radians), so that
+      noise-free data stop adding waves once the model is explained to its floating-point
+      precision.
+    * ``init``: starting waves; then no spectral initialisation, and waves are added only
+      if ``n_waves`` asks for more.
+    * ``prune``: after the greedy stage, drop waves whose Wald statistic is below the
+      criterion's penalty, refit, and keep the smaller model only if the criterion improves
+      (off by default: with correlated long waves a refit can land in a worse optimum).
+    * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
+    * ``throw``: raise :class:`jaxocean.fit.solvers.FitError` (carrying the result) whenever
+      ``success`` is False -- the final refinement did not converge, the selection stopped at
+      ``max_waves``, or the fit leaves a mean normal error above :func:`normal_error_bound`
+      of ``noise``; the message says which. Otherwise read ``success``.
+
+    Eager only (data-dependent wave counts); returns a :class:`WaveFit` with waves sorted by
+    frequency, or ``(WaveFit, OrderSelection)`` with ``return_selection=True``. For a fixed
+    count under ``jit``/``vmap`` use :func:`spectral_init` then :func:`refine`.
+    """
+    t0 = time.perf_counter()
+    normals, roughness, times = check_inputs(normals, roughness, camera, times)
+    if not is_concrete(normals, camera, times):
+        raise ValueError("fit.waves selects the number of waves eagerly; under jit/vmap use "
+                         "fit.spectral_init + fit.refine with a fixed count")
+    if solver not in SOLVER_NAMES:
+        raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+    if criterion not in _CRITERIA:
+        raise ValueError(f"unknown criterion {criterion!r}; expected one of {_CRITERIA}")
+    if n_waves is not None and (not isinstance(n_waves, (int, np.integer)) or n_waves < 1):
+        raise ValueError(f"n_waves must be a positive int or None; got {n_waves!r}")
+    if noise is not None:
+        check_values(np.asarray(noise) > 0, "noise must be > 0", noise)
+    dtype = normals.dtype
+    floor2 = (200 * float(jnp.finfo(dtype).eps) if noise_floor is None else float(noise_floor)) ** 2
+    H = camera.resolution[0]
+    tail_rows = jnp.zeros(H, dtype)
+    rw = 0.0 if roughness is None else float(roughness_weight)
+    T = normals.shape[0]
+
+    holdout = criterion == "holdout" and n_waves is None
+    if holdout and T < 3:
+        raise ValueError("criterion='holdout' needs at least 3 frames (one is held out)")
+    fit_n, fit_t = (normals[:-1], times[:-1]) if holdout else (normals, times)
+
+    weight = valid_weights(fit_n, camera)
+    m_obs = 2.0 * float(jnp.sum(weight))
+    path_n, path_c, path_rss, path_acc = [], [], [], []
+    total_steps = 0
+
+    def run_lm(w: Waves, steps: int):
+        # no roughness term while waves are missing: the observed roughness holds the
+        # sub-pixel share of waves the model does not have yet, and would pull the others
+        n = w.omega.shape[0]
+        n_pad = bucket_size(n)
+        wp, active = pad_waves(w, n_pad)
+        out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
+                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
+                                max_steps=steps, roughness_weight=0.0)
+        fitted = jax.tree.map(lambda x: x[:n], to_waves(out.y, n_pad))
+        return fitted, out
+
+    def rss_of(out):
+        # out.loss = 0.5 |r|^2 with residuals scaled by 1/sqrt(P): the RSS is loss * m
+        return float(out.loss) * m_obs
+
+    def score_of(w: Waves, out):
+        if holdout:
+            pred, _ = predict_jit(w, camera, times[-1:], n_min, n_max)
+            wt = valid_weights(normals[-1:], camera)
+            d = pred[..., :2] - normals[-1:, ..., :2]
+            return float(jnp.sum(d * d * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
+        return _criterion_value(criterion, rss_of(out), m_obs, w.omega.shape[0], noise, floor2)
+
+    # ---- start
+    empty = Waves(*(jnp.zeros(0, dtype),) * 4)
+    current = empty if init is None else Waves(*[jnp.asarray(x, dtype) for x in validate(init, max_steepness=None)])
+    limit = n_waves if n_waves is not None else (current.omega.shape[0] if init is not None else max_waves)
+
+    n_scales = scales if scales is not None else (1 if camera.projection == "orthographic" else 4)
+    _, _, _, spacing, _ = grid_frames(camera, n_scales, grid)
+    spacing = np.asarray(spacing)
+    coarse_extent = float(spacing[-1]) * grid
+    om_long_hi = math.sqrt(GRAVITY * 1.5 * 2 * math.pi / coarse_extent) * 1.3
+    long_om, long_th = _long_wave_grid(min(omega_min, 0.5 * om_long_hi), om_long_hi, 10, 36, dtype)
+    res_scale = 2 * math.pi / (spacing * grid)  # FFT resolution of each grid [rad/m]
+    # the finest wave-vector resolution the whole image allows: two waves closer than this
+    # are one wave to the data (the longest sea baseline in the image)
+    hit = cam.intersect_sea(camera)
+    sea_xy = np.asarray(hit.xy)[np.asarray(hit.mask)]
+    baseline = float(np.max(np.linalg.norm(sea_xy - sea_xy.mean(0), axis=1))) * 2.0
+    k_res = 2 * math.pi / max(baseline, 1e-6)
+
+    if current.omega.shape[0] > 0:
+        current, best_out = run_lm(current, inner_steps if limit > current.omega.shape[0] else max_steps)
+        total_steps += int(best_out.steps)
+        best_score = score_of(current, best_out)
+        rss_now = rss_of(best_out)
+    elif holdout:
+        wt = valid_weights(normals[-1:], camera)
+        cn, _ = clean_inputs(normals[-1:], None, wt)
+        best_score = float(jnp.sum(cn[..., :2] ** 2 * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
+        rss_now = float("nan")
+    else:
+        cn, _ = clean_inputs(fit_n, None, weight)
+        rss_now = float(jnp.sum(cn[..., :2] ** 2 * weight[..., None]))
+        best_score = _criterion_value(criterion, rss_now, m_obs, 0, noise, floor2)
+    path_n.append(current.omega.shape[0])
+    path_c.append(best_score)
+    path_rss.append(rss_now)
+    path_acc.append(True)
+
+    n_cand = batch + 8
+    cur_batch = batch
+    timing = dict(detect=0.0, refine=0.0, lm=0.0)
+    while current.omega.shape[0] < limit:
+        n_cur = current.omega.shape[0]
+        t_a = time.perf_counter()
+        if n_cur > 0:
+            resid, wt = _residual_slopes(current, fit_n, camera, fit_t, n_min, n_max)
+        else:
+            wt = weight
+            resid = slope_field(clean_inputs(fit_n, None, wt)[0])
+        smp = all_samples(resid, wt, fit_t, camera)
+        smp_score = subsample(smp, score_samples)
+        est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16)
+        c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
+        c_th = jnp.concatenate([est.peak_theta.ravel(), long_th])
+        valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(long_om.shape, bool)])
+        c_res = np.concatenate([np.repeat(res_scale, est.peak_power.shape[1]),
+                                np.full(long_om.shape, res_scale[-1])])
+        c_om = jnp.where(jnp.asarray(valid), c_om, 1.0)
+        energy, _, _ = _score(c_om, c_th, smp_score, n_min, n_max)
+        energy = np.where(valid, np.asarray(energy), -np.inf)
+        # distinct candidates: the strongest first, dropping repeats of a wave vector within
+        # the resolution of the grid that found it
+        kc = _kvec(np.asarray(c_om), np.asarray(c_th))
+        picked = []
+        for j in np.argsort(-energy):
+            if len(picked) >= n_cand or not np.isfinite(energy[j]) or energy[j] <= 0:
+                break
+            if all(np.hypot(*(kc[j] - kc[i])) > 0.5 * max(c_res[i], c_res[j]) for i in picked):
+                picked.append(j)
+        if not picked:
+            break
+        pj = np.asarray(picked)
+        t_b = time.perf_counter()
+        timing["detect"] += t_b - t_a
+        smp_ref = subsample(smp, 2 * score_samples)
+        r_om, r_th, e_ref, _, _ = (np.asarray(x) for x in _refine_candidates(
+            jnp.asarray(_pad_to(np.asarray(c_om)[pj], n_cand, 1.0)), jnp.asarray(_pad_to(np.asarray(c_th)[pj], n_cand, 0.0)),
+            smp_ref, n_min, n_max, 8))
+        e_ref = np.where(np.arange(n_cand) < pj.size, e_ref, -np.inf)
+        # a candidate is worth a trial only if it would explain more than the criterion's
+        # penalty for 4 parameters in units of the residual variance (energies are on a
+        # subsample: rescale to all samples)
+        sub_w = float(jnp.sum(smp_ref.sw ** 2))
+        e_all = e_ref * (float(jnp.sum(smp.sw ** 2)) / max(sub_w, 1e-30))
+        rss_cur = float(jnp.sum(smp.sw ** 2 * jnp.sum(smp.target ** 2, -1)))  # slope-space residual
+        sig2 = max(rss_cur / m_obs, floor2) if noise is None else float(noise) ** 2
+        pen = 8.0 if criterion == "aic" else 4.0 * math.log(m_obs)
+        e_ref = np.where((e_all >= pen * sig2) | (n_waves is not None), e_ref, -np.inf)
+        kr = _kvec(r_om, r_th)
+        k_old = _kvec(current.omega, current.theta) if n_cur else np.zeros((0, 2))
+        n_add = min(cur_batch, limit - n_cur)
+        chosen = []
+        for j in np.argsort(-e_ref):
+            if len(chosen) >= n_add or not np.isfinite(e_ref[j]) or e_ref[j] <= 0:
+                break
+            kn = np.hypot(*kr[j])
+            sep = max(0.02 * kn, 0.7 * k_res)
+            if k_old.size and np.min(np.hypot(*(k_old - kr[j]).T)) < sep:
+                continue  # a wave the model already has
+            if any(np.hypot(*(kr[j] - kr[i])) < max(sep, 0.5 * res_scale[0]) for i in chosen):
+                continue
+            if r_om[j] < 0.5 * omega_min:
+                continue
+            chosen.append(j)
+        if not chosen:
+            break
+        ch = np.asarray(chosen)
+        # one joint linear solve of the chosen candidates: drop those whose share of the
+        # explained energy does not pay the criterion's penalty
+        nb = bucket_size(ch.size)
+        a_j, b_j, part = (np.asarray(x) for x in _joint_ab(
+            jnp.asarray(_pad_to(r_om[ch], nb, 1.0), dtype), jnp.asarray(_pad_to(r_th[ch], nb, 0.0), dtype),
+            jnp.asarray(np.arange(nb) < ch.size, dtype), smp_ref, n_min, n_max))
+        a_j, b_j, part = a_j[:ch.size], b_j[:ch.size], part[:ch.size] * (e_all[ch] / np.maximum(e_ref[ch], 1e-300))
+        if n_waves is None:
+            part = np.where(np.isfinite(part), part, 0.0)
+            ok = part >= pen * sig2
+            if not ok.any():
+                ok = part >= part.max()
+            ch, a_j, b_j = ch[ok], a_j[ok], b_j[ok]
+        add = Waves(jnp.asarray(np.hypot(a_j, b_j), dtype), jnp.asarray(r_om[ch], dtype),
+                    jnp.asarray(r_th[ch], dtype), jnp.asarray(np.mod(np.arctan2(b_j, a_j), 2 * np.pi), dtype))
+        trial = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), current, add)
+        t_c = time.perf_counter()
+        timing["refine"] += t_c - t_b
+        trial, out = run_lm(trial, inner_steps)
+        timing["lm"] += time.perf_counter() - t_c
+        total_steps += int(out.steps)
+        sc = score_of(trial, out)
+        accepted = n_waves is not None or sc < best_score
+        path_n.append(trial.omega.shape[0])
+        path_c.append(sc)
+        path_rss.append(rss_of(out))
+        path_acc.append(bool(accepted))
+        if verbose:
+            print(f"  waves {trial.omega.shape[0]:4d}  criterion {sc:.6g}  rss/m {rss_of(out) / m_obs:.3e}  "
+                  f"{'kept' if accepted else 'rejected'}  ({time.perf_counter() - t0:.0f} s; "
+                  + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()) + ")", flush=True)
+        if accepted:
+            current, best_score = trial, sc
+            if n_waves is None and not holdout and rss_of(out) / m_obs <= floor2:
+                break  # explained to the floating-point floor: nothing left to find
+        elif cur_batch > 1:
+            cur_batch = max(1, cur_batch // 2)
+        else:
+            break
+
+    # ---- final refinement on every frame, then pruning by the Wald statistic: a pruned
+    # model is refitted and kept only if the criterion does not get worse
+    if current.omega.shape[0] == 0:
+        raise InvalidValueError("no wave found in the data (the normals show a flat sea)")
+
+    rough_info = roughness is not None and rw > 0 and _roughness_informative(roughness, camera)
+
+    def final_fit(w: Waves):
+        # with informative roughness, the sub-pixel tail of the waves outside ``w`` (non-negative
+        # least squares over virtual wavelengths) is fitted first and then held fixed
+        tail = _nnls_tail(w, roughness, camera, n_min, n_max, dtype) if rough_info else tail_rows
+        return _final_once(w, tail)
+
+    def _final_once(w: Waves, tail):
+        if solver == "structured":
+            n_pad = bucket_size(w.omega.shape[0])
+            wp, active = pad_waves(w, n_pad)
+            out, n_valid = refine_kernel(pack(wp), active, normals, roughness, times, camera, tail,
+                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
+                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
+                                          else 0.0, history=history)
+            return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
+                        active=active, n_valid=n_valid, n_pad=n_pad)
+        active = jnp.ones(w.omega.shape[0], bool)
+        o, n_valid, residual = registry_refine(pack(w), active, normals, roughness, times, camera, tail,
+                                                solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
+                                                rtol=rtol, atol=atol, roughness_weight=rw if rough_info else 0.0,
+                                                history=history, options=None)
+        return dict(y=o.params, jtj=dense_jtj(residual, o.params), half=o.loss, steps=o.steps, success=o.success,
+                    hist=o.history, active=active, n_valid=n_valid, n_pad=w.omega.shape[0])
+
+    m_all = 2.0 * float(jnp.sum(valid_weights(normals, camera)))
+
+    def crit(fit_, n):
+        return _criterion_value(criterion if criterion != "holdout" else "bic", float(fit_["half"]) * m_all, m_all,
+                                n, noise, floor2)
+
+    best = final_fit(current)
+    total_steps += int(best["steps"])
+    if n_waves is None and prune:
+        for _ in range(2):
+            n_cur = current.omega.shape[0]
+            keep = _wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
+                              criterion, noise, floor2)[:n_cur]
+            if keep.all() or keep.sum() == 0:
+                break
+            fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
+            pruned = jax.tree.map(lambda x: x[np.nonzero(keep)[0]], fitted)
+            trial = final_fit(pruned)
+            total_steps += int(trial["steps"])
+            better = crit(trial, pruned.omega.shape[0]) <= crit(best, n_cur)
+            if verbose:
+                print(f"  pruning {int((~keep).sum())} of {n_cur} waves (Wald statistic below the penalty): "
+                      f"{'kept' if better else 'reverted'}", flush=True)
+            if not better:
+                break
+            current, best = pruned, trial
+    y, jtj, half, success, hist = best["y"], best["jtj"], best["half"], best["success"], best["hist"]
+    active, n_valid = best["active"], best["n_valid"]
+    rw = rw if rough_info else 0.0
+    result = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, total_steps, success,
+                     hist if history else None, rw, n_min, n_max, t0)
+    n_fit = current.omega.shape[0]
+    result = _sorted(result, n_fit)
+    # the loop ran into the cap, not into the criterion: the count was not selected
+    capped = n_waves is None and init is None and n_fit >= max_waves
+    # converged is not enough: the fit must explain the data to their noise (measured: one
+    # wave 1.25-2 footprints long, aliased by the start, "converged" at 0.05-0.12 rad)
+    bound = normal_error_bound(noise)
+    unexplained = not float(result.normal_error) <= bound
+    result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
+                             success=jnp.asarray(result.success) & (not capped) & (not unexplained))
+    maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
+    if return_selection:
+        sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
+        return result, sel
+    return result
+
+
+def _roughness_informative(roughness, camera):
+    """True when some sea rows show roughness clearly above the renderer's floor."""
+    r = np.asarray(roughness, np.float64)
+    mask = np.asarray(cam.intersect_sea(camera).mask)
+    vals = r[:, mask]
+    vals = vals[np.isfinite(vals)]
+    return bool(vals.size and np.percentile(vals, 90) > 2.0 * shading.MIN_SLOPE_VARIANCE)
+
+
+def _nnls_tail(w: Waves, roughness, camera, n_min, n_max, dtype, n_virtual=24):
+    """Per-row roughness ``(H,)`` of the sub-pixel waves that are not in ``w``: a
+    non-negative combination of virtual waves at fixed wavelengths (each contributing
+    ``1 - w_n(lambda_j / fp)`` per row) fitted to the observed roughness minus the share of
+    ``w``. Host-side (SciPy NNLS), outside any gradient."""
+    from scipy.optimize import nnls
+
+    hit = cam.intersect_sea(camera)
+    H, W = camera.resolution
+    mask = np.asarray(hit.mask)
+    fp_row = np.asarray(hit.footprint)[:, W // 2].astype(np.float64)
+    r = np.asarray(roughness, np.float64)
+    rows = mask.any(1)
+    obs = np.array([np.nanmean(r[:, i][:, mask[i]]) if rows[i] else 0.0 for i in range(H)])
+    share = fitted_roughness_rows(w, fp_row, n_min, n_max)
+    fp_sea = fp_row[rows]
+    lam_v = np.geomspace(0.5 * n_min * fp_sea.min(), n_max * fp_sea.max(), n_virtual)
+    qv = np.clip((lam_v[None, :] / fp_row[:, None] - n_min) / (n_max - n_min), 0, 1)
+    B = 1 - qv * qv * (3 - 2 * qv)
+    target = obs - share
+    tail = np.zeros(H)
+    if rows.any():
+        v, _ = nnls(B[rows], np.maximum(target[rows], 0.0))
+        tail = B @ v
+    return jnp.asarray(np.where(rows, tail, 0.0), dtype)
+
+
+def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2):
+    """Keep a wave when deleting it (a = b = 0) would cost more than the criterion's penalty."""
+    n = active.shape[0]
+    p = 4 * n
+    act = np.asarray(active)
+    m = n_obs
+    # residual variance in the solver's units (residuals scaled by 1/sqrt(P), P = m / 2)
+    sigma2 = max(2.0 * float(half) / max(m - 4 * act.sum(), 1.0), floor2 / (m / 2.0))
+    if noise is not None:
+        sigma2 = float(noise) ** 2 / (m / 2.0)
+    sigma2 = max(sigma2, 1e-300)
+    A = np.asarray(jtj, np.float64)
+    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
+    cov = np.linalg.pinv(A / d[:, None] / d[None, :] + 1e-9 * np.eye(p)) / d[:, None] / d[None, :]
+    yy = np.asarray(y, np.float64).reshape(4, n)
+    pen = 8.0 if criterion == "aic" else 4.0 * math.log(m)
+    keep = np.ones(n, bool)
+    for i in np.nonzero(act)[0]:
+        idx = [i, n + i]
+        C = cov[np.ix_(idx, idx)]
+        x = yy[:2, i]
+        try:
+            wald = float(x @ np.linalg.solve(C, x))
+        except np.linalg.LinAlgError:
+            continue
+        # x^T cov^-1 x is the RSS increase of deleting the wave; in units of sigma^2 it is
+        # the Wald statistic, compared with the criterion's penalty for 4 parameters
+        keep[i] = wald / sigma2 >= pen or not np.isfinite(wald)
+    return keep
+
+
+def _sorted(result: WaveFit, n: int) -> WaveFit:
+    order = np.argsort(np.asarray(result.waves.omega)[:n])
+    pick = lambda w: Waves(*[jnp.asarray(x)[:n][order] for x in w])  # noqa: E731
+    return result._replace(waves=pick(result.waves), uncertainty=pick(result.uncertainty),
+                           n_waves=jnp.asarray(n))
+

@@ -1,0 +1,300 @@
+"""The spectral start of the wave fit (:mod:`jaxocean.fit.waves`, steps 1 and 2).
+
+Protocol: :func:`spectral_estimate` turns a scene's normals into the dispersion-shell power
+on a pyramid of ground grids (:class:`SpectralEstimate`); :func:`solve_amplitudes` solves
+the amplitudes and phases of waves of known ``omega, theta (N,)`` linearly;
+:func:`spectral_init` combines both into ``N`` starting waves.
+"""
+
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+
+from jaxocean import camera as cam
+from jaxocean import hierarchy
+from jaxocean._math import safe_sqrt, sincos, smoothstep
+from jaxocean.errors import check_values
+from jaxocean.fit.waves._inputs import check_inputs, clean_inputs, plane_hits, slope_field, valid_weights
+from jaxocean.fit.waves._model import wrap_angle
+from jaxocean.waves import GRAVITY, Waves
+
+
+class SpectralEstimate(NamedTuple):
+    """Space-time spectral estimate on ``S`` ground grids (``K = 2 G`` FFT bins a side).
+
+    ``power (S, K, K)`` dispersion-shell power, ``kx, ky (S, K, K)`` world wave vectors of
+    the bins [rad/m], ``spacing (S,)`` grid spacings [m], ``extent (S,)`` grid sides [m];
+    ``peaks``: ``omega, theta, power (S, n_peaks)`` of the strongest local maxima in each
+    grid's usable band (power 0 marks an empty slot).
+    """
+
+    power: jax.Array
+    kx: jax.Array
+    ky: jax.Array
+    spacing: jax.Array
+    extent: jax.Array
+    peak_omega: jax.Array
+    peak_theta: jax.Array
+    peak_power: jax.Array
+
+
+# =============================================================================== linear amplitudes
+
+
+def solve_amplitudes(normals, camera, times, omega, theta, *, n_min=hierarchy.DEFAULT_N_MIN,
+                     n_max=hierarchy.DEFAULT_N_MAX, ridge=1e-6) -> Waves:
+    """Amplitudes and phases of waves of known ``omega, theta (N,)`` by one linear solve.
+
+    To first order in the steepness the slope field is linear in ``(a_i, b_i) = h_i (cos
+    phi_i, sin phi_i)`` (:mod:`jaxocean.fit.waves`, step 2); the ``2N`` unknowns are solved jointly by
+    least squares over every valid pixel-frame (normal equations, relative ``ridge``).
+    """
+    normals, _, times = check_inputs(normals, None, camera, times)
+    dtype = normals.dtype
+    omega = jnp.atleast_1d(jnp.asarray(omega, dtype))
+    theta = jnp.atleast_1d(jnp.asarray(theta, dtype))
+    if omega.shape != theta.shape or omega.ndim != 1:
+        raise ValueError(f"omega and theta must be (N,) of one shape; got {omega.shape}, {theta.shape}")
+    check_values(omega > 0, "omega must be > 0 rad/s", omega)
+    a, b = _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge)
+    return Waves(safe_sqrt(a * a + b * b), omega, wrap_angle(theta), jnp.mod(jnp.arctan2(b, a), 2 * jnp.pi))
+
+
+@functools.partial(jax.jit, static_argnums=(5, 6))
+def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
+    weight = valid_weights(normals, camera)
+    normals, _ = clean_inputs(normals, None, weight)
+    s = slope_field(normals)
+    xy, fp_row, _ = plane_hits(camera)
+    n = omega.shape[0]
+    k = omega * omega / GRAVITY
+    khat = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)  # (N, 2)
+    amp = smoothstep(n_min, n_max, (2 * jnp.pi / k)[None, :] / fp_row[:, None]) * k  # (H, N)
+
+    def frame(carry, inp):
+        gram, rhs = carry
+        t, st, wt = inp
+        psi0 = omega * t - jnp.einsum("hwd,nd->hwn", xy, k[:, None] * khat)  # (H, W, N)
+        sn, cs = sincos(psi0)
+        sn, cs = sn * amp[:, None, :], cs * amp[:, None, :]
+        # design (H, W, 2 comps, 2N): column i -> k_hat_i * amp * sin, column N+i -> * cos
+        U = jnp.concatenate([sn[..., None, :] * khat.T[None, None], cs[..., None, :] * khat.T[None, None]], -1)
+        U = U * jnp.sqrt(wt)[..., None, None]
+        U = U.reshape(-1, 2 * n)
+        r = (st * jnp.sqrt(wt)[..., None]).reshape(-1)
+        return (gram + U.T @ U, rhs + U.T @ r), None
+
+    zero = (jnp.zeros((2 * n, 2 * n), normals.dtype), jnp.zeros(2 * n, normals.dtype))
+    (gram, rhs), _ = jax.lax.scan(frame, zero, (times, s, weight))
+    d = jnp.diag(gram)
+    gram = gram + ridge * jnp.diag(jnp.maximum(d, 1e-30)) + 1e-30 * jnp.eye(2 * n, dtype=gram.dtype)
+    x = jnp.linalg.solve(gram, rhs)
+    return x[:n], x[n:]
+
+
+# =============================================================================== spectral estimate
+
+
+def _hann(n, dtype):
+    i = jnp.arange(n, dtype=dtype)
+    return 0.5 - 0.5 * jnp.cos(2 * jnp.pi * (i + 0.5) / n)
+
+
+def grid_frames(camera, scales, grid):
+    """Anchors ``(S, 2)``, unit axes ``e_u, e_v (2,)``, spacings ``(S,)`` and a flag ``(S,)``
+    telling whether a grid sits where the pixels are finer than it (then the slopes are
+    box-filtered before sampling, against aliasing).
+
+    Perspective: grid ``s`` is spaced ``0.75 f_s`` with ``f_s = 2^s`` x the nearest sea
+    footprint and starts at the nearest image row whose footprint reaches ``f_s``, looking
+    along the camera's yaw: a pyramid that walks from the near field to the far field, so
+    that long waves are seen over many wavelengths. Orthographic: one grid over the image.
+    """
+    H, W = camera.resolution
+    dtype = jnp.result_type(camera.height, float)
+    yaw = jnp.asarray(camera.yaw, dtype)
+    e_u = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
+    e_v = jnp.stack([jnp.sin(yaw), -jnp.cos(yaw)])
+    levels = 2.0 ** jnp.arange(scales, dtype=dtype)
+    if camera.projection == "orthographic":
+        cell = jnp.asarray(camera.ortho_width, dtype) / W
+        d0 = cell * max(1.0, min(H, W) / grid)
+        centre = jnp.stack([jnp.asarray(camera.x, dtype), jnp.asarray(camera.y, dtype)])
+        spacing = d0 * levels
+        anchors = centre[None] - 0.5 * grid * spacing[:, None] * e_u[None]
+        return anchors, e_u, e_v, spacing, levels > 1
+    hit = cam.intersect_sea(camera)
+    row_sea = jnp.any(hit.mask, axis=1)
+    fp_row = jnp.where(row_sea, hit.footprint[:, W // 2], 0.0)
+    near = H - 1 - jnp.argmax(row_sea[::-1])
+    f0 = hit.footprint[near, W // 2]
+    target = f0 * levels  # (S,)
+    rows = jnp.arange(H)
+    reach = row_sea[None, :] & (fp_row[None, :] >= target[:, None] * 0.999)  # (S, H)
+    # the nearest (largest index) row that reaches the target footprint, else the near row
+    row = jnp.where(jnp.any(reach, axis=1), jnp.max(jnp.where(reach, rows[None, :], -1), axis=1), near)
+    fallback = ~jnp.any(reach, axis=1) & (levels > 1)
+    anchors = hit.xy[row, W // 2]
+    spacing = 0.75 * target
+    return anchors, e_u, e_v, spacing, fallback
+
+
+def _box(img, size):
+    if size == 1:
+        return img
+    window = (size, size) + (1,) * (img.ndim - 2)
+    return jax.lax.reduce_window(img, 0.0, jax.lax.add, window, (1,) * img.ndim, "SAME") / float(size * size)
+
+
+def _resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid):
+    """Slopes ``(T, G, G, 2)`` and validity ``(T, G, G)`` on one ground grid. Where
+    ``use_box``, the image is first box-filtered over ``2^level`` pixels (against aliasing of
+    a coarse grid in the near field)."""
+    dtype = slopes.dtype
+    size = 2 ** level
+    T = weight.shape[0]
+    sw = jnp.moveaxis(slopes * weight[..., None], 0, -1)  # (H, W, 2, T)
+    sw = sw.reshape(sw.shape[0], sw.shape[1], -1)  # (H, W, 2T)
+    wt = jnp.moveaxis(weight, 0, -1)  # (H, W, T)
+    if size > 1:
+        sw = jnp.where(use_box, _box(sw, size), sw)
+        wt = jnp.where(use_box, _box(wt, size), wt)
+    iu = (jnp.arange(grid, dtype=dtype) + 0.5)
+    iv = (jnp.arange(grid, dtype=dtype) - grid / 2 + 0.5)
+    X = anchor + d * (iu[:, None, None] * e_u + iv[None, :, None] * e_v)  # (G, G, 2)
+    P3 = jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1)
+    ij = cam.project(camera, P3)  # (G, G, 2)
+    coords = [ij[..., 0], ij[..., 1]]
+
+    def sample(img2d):
+        return jax.scipy.ndimage.map_coordinates(img2d, coords, order=1, mode="constant", cval=0.0)
+
+    s_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(sw).reshape(grid, grid, 2, T)
+    w_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(wt)  # (G, G, T)
+    valid = w_g > 0.999
+    s_g = jnp.where(valid[:, :, None, :], s_g / jnp.where(valid, w_g, 1.0)[:, :, None, :], 0.0)
+    return jnp.moveaxis(s_g, -1, 0), jnp.moveaxis(valid.astype(dtype), -1, 0), X
+
+
+def _power_one_scale(slopes, weight, times, camera, anchor, e_u, e_v, d, level, use_box, grid):
+    s_g, v_g, X = _resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid)
+    dtype = slopes.dtype
+    win = _hann(grid, dtype)
+    wmap = win[:, None] * win[None, :] * jnp.min(v_g, axis=0)  # (G, G): the same support in every frame
+    f = s_g * wmap[None, :, :, None]
+    mean = jnp.sum(f, axis=(1, 2), keepdims=True) / jnp.maximum(jnp.sum(wmap), 1e-30)
+    f = f - mean * wmap[None, :, :, None]  # remove the mean tilt inside the window
+    K = 2 * grid
+    F = jnp.fft.ifft2(f, s=(K, K), axes=(1, 2)) * (K * K)  # (T, K, K, 2): sum f e^{+i kappa . x}
+    m = jnp.fft.fftfreq(K, 1.0 / K).astype(dtype)
+    kap = 2 * jnp.pi * m / (K * d)
+    ku, kv = kap[:, None], kap[None, :]
+    kx = ku * e_u[0] + kv * e_v[0]
+    ky = ku * e_u[1] + kv * e_v[1]
+    kk = jnp.sqrt(kx * kx + ky * ky)
+    kk_safe = jnp.where(kk > 0, kk, 1.0)
+    om = jnp.sqrt(GRAVITY * kk)
+    proj = F[..., 0] * (kx / kk_safe) + F[..., 1] * (ky / kk_safe)  # (T, K, K)
+    t = times - times[0]
+    phase = jnp.exp(-1j * om[None] * t[:, None, None])
+    C = jnp.sum(phase * proj, axis=0)
+    power = jnp.where(kk > 0, jnp.abs(C) ** 2, 0.0) / jnp.maximum(jnp.sum(wmap ** 2), 1e-30)
+    return power.astype(dtype), kx, ky, kk, jnp.sum(wmap > 0)
+
+
+def _peaks(power, kk, k_lo, k_hi, n_peaks):
+    nb = [jnp.roll(jnp.roll(power, di, 0), dj, 1) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
+    is_max = jnp.all(jnp.stack([power > q for q in nb]), axis=0)
+    ok = is_max & (kk >= k_lo) & (kk <= k_hi)
+    val = jnp.where(ok, power, 0.0).ravel()
+    top, idx = jax.lax.top_k(val, n_peaks)
+    return top, idx
+
+
+@functools.partial(jax.jit, static_argnames=("scales", "grid", "n_peaks"))
+def spectral_pyramid(slopes, weight, times, camera, *, scales, grid, n_peaks):
+    anchors, e_u, e_v, spacing, fallback = grid_frames(camera, scales, grid)
+    out = []
+    for g in range(scales):
+        d = spacing[g]
+        power, kx, ky, kk, support = _power_one_scale(slopes, weight, times, camera, anchors[g], e_u, e_v, d, g,
+                                                      fallback[g], grid)
+        k_lo = 1.5 * 2 * jnp.pi / (grid * d)
+        k_hi = 0.9 * jnp.pi / d
+        # a grid with (almost) no valid point has no peaks
+        power = jnp.where(support >= grid * grid // 8, power, 0.0)
+        top, idx = _peaks(power, kk, k_lo, k_hi, n_peaks)
+        kxp, kyp = kx.ravel()[idx], ky.ravel()[idx]
+        kp = jnp.sqrt(kxp * kxp + kyp * kyp)
+        om = jnp.sqrt(GRAVITY * jnp.maximum(kp, 1e-12))
+        out.append((power, kx, ky, om, jnp.arctan2(kyp, kxp), top))
+    stack = [jnp.stack([o[i] for o in out]) for i in range(6)]
+    return SpectralEstimate(power=stack[0], kx=stack[1], ky=stack[2], spacing=spacing, extent=spacing * grid,
+                            peak_omega=stack[3], peak_theta=stack[4], peak_power=stack[5])
+
+
+def spectral_estimate(normals, camera, times, *, scales: int | None = None, grid: int = 64,
+                      n_peaks: int = 32) -> SpectralEstimate:
+    """Space-time spectral estimate of an observed sequence (:mod:`jaxocean.fit.waves`, step 1).
+
+    ``scales`` ground grids of ``grid x grid`` points (default: 1 for the orthographic
+    camera, 4 for a perspective one; see ``grid_frames``: grid ``s`` is spaced 0.75 x
+    2^s x the nearest footprint and starts where the image's footprint reaches that
+    scale). Traceable (static ``scales``, ``grid``, ``n_peaks``).
+    """
+    normals, _, times = check_inputs(normals, None, camera, times)
+    if scales is None:
+        scales = 1 if camera.projection == "orthographic" else 4
+    return _spectral_from_normals(normals, times, camera, scales, grid, n_peaks)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _spectral_from_normals(normals, times, camera, scales, grid, n_peaks):
+    weight = valid_weights(normals, camera)
+    normals, _ = clean_inputs(normals, None, weight)
+    return spectral_pyramid(slope_field(normals), weight, times, camera, scales=scales, grid=grid, n_peaks=n_peaks)
+
+
+def spectral_init(normals, camera, times, n_waves: int, *, scales: int | None = None, grid: int = 64,
+                  n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX) -> Waves:
+    """The ``n_waves`` strongest spectral peaks (all scales pooled, duplicates within the
+    finest resolution dropped), with amplitudes and phases from :func:`solve_amplitudes`.
+
+    One shot and traceable: no greedy subtraction (use :func:`waves` for that).
+    """
+    normals, _, times = check_inputs(normals, None, camera, times)
+    if scales is None:
+        scales = 1 if camera.projection == "orthographic" else 4
+    est = _spectral_from_normals(normals, times, camera, scales, grid, max(n_waves, 8))
+    om, th = _pool_peaks(est, n_waves)
+    a, b = _solve_ab(normals, camera, times, om, th, n_min, n_max, 1e-6)
+    return Waves(safe_sqrt(a * a + b * b), om, wrap_angle(th), jnp.mod(jnp.arctan2(b, a), 2 * jnp.pi))
+
+
+def _pool_peaks(est: SpectralEstimate, n):
+    """Top ``n`` peaks over all scales, suppressing repeats of one wave vector."""
+    om = est.peak_omega.ravel()
+    th = est.peak_theta.ravel()
+    pw = est.peak_power.ravel()
+    # the scales' powers compete as they are (not normalised per scale)
+    k = om * om / GRAVITY
+    kx, ky = k * jnp.cos(th), k * jnp.sin(th)
+    res = jnp.repeat(2 * jnp.pi / est.extent, est.peak_power.shape[1])
+    order = jnp.argsort(-pw)
+    keep = jnp.zeros(pw.shape, bool)
+
+    def body(i, keep):
+        j = order[i]
+        d = jnp.sqrt((kx - kx[j]) ** 2 + (ky - ky[j]) ** 2)
+        dup = jnp.any(keep & (d < jnp.maximum(res, res[j])))
+        return keep.at[j].set((pw[j] > 0) & ~dup)
+
+    keep = jax.lax.fori_loop(0, pw.shape[0], body, keep)
+    score = jnp.where(keep, pw, -1.0)
+    _, idx = jax.lax.top_k(score, n)
+    return om[idx], th[idx]
+
