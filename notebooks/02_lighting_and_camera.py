@@ -68,7 +68,7 @@ assert bool(best.success) and float(fit.lighting_error(best.lighting, truth)["su
 # %%
 behind = truth._replace(sun_azimuth=jnp.asarray(3.0))  # the sun behind the camera
 dark = fit.lighting(render.render(waves, cam, behind, 0.0, plan=None), geo, cam, init=init, throw=False)
-print(bool(dark.success), fit.failure_message(dark))
+print(bool(dark.success), fit.lighting_fit.failure_message(dark))
 assert not bool(dark.success) and not bool(dark.determined["sun_direction"])
 
 # %% [markdown]
