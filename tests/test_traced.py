@@ -206,3 +206,45 @@ def test_traced_auto_plan_under_vmap_matches_each_eager_call(x64):
     imgs = jax.vmap(lambda c: render.render(waves, c, light, 0.2))(batch)
     for i, c in enumerate(cams):
         np.testing.assert_allclose(imgs[i], render.render(waves, c, light, 0.2), rtol=1e-11, atol=1e-13)
+
+
+def test_one_pass_jacobian_equals_autodiff_of_the_fixed_point_map(x64):
+    # F and dF/dX come from one pass over the waves (eight sums); autodiff of F is the reference
+    waves, c = _sea(8, seed=7, kh=(0.1, 0.3)), _view("close")
+    hit = cam.intersect_sea(c)
+    ws = hierarchy.weights(waves, hit.footprint)
+    origin, direction = cam.pixel_rays(c)
+    origin = jnp.broadcast_to(origin, direction.shape)
+    xy = hit.xy + 0.3 * jnp.sin(hit.xy[..., ::-1])  # off the fixed point: a generic X
+    for weights in (ws.displacement, None):
+        value, jx, jy = raycast._step_jacobian(waves, origin, direction, xy, 0.6, weights)
+        np.testing.assert_allclose(value, raycast.step(waves, origin, direction, xy, 0.6, weights), rtol=0, atol=1e-12)
+
+        def f(p, i, j):
+            return raycast.step(waves, origin[i, j], direction[i, j], p, 0.6, None if weights is None else weights[i, j])
+
+        for i, j in ((0, 0), (5, 7), (11, 15)):
+            jac = np.asarray(jax.jacfwd(f)(xy[i, j], i, j))  # jac[:, m] = dF/dX_m
+            np.testing.assert_allclose(np.stack([jx[i, j], jy[i, j]], -1), jac, rtol=1e-10, atol=1e-12)
+
+
+def test_compacting_the_loop_changes_the_cost_not_the_hits(x64, monkeypatch):
+    # the loop gathers the points still moving into smaller buffers; with compaction off
+    # (one level) every hit and flag is the same, to float rounding
+    waves = _sea(12, seed=0, kh=(0.05, 0.3))
+    c = cam.make_camera(height=8.0, pitch=0.35, fov=0.87, resolution=(32, 40), dtype=jnp.float64)
+    hit = cam.intersect_sea(c)
+    ws = hierarchy.weights(waves, hit.footprint)
+    origin, direction = render._sea_rays(c, hit)
+    assert len(raycast._compaction_sizes(32 * 40)) > 2
+    args = (waves, origin, direction, hit.xy, 1.3, ws.displacement)
+    compacted = raycast.refine_hits(*args, active=hit.mask)
+    monkeypatch.setattr(raycast, "COMPACTION", 10**9)
+    assert raycast._compaction_sizes(32 * 40) == (32 * 40,)
+    jax.clear_caches()
+    plain = raycast.refine_hits(*args, active=hit.mask)
+    ok = np.asarray(plain.converged)
+    np.testing.assert_array_equal(compacted.converged, ok)
+    assert (~ok[np.asarray(hit.mask)]).sum() > 0  # grazing pixels: the stragglers compaction is for
+    np.testing.assert_allclose(np.asarray(compacted.xy)[ok], np.asarray(plain.xy)[ok], rtol=0, atol=1e-9)
+    assert int(compacted.iterations) == int(plain.iterations)
