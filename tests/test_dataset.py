@@ -157,3 +157,17 @@ def test_frames_brighter_than_half_floats_are_stored_exactly(tmp_path):
     assert float(np.abs(images).max()) > 65504.0
     frame = dataset.Dataset(tmp_path).frame(0, 0)
     np.testing.assert_array_equal(frame.image, np.asarray(images[0], np.float32))
+
+
+def test_loaded_converged_flags_are_the_rendered_ones(clean):
+    # Batch.converged: where each frame's ray-surface hits are exact, as render_scene made them
+    root, _ = clean
+    ds = dataset.Dataset(root)
+    batch = next(ds.batches(jax.random.key(2), "train", batch_size=1, sequence=2))
+    assert batch.converged.shape == (1, 2, 12, 16) and batch.converged.dtype == bool
+    index = next(s for s in ds.splits["train"]
+                 if np.array_equal(np.asarray(ds.scene(s).times)[:2], batch.times[0]))
+    scene = dataset.sample_scene(jax.random.fold_in(jax.random.key(SMALL["seed"]), index), RANGES,
+                                 SMALL["resolution"], SMALL["n_frames"])
+    _, geo = dataset.render_scene(scene)
+    np.testing.assert_array_equal(batch.converged[0], np.asarray(geo.converged))

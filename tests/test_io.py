@@ -634,3 +634,44 @@ def test_save_png_refuses_nan_and_bad_shapes(tmp_path):
     with pytest.raises(ValueError, match="H, W, 3"):
         save_png(tmp_path / "p.png", np.zeros((2, 2)))
     assert os.listdir(tmp_path) == []
+
+
+def test_converged_flag_round_trips_and_older_files_read_none(tmp_path):
+    # Geometry.converged (False where a ray's hit is not exact) is a 0/1 channel; a file
+    # without it (older, or written without the flag) reads with converged None, silently
+    image, geometry = random_frame(5)
+    converged = np.random.default_rng(5).random((H, W)) > 0.25
+    path = write_frame(tmp_path / "f.exr", image, geometry._replace(converged=converged))
+    raw = OpenEXR.File(str(path), separate_channels=True).channels()
+    assert raw[exr.CONVERGED_CHANNEL].pixels.dtype == np.float16  # 0 / 1 exact in half
+    frame = read_frame(path)
+    assert frame.converged.dtype == bool
+    np.testing.assert_array_equal(frame.converged, converged)
+    old = read_frame(write_frame(tmp_path / "old.exr", image, geometry))  # converged None: no channel
+    assert exr.CONVERGED_CHANNEL not in OpenEXR.File(str(tmp_path / "old.exr"), separate_channels=True).channels()
+    assert old.converged is None and old.slope_variance is not None  # no warning (they are errors here)
+    with pytest.raises(InvalidValueError, match="converged must be bool or 0/1"):
+        write_frame(tmp_path / "bad.exr", image, geometry._replace(converged=converged * 0.5))
+    with pytest.raises(ValueError, match="geometry.converged must have shape"):
+        write_frame(tmp_path / "bad.exr", image, geometry._replace(converged=converged[:, :3]))
+    rgb = {name: image[..., c].copy() for c, name in enumerate(exr.RGB_CHANNELS)}
+    write_raw_exr(tmp_path / "flag_only.exr", rgb | {exr.CONVERGED_CHANNEL: converged.astype(np.float32)})
+    with pytest.raises(exr.FrameError, match="flag_only.exr: incomplete geometry: has 'converged'"):
+        read_frame(tmp_path / "flag_only.exr")
+
+
+def test_rendered_frame_keeps_its_converged_flags(tmp_path):
+    # a view whose grazing rays have no unique hit: the flags written are the flags read
+    from jaxocean import render
+    from jaxocean.waves import GRAVITY
+
+    rng = np.random.default_rng(0)
+    om = rng.uniform(1.0, 3.5, 12)
+    waves = make_waves(rng.uniform(0.05, 0.3, 12) / (om**2 / GRAVITY) / np.sqrt(3), om,
+                       rng.uniform(-np.pi, np.pi, 12), rng.uniform(0, 2 * np.pi, 12))
+    cam = make_camera(height=8.0, pitch=0.35, fov=0.87, resolution=(32, 40))
+    image, geo = render.render(waves, cam, make_lighting(), 1.3, with_geometry=True)
+    flagged = np.asarray(geo.mask) & ~np.asarray(geo.converged)
+    assert flagged.any()
+    frame = read_frame(write_frame(tmp_path / "f.exr", image, geo))
+    np.testing.assert_array_equal(frame.converged, np.asarray(geo.converged))

@@ -3,7 +3,8 @@
 A rendered or observed sequence is a directory::
 
     scene.json           waves, camera, lighting, spectrum, frame times, seed, version
-    frame_00000.exr      R G B linear radiance [+ normal.X/Y/Z, roughness, slope_variance.X/Y, mask]
+    frame_00000.exr      R G B linear radiance [+ normal.X/Y/Z, roughness, slope_variance.X/Y, mask,
+                         converged]
     frame_00001.exr
     ...
 

@@ -17,6 +17,10 @@ channel                                meaning                                  
 ``slope_variance.X``,                  the anisotropic pair (sigma_x^2, sigma_y^2)     dimensionless
 ``slope_variance.Y``                   the image was shaded with
 ``mask``                               1 where the pixel sees the sea, 0 for sky        0 / 1
+``converged``                          1 where the pixel's geometry is exact (its       0 / 1
+                                       ray-surface hit converged to a unique point,
+                                       :attr:`jaxocean.render.Geometry.converged`),
+                                       0 where it is not (a ray grazing a crest)
 =====================================  =============================================  ==========
 
 ``R G B`` are always there; ``normal.X/Y/Z``, ``roughness`` and ``mask`` (the
@@ -31,8 +35,11 @@ with geometry but without them (written before they were stored, or by another t
 reads: ``Frame.slope_variance`` is None and :func:`read_frame` warns
 (:class:`IncompleteFrameWarning`) unless ``warn_incomplete=False``. Channels outside this
 list are ignored on reading, so files from other tools load as long as they carry ``R G B``.
+``converged`` (:data:`CONVERGED_CHANNEL`) is written with the geometry whenever it has a
+``converged`` flag that is not None; a file without it reads with ``Frame.converged`` None,
+without a warning (unknown, not False).
 
-Pixel types. ``R G B`` and ``mask`` are half (float16) by default, float32 with
+Pixel types. ``R G B``, ``mask`` and ``converged`` are half (float16) by default, float32 with
 ``half=False``. The geometry values ``normal``, ``roughness`` and ``slope_variance`` are
 always float32 and read back bit-exact: the sun glitter is so sensitive to the normal that
 half-float normals (2.4e-4 rounding) move glint pixels by up to ~3% -- a frame could not
@@ -94,6 +101,7 @@ __all__ = [
     "NORMAL_CHANNELS",
     "GEOMETRY_CHANNELS",
     "SLOPE_VARIANCE_CHANNELS",
+    "CONVERGED_CHANNEL",
     "META_PREFIX",
     "COMPRESSIONS",
     "FileFormatError",
@@ -113,6 +121,8 @@ GEOMETRY_CHANNELS = NORMAL_CHANNELS + ("roughness", "mask")
 SLOPE_VARIANCE_CHANNELS = ("slope_variance.X", "slope_variance.Y")
 """The anisotropic slope variance (sigma_x^2, sigma_y^2): written with the geometry when it
 has one, optional on reading (older files lack it)."""
+CONVERGED_CHANNEL = "converged"
+"""Per-pixel 0 / 1: the hit converged (written with the geometry when it has the flag)."""
 _FLOAT32_CHANNELS = frozenset(NORMAL_CHANNELS + ("roughness",) + SLOPE_VARIANCE_CHANNELS)
 """Stored as float32 whatever ``half`` says (module docstring, "Pixel types")."""
 META_PREFIX = "jaxocean."
@@ -187,6 +197,9 @@ class Frame(NamedTuple):
     * ``meta``      dict of the ``jaxocean.*`` header attributes, prefix removed.
     * ``slope_variance`` ``(H, W, 2)`` float32 (sigma_x^2, sigma_y^2) the image was shaded
       with, or None when the file has no such channels (no geometry, or an older file).
+    * ``converged`` ``(H, W)`` bool, False on pixels whose ray-surface hit did not converge
+      to a unique point (:attr:`jaxocean.render.Geometry.converged`; the pixels a fit or a
+      loss can trust are ``mask & converged``), or None when the file has no such channel.
 
     A frame is a geometry-like: ``render.shade(f.normal, f.roughness, camera, lighting,
     slope_variance=f.slope_variance)`` and ``fit.lighting(f.image, f, camera)`` use the
@@ -199,6 +212,7 @@ class Frame(NamedTuple):
     mask: np.ndarray | None
     meta: dict
     slope_variance: np.ndarray | None = None
+    converged: np.ndarray | None = None
 
 
 def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, compression: str = "zip") -> Path:
@@ -211,10 +225,12 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
         geometry: optional per-pixel geometry: a :class:`jaxocean.render.Geometry`, or any
             object or dict with ``normal (H, W, 3)``, ``roughness (H, W)`` and ``mask
             (H, W)`` (bool, or numbers 0 / 1), and optionally ``slope_variance (H, W, 2)``
-            (>= 0; stored as ``slope_variance.X/Y`` when present and not None).
+            (>= 0; stored as ``slope_variance.X/Y`` when present and not None) and
+            ``converged (H, W)`` (bool or 0 / 1; stored as ``converged`` when present and
+            not None).
         meta: optional flat dict ``{str: str | int | float}`` stored as header attributes
             ``jaxocean.<key>``; ints must fit 32 bits, floats must be finite.
-        half: store ``R G B`` and ``mask`` as half floats (default) or, with False, as
+        half: store ``R G B``, ``mask`` and ``converged`` as half floats (default) or, with False, as
             float32 (bit-exact round trip). Geometry values are float32 either way.
         compression: one of :data:`COMPRESSIONS`; ``"zip"`` (lossless) by default.
 
@@ -224,7 +240,7 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
     Raises:
         ValueError: wrong shapes, dtypes, compression name or metadata types.
         InvalidValueError: NaN/inf values (naming the channel), |R G B| > 65504 with
-            ``half=True``, a mask that is not 0/1, a negative slope variance. Nothing is
+            ``half=True``, a mask or converged flag that is not 0/1, a negative slope variance. Nothing is
             written in either case.
     """
     if compression not in _COMPRESSION_BY_NAME:
@@ -264,11 +280,15 @@ def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
         roughness = _real_array(_geometry_field(geometry, "roughness"), "roughness")
         mask = _mask_plane(_geometry_field(geometry, "mask"))
         slope_var = _geometry_field(geometry, "slope_variance", required=False)
+        converged = _geometry_field(geometry, "converged", required=False)
         fields = [("normal", normal, resolution + (3,)), ("roughness", roughness, resolution),
                   ("mask", mask, resolution)]
         if slope_var is not None:
             slope_var = _real_array(slope_var, "slope_variance")
             fields.append(("slope_variance", slope_var, resolution + (2,)))
+        if converged is not None:
+            converged = _mask_plane(converged, "converged")
+            fields.append(("converged", converged, resolution))
         for name, array, shape in fields:
             if array.shape != shape:
                 raise ValueError(f"geometry.{name} must have shape {shape} to match the image; got {array.shape}")
@@ -276,6 +296,8 @@ def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
         planes.update(roughness=roughness, mask=mask)
         if slope_var is not None:
             planes.update({name: slope_var[..., c] for c, name in enumerate(SLOPE_VARIANCE_CHANNELS)})
+        if converged is not None:
+            planes[CONVERGED_CHANNEL] = converged
     for name, plane in planes.items():
         check_finite(plane, f"EXR channel {name!r}")
     for name in SLOPE_VARIANCE_CHANNELS:
@@ -303,13 +325,13 @@ def _geometry_field(geometry, name: str, *, required: bool = True):
         ) from None
 
 
-def _mask_plane(mask) -> np.ndarray:
-    mask = _real_array(mask, "mask", kinds="biuf")
+def _mask_plane(mask, name: str = "mask") -> np.ndarray:
+    mask = _real_array(mask, name, kinds="biuf")
     if mask.dtype != bool:
         # A soft or garbled mask is a bug upstream: refuse it rather than threshold it here.
-        check_finite(mask, "EXR channel 'mask'")
+        check_finite(mask, f"EXR channel {name!r}")
         if not np.all((mask == 0) | (mask == 1)):
-            raise InvalidValueError("geometry.mask must be bool or 0/1")
+            raise InvalidValueError(f"geometry.{name} must be bool or 0/1")
     return mask.astype(np.float32)
 
 
@@ -475,7 +497,8 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
     Returns:
         a :class:`Frame` of float32 NumPy arrays (the mask as bool: channel value > 0.5),
         geometry fields None when the file has no geometry channels, ``slope_variance``
-        None when it has no slope-variance channels.
+        None when it has no slope-variance channels, ``converged`` None when it has no
+        ``converged`` channel (bool otherwise: channel value > 0.5).
 
     Raises:
         MissingFileError: no such file.
@@ -514,7 +537,12 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
         missing = [name for name in SLOPE_VARIANCE_CHANNELS + GEOMETRY_CHANNELS if name not in pixels]
         raise FrameError(path, f"incomplete geometry: has {present_slope} but is missing channel(s) {missing}")
 
-    used = RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ()) + tuple(present_slope)
+    has_converged = CONVERGED_CHANNEL in pixels
+    if has_converged and not present_geometry:
+        raise FrameError(path, f"incomplete geometry: has {CONVERGED_CHANNEL!r} but is missing channel(s) "
+                               f"{list(GEOMETRY_CHANNELS)}")
+    used = (RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ()) + tuple(present_slope)
+            + ((CONVERGED_CHANNEL,) if has_converged else ()))
     shapes = {name: np.shape(pixels[name]) for name in used}
     if len(set(shapes.values())) != 1:
         raise FrameError(path, f"channels of different sizes (subsampled?): {shapes}")
@@ -539,4 +567,5 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
         mask=np.asarray(pixels["mask"]) > 0.5,
         meta=_meta_from_header(header),
         slope_variance=stack(SLOPE_VARIANCE_CHANNELS) if present_slope else None,
+        converged=np.asarray(pixels[CONVERGED_CHANNEL]) > 0.5 if has_converged else None,
     )

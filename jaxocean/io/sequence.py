@@ -8,7 +8,8 @@ of the first frame and ``scene.json``. ``scene`` is anything with ``waves``, ``c
 :class:`jaxocean.io.scene.Scene` or a dataset :class:`~jaxocean.io.dataset.SceneSample`);
 ``geometry`` has ``normal (T, H, W, 3)``, ``roughness (T, H, W)``, ``mask (T, H, W)`` and
 (as a :class:`jaxocean.render.Geometry` does) ``slope_variance (T, H, W, 2)``, which is
-stored so that each frame's geometry reproduces its image (:mod:`jaxocean.io.exr`).
+stored so that each frame's geometry reproduces its image (:mod:`jaxocean.io.exr`), and
+``converged (T, H, W)`` (where the ray-surface hits are exact), stored when not None.
 Every file is written atomically (:func:`jaxocean.files.atomic_write`). The CLI's
 ``render``, ``demo`` and ``forecast`` and :func:`jaxocean.fit.reedit_scene` all write
 through here.
@@ -69,10 +70,14 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
                                np.asarray(geometry.mask))
     slope_var = getattr(geometry, "slope_variance", None)
     slope_var = None if slope_var is None else np.asarray(slope_var)
+    converged = getattr(geometry, "converged", None)
+    converged = None if converged is None else np.asarray(converged)
     if normal.shape != images.shape or roughness.shape != images.shape[:-1]:
         raise ValueError(f"geometry shapes {normal.shape}, {roughness.shape} do not match images {images.shape}")
     if slope_var is not None and slope_var.shape != images.shape[:-1] + (2,):
         raise ValueError(f"geometry.slope_variance shape {slope_var.shape} does not match images {images.shape}")
+    if converged is not None and converged.shape != images.shape[:-1]:
+        raise ValueError(f"geometry.converged shape {converged.shape} does not match images {images.shape}")
     times = np.atleast_1d(np.asarray(scene.times, np.float64))
     if times.shape != (n_frames,):
         raise ValueError(f"scene.times must be ({n_frames},) to match the images; got shape {times.shape}")
@@ -90,7 +95,8 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     pngs = []
     for f in tqdm(range(n_frames), desc="write", unit="frame", disable=not progress):
         g = {"normal": normal[f], "roughness": roughness[f], "mask": mask[f],
-             "slope_variance": None if slope_var is None else slope_var[f]}
+             "slope_variance": None if slope_var is None else slope_var[f],
+             "converged": None if converged is None else converged[f]}
         meta = {"frame": int(frame_ids[f]), "time": float(times[f])}
         write_frame(out / frame_name(f), images[f], g, meta, half=half)
         pngs.append(save_png(out / frame_name(f).replace(".exr", ".png"), images[f], exposure=exposure))
