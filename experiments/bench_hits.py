@@ -6,7 +6,10 @@ and steep to the horizon in the image, measures:
 * the path ``plan="auto"`` takes (rows or hits), Newton iterations the loop ran, and the
   share of sea pixels whose hit is flagged (``Geometry.converged`` False: grazing rays);
 * ``render`` forward, median after compilation (compile time apart), on that path and on
-  the rows path (``plan=None``) for the same view: the price of exact hits;
+  the rows path (``plan=None``) for the same view: the price of exact hits. The two are
+  also timed in alternating blocks in the same run (``benchutil.interleaved_medians``),
+  whose ratio ``hits_over_rows`` is what to compare across runs on a shared machine;
+* ``refine_hits`` alone (the Newton loop) and its share of the frame;
 * ``render`` forward + gradient with respect to the camera height and pitch and the sun
   angles under ``plan="auto"`` (traced: the path is chosen inside the compiled function).
 
@@ -18,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import sys
 
 import jax
@@ -53,17 +57,32 @@ def measure(name, height, pitch, fov, waves, light, res, repeats):
     mask, ok = np.asarray(geo.mask), np.asarray(geo.converged)
     row["sea_pixels"] = int(mask.sum())
     row["flagged_fraction"] = float((mask & ~ok).sum() / max(mask.sum(), 1))
+    hit = cam.intersect_sea(c)
+    ws = hierarchy.weights(waves, hit.footprint)
+    origin, direction = render._sea_rays(c, hit)
+    hits_args = (waves, origin, direction, hit.xy, ws.displacement, hit.mask)
     if plan.refine:
-        hit = cam.intersect_sea(c)
-        ws = hierarchy.weights(waves, hit.footprint)
-        origin, direction = render._sea_rays(c, hit)
         row["iterations"] = int(raycast.refine_hits(waves, origin, direction, hit.xy, 0.0, ws.displacement,
                                                     active=hit.mask).iterations)
     fixed = dict(active=plan.active, refine=plan.refine)
-    auto = benchutil.time_jitted(lambda w, c, l: render.render(w, c, l, 0.0, plan=render.RenderPlan(**fixed)),
-                                 waves, c, light, repeats=repeats)
-    rows = benchutil.time_jitted(lambda w, c, l: render.render(w, c, l, 0.0, plan=None), waves, c, light,
-                                 repeats=repeats)
+
+    def auto_fn(w, c, l):
+        return render.render(w, c, l, 0.0, plan=render.RenderPlan(**fixed))
+
+    def rows_fn(w, c, l):
+        return render.render(w, c, l, 0.0, plan=None)
+
+    auto = benchutil.time_jitted(auto_fn, waves, c, light, repeats=repeats)
+    rows = benchutil.time_jitted(rows_fn, waves, c, light, repeats=repeats)
+    calls = {"auto": (auto_fn, (waves, c, light)), "rows": (rows_fn, (waves, c, light))}
+    if plan.refine:
+        calls["refine"] = (lambda w, o, d, xy, wd, m: raycast.refine_hits(w, o, d, xy, 0.0, wd, active=m).xy,
+                           hits_args)
+    alternating = benchutil.interleaved_medians(calls, rounds=5, block=max(3, repeats // 2))
+    row.update(hits_over_rows=alternating["auto"] / alternating["rows"],
+               alternating_render_ms=1e3 * alternating["auto"], alternating_rows_ms=1e3 * alternating["rows"])
+    if plan.refine:
+        row.update(refine_ms=1e3 * alternating["refine"], refine_share=alternating["refine"] / alternating["auto"])
 
     def loss(p, w, c, l):
         cc = dataclasses.replace(c, height=p[0], pitch=p[1])
@@ -90,8 +109,9 @@ def chart(rows, path):
     ax.bar(x - 0.2, [r["render_ms"] for r in rows], 0.4, label="plan='auto' (path shown)")
     ax.bar(x + 0.2, [r["rows_path_ms"] for r in rows], 0.4, label="rows path (plan=None)")
     for i, r in enumerate(rows):
-        ax.text(i - 0.2, r["render_ms"], r["path"] + (f"\n{r.get('iterations', 0)} it" if r["path"] == "hits" else ""),
-                ha="center", va="bottom", fontsize=7)
+        label = r["path"] + (f"\n{r.get('iterations', 0)} it, {r['hits_over_rows']:.0f}x rows" if r["path"] == "hits"
+                             else "")
+        ax.text(i - 0.2, r["render_ms"], label, ha="center", va="bottom", fontsize=7)
     ax.set_xticks(x, names, rotation=20, ha="right", fontsize=7)
     ax.set_ylabel("render forward [ms], median")
     ax.legend(fontsize=7)
@@ -111,10 +131,12 @@ def main(argv=None):
     waves = jonswap_sea(60)
     light = shading.make_lighting(sun_azimuth=0.4, sun_elevation=0.5)
     rows = []
+    load_start = list(os.getloadavg())  # the machine is shared: loaded runs are slower
     for view in VIEWS:
         rows.append(measure(*view, waves, light, res, repeats))
         print(rows[-1], flush=True)
-    out = benchutil.save("bench_hits", rows, dict(resolution=res, n_waves=60, dtype="float32"))
+    out = benchutil.save("bench_hits", rows, dict(resolution=res, n_waves=60, dtype="float32",
+                                                  load_average_at_start=load_start))
     chart(rows, benchutil.RESULTS / "bench_hits.png")
     print("wrote", out)
 
