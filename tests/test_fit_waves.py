@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
+from jax.test_util import check_grads
 
 from jaxocean import camera as cam
 from jaxocean import render, spectrum
@@ -19,7 +20,8 @@ from jaxocean.errors import InvalidValueError
 import jaxocean.fit as fit_package
 from jaxocean.fit import spectrum_fit as fit_spectrum
 from jaxocean.fit import waves_fit as fw
-from jaxocean.fit.waves import _inputs, _lm, _model
+from jaxocean import _roughness
+from jaxocean.fit.waves import _inputs, _lm, _model, _select
 from jaxocean.fit.solvers import FitError
 from jaxocean.waves import GRAVITY, Waves, make_waves
 
@@ -168,7 +170,7 @@ def test_refine_maps_over_scenes_with_vmap(ortho_scene):
 
 def test_refine_is_the_same_function_jitted_and_eager(ortho_scene):
     # 3 waves are padded to a bucket of inactive slots; the padding must not depend on
-    # whether the inputs are traced (it did: eager calls padded, jitted ones did not)
+    # whether the inputs are traced
     c, truth, normals, rough = ortho_scene
     init = truth._replace(amplitude=truth.amplitude * 0.95)
     eager = fw.refine(normals, rough, c, TIMES, init, max_steps=5)
@@ -219,8 +221,8 @@ def test_wave_uncertainty_is_the_delta_method_covariance(x64, seed):
 
 def test_wave_uncertainty_is_positive_when_the_normal_matrix_is_near_singular():
     # float32 J^T J of a sea of close pairs: the Jacobian's columns come in nearly equal
-    # pairs. Reading variances off an explicit inverse gave 2 of these 8 amplitude
-    # variances negative (shown as std 0); the eigen-form is a sum of non-negative terms
+    # pairs, and an explicit inverse's diagonal gives 2 of these 8 amplitude variances
+    # negative; the eigen-form is a sum of non-negative terms
     rng = np.random.default_rng(0)
     n = 8
     w = make_waves(rng.uniform(0.01, 0.05, n), rng.uniform(2, 5, n), rng.uniform(-3, 3, n), rng.uniform(0, 6, n))
@@ -232,7 +234,9 @@ def test_wave_uncertainty_is_positive_when_the_normal_matrix_is_near_singular():
         assert np.all(np.isfinite(np.asarray(leaf))) and np.all(np.asarray(leaf) > 0)
 
 
-def test_gradients_through_a_fit_are_finite(x64):
+def test_gradients_through_a_fit_match_finite_differences(x64):
+    # d(fitted amplitude) / d(observed normals) through the "lm" solver's implicit adjoint,
+    # against central differences of the whole fit along random tangent directions
     c = cam.make_orthographic(6.0, (8, 8))
     truth = make_waves([0.02], [3.2], [0.7], [1.0])
     times = np.arange(3) * 0.2
@@ -240,14 +244,112 @@ def test_gradients_through_a_fit_are_finite(x64):
     init = truth._replace(amplitude=truth.amplitude * 0.8)
 
     def fitted_amplitude(nrm):
-        fit = fw.refine(nrm, None, c, times, init, solver="lm", max_steps=30, rtol=1e-10, atol=1e-12)
+        fit = fw.refine(nrm, None, c, times, init, solver="lm", max_steps=30, rtol=1e-12, atol=1e-14)
         return fit.waves.amplitude[0]
 
     g = jax.grad(fitted_amplitude)(normals)
-    assert np.all(np.isfinite(np.asarray(g))) and float(jnp.max(jnp.abs(g))) > 0
-    # the loss itself has finite gradients in the waves, the data and the camera
-    gl = jax.grad(lambda w, n: fw.loss(w, n, None, c, times), argnums=(0, 1))(truth, normals)
-    assert all(np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(gl))
+    rng = np.random.default_rng(0)
+    eps = 1e-6
+    for _ in range(2):
+        v = rng.standard_normal(normals.shape)
+        v = jnp.asarray(v - np.sum(v * normals, -1, keepdims=True) * normals)  # tangent to |n| = 1
+        fd = (fitted_amplitude(normals + eps * v) - fitted_amplitude(normals - eps * v)) / (2 * eps)
+        np.testing.assert_allclose(float(jnp.sum(g * v)), float(fd), rtol=1e-5)
+    # the loss itself: gradients in the waves and in the data against finite differences
+    # (the data along tangents of |n| = 1, small enough that n_hat . n stays below 1: the
+    # loss clips the cosine)
+    off = truth._replace(amplitude=truth.amplitude * 1.1, omega=truth.omega * 1.01)
+    check_grads(lambda w: fw.loss(w, normals, None, c, times), (off,), order=1, modes=["rev"])
+    loss_n = lambda n: fw.loss(off, n, None, c, times)  # noqa: E731
+    v = rng.standard_normal(normals.shape)
+    v = jnp.asarray(v - np.sum(v * normals, -1, keepdims=True) * normals)
+    fd = (loss_n(normals + 1e-7 * v) - loss_n(normals - 1e-7 * v)) / 2e-7
+    np.testing.assert_allclose(float(jnp.sum(jax.grad(loss_n)(normals) * v)), float(fd), rtol=1e-5)
+
+
+def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
+    # a fourth start wave the data do not contain: kept without pruning, dropped by its Wald
+    # statistic with prune=True, and the three true waves stay
+    c, truth, normals, rough = ortho_scene
+    extra = make_waves([0.002], [4.3], [0.9], [1.0])
+    init = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), truth, extra)
+    kept = fw.waves(normals, rough, c, TIMES, init=init)
+    pruned = fw.waves(normals, rough, c, TIMES, init=init, prune=True)
+    assert int(kept.n_waves) == 4 and int(pruned.n_waves) == 3
+    m = fw.match(pruned.waves, truth)
+    assert m.missed.size == 0 and m.spurious.size == 0 and np.max(m.abs_error.amplitude) < 2e-4
+    assert bool(pruned.success)
+
+
+def _m_and_floor(normals, c):
+    m = 2.0 * float(jnp.sum(_inputs.valid_weights(normals, c)))
+    return m, (200 * float(jnp.finfo(normals.dtype).eps)) ** 2
+
+
+def test_aic_selects_the_count_by_its_formula(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    fit, sel = fw.waves(normals, rough, c, TIMES, criterion="aic", return_selection=True)
+    assert int(fit.n_waves) == 3 and bool(fit.success)
+    m, floor2 = _m_and_floor(normals, c)
+    expected = m * np.log(np.maximum(sel.rss, m * floor2) / m) + 8 * sel.n_waves
+    np.testing.assert_allclose(sel.criterion, expected, rtol=1e-5)
+    assert np.all(np.diff(sel.criterion[sel.accepted]) < 0)
+
+
+def test_holdout_criterion_scores_the_held_out_frame(ortho_scene):
+    c, truth, normals, rough = ortho_scene
+    fit, sel = fw.waves(normals, rough, c, TIMES, criterion="holdout", return_selection=True)
+    assert int(fit.n_waves) == 3 and bool(fit.success)
+    assert fw.match(fit.waves, truth).missed.size == 0
+    # the empty model's score is the last frame's mean squared normal (x, y)
+    last = np.asarray(normals[-1], np.float64)
+    np.testing.assert_allclose(sel.criterion[0], np.mean(np.sum(last[..., :2] ** 2, -1)), rtol=1e-5)
+    assert np.all(np.diff(sel.criterion[sel.accepted]) < 0) and sel.criterion[sel.accepted][-1] < 1e-8
+    with pytest.raises(ValueError, match="at least 3 frames"):
+        fw.waves(normals[:2], rough[:2], c, TIMES[:2], criterion="holdout")
+
+
+def test_known_noise_sets_the_criterion_and_the_success_bound(ortho_scene):
+    # normals with Gaussian noise sigma per component: the mean angle (~1.25 sigma) is above
+    # the noise-free bound, so the fit succeeds only when told the noise
+    c, truth, normals, rough = ortho_scene
+    sigma = 2e-3
+    rng = np.random.default_rng(1)
+    noisy = np.asarray(normals, np.float64)
+    noisy[..., :2] += sigma * rng.standard_normal(noisy[..., :2].shape)
+    noisy = jnp.asarray(noisy / np.linalg.norm(noisy, axis=-1, keepdims=True), normals.dtype)
+    fit, sel = fw.waves(noisy, rough, c, TIMES, noise=sigma, return_selection=True)
+    assert bool(fit.success) and int(fit.n_waves) == 3
+    assert fw.normal_error_bound() < float(fit.normal_error) <= fw.normal_error_bound(sigma)
+    m, floor2 = _m_and_floor(noisy, c)
+    expected = np.maximum(sel.rss, m * floor2) / sigma ** 2 + 4 * sel.n_waves * np.log(m)
+    np.testing.assert_allclose(sel.criterion, expected, rtol=1e-5)
+    m_ = fw.match(fit.waves, truth)
+    assert m_.missed.size == 0 and np.max(m_.abs_error.amplitude) < 1e-3
+    unaware = fw.waves(noisy, rough, c, TIMES)
+    assert not bool(unaware.success)
+    with pytest.raises(ValueError, match="noise must be > 0"):
+        fw.waves(noisy, rough, c, TIMES, noise=0.0)
+
+
+def test_roughness_tail_nnls_recovers_the_unmodelled_roughness():
+    # three partly sub-pixel waves (0.35-0.7 m; footprints 0.2-0.55 m) beside the resolved
+    # ones: the tail fitted for the resolved set reproduces the short waves' roughness per row,
+    # and with every wave in the set nothing is left for the tail
+    c = persp()
+    resolved = few_waves()
+    lam = np.array([0.35, 0.5, 0.7])
+    k = 2 * np.pi / lam
+    short = make_waves(0.1 / k, np.sqrt(GRAVITY * k), [0.3, 1.0, -2.0], [0.0, 1.0, 2.0])
+    sea = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), resolved, short)
+    _, rough = fw.predict(sea, c, TIMES)
+    fp_row = np.asarray(_inputs.plane_hits(c)[1], np.float64)
+    want = np.asarray(_roughness.row_roughness(k, short.amplitude, fp_row, 1.0, 1.5), np.float64)
+    tail = np.asarray(_select._nnls_tail(resolved, rough, c, 1.0, 1.5, jnp.float32), np.float64)
+    assert want.max() > 10 * float(want.min() + 1e-12)  # the short waves' roughness varies by row
+    np.testing.assert_allclose(tail, want, rtol=0.05, atol=0.02 * want.max())
+    none_left = np.asarray(_select._nnls_tail(sea, rough, c, 1.0, 1.5, jnp.float32))
+    assert np.max(none_left) < 1e-3 * want.max()
 
 
 def test_bad_inputs_give_clear_errors(ortho_scene):

@@ -45,8 +45,6 @@ sea), so Hs and gamma are refitted with the peak pinned to the band's nearer edg
 peak below the band, Tp becomes the longest period the reliable waves cover and Hs the
 level that matches the in-band energies there -- lower estimates when the true peak is
 longer. ``alpha`` is reported from the free fit: it is the identifiable quantity.
-(Moving along the valley at the free fit's ``alpha`` instead was tried and gave Hs 4.1 m
-for a 0.32 m sea whose free fit had ended just outside the band.)
 
 ``correct_amplitudes(waves, spectrum, reliable=None)`` is the spectrum correction:
 waves that the image cannot resolve individually (too long for the view, or flagged
@@ -71,7 +69,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean import spectrum as spec
-from jaxocean._math import smoothstep
+from jaxocean._roughness import normal_weight, row_roughness
 from jaxocean.errors import InvalidValueError, check_values
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -153,7 +151,7 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
     dens = spec._jonswap_kernel(om, jnp.exp(params[0]), tp, params[2], 0.07, 0.09)
     k = om * om / GRAVITY
     lam = 2 * jnp.pi / k
-    w_r = 1.0 - smoothstep(n_min, n_max, lam[None, :] / fp_row[:, None])
+    w_r = 1.0 - normal_weight(lam, fp_row, n_min, n_max)
     return (w_r * (k * k * dens * dom)[None, :]).sum(-1)
 
 
@@ -184,7 +182,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     Eager (the wave selection is data dependent)."""
     from jaxocean.fit import solvers
     from jaxocean.fit.waves import resolvable
-    from jaxocean.fit.waves._model import fitted_roughness_rows
 
     t0 = time.perf_counter()
     validate(waves, max_steepness=None)
@@ -227,7 +224,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
         fp_row = np.asarray(hit.footprint)[:, W // 2]
         rows = mask.any(1)
         r_row = np.array([r[i][mask[i]].mean() if rows[i] else 0.0 for i in range(r.shape[0])])
-        fitted_share = fitted_roughness_rows(waves, fp_row, n_min, n_max)
+        fitted_share = np.asarray(row_roughness(np.asarray(waves.omega) ** 2 / GRAVITY, waves.amplitude, fp_row,
+                                                n_min, n_max), np.float64)
         informative = rows & (r_row > 2.0 * shading.MIN_SLOPE_VARIANCE)
         if informative.any():
             rough_rows = (jnp.asarray(fp_row[informative], dtype), jnp.asarray(r_row[informative], dtype),

@@ -37,7 +37,7 @@ Pipeline of :func:`waves`:
 2. **Linear amplitudes and phases** (:func:`solve_amplitudes`): to first order in the
    steepness the slope field is ``sum_i w_i k_i k_hat_i (a_i sin psi0_i + b_i cos psi0_i)``
    with ``psi0 = omega t - k.X``, linear in ``(a, b) = h (cos phi, sin phi)`` once
-   ``(omega, theta)`` are known (DESIGN section 6).
+   ``(omega, theta)`` are known (docs/design.md, Inverse methods).
 3. **Greedy detection with order selection**: candidates from the spectral estimate of the
    current residual plus a polar grid of waves longer than the largest ground grid are
    scored on a spread subsample of pixel-frames by the energy a single wave removes,

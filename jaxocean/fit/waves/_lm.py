@@ -215,7 +215,7 @@ def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows,
 
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
-                   max_steps, roughness_weight, hessian_samples=None, history=False):
+                  max_steps, roughness_weight, hessian_samples=None, history=False):
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
     # max_steps is traced (one compilation serves every step budget); the history's length
@@ -244,7 +244,7 @@ def _refine_jit(y0, active, normals, roughness, times, camera, tail_rows, rtol, 
 
 
 def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *, solver, n_min, n_max,
-                     max_steps, rtol, atol, roughness_weight, history, options):
+                    max_steps, rtol, atol, roughness_weight, history, options):
     from jaxocean.fit import solvers
 
     weight = valid_weights(normals, camera)
@@ -276,10 +276,10 @@ def _uncertainty(y, jtj, active, half_rss, n_obs):
     The variance of each derived quantity ``q(y)`` is the quadratic form ``g^T C g`` with
     ``g = dq/dy`` and ``C = sigma^2 (J^T J)^-1``, evaluated through the eigenvectors of the
     Jacobi-scaled ``J^T J`` as ``sigma^2 sum_k (g . v_k)^2 / lambda_k``: a sum of
-    non-negative terms. (The diagonal of an explicit float32 inverse gave negative amplitude
-    variances -- reported as a standard deviation of 0 -- for 13 of the 60 waves at the
-    truth of a Table 2 scene, among them the worst-determined long waves: its Jacobi-scaled
-    ``J^T J`` has a condition number near 1/eps.) Eigenvalues below ``eps x`` the largest
+    non-negative terms, where the diagonal of an explicit float32 inverse can come out
+    negative (the Jacobi-scaled ``J^T J`` of a Table 2 scene at its truth has a condition
+    number near 1/eps, and 13 of its 60 amplitude variances are negative that way).
+    Eigenvalues below ``eps x`` the largest
     are raised to it, so directions the data do not determine get a large, finite variance;
     standard deviations are not floored (noise-free fits have 1e-10 m).
     """
@@ -348,12 +348,12 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         n_pad = bucket_size(n)
         padded, active = pad_waves(init, n_pad)
         out, n_valid = refine_kernel(pack(padded), active, normals, roughness, times, camera, tail_rows,
-                                      jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                                      max_steps=max_steps, roughness_weight=float(roughness_weight), history=history)
+                                     jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
+                                     max_steps=max_steps, roughness_weight=float(roughness_weight), history=history)
         y, steps, success, jtj, hist = out.y, out.steps, out.success, out.jtj, out.history
         half = out.loss
         res = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
-                      hist if history else None, roughness_weight, n_min, n_max, t0)
+                         hist if history else None, roughness_weight, n_min, n_max, t0)
         if n_pad != n:
             cut = lambda w: Waves(*[x[:n] for x in w])  # noqa: E731
             res = res._replace(waves=cut(res.waves), uncertainty=cut(res.uncertainty), n_waves=jnp.asarray(n))
@@ -362,13 +362,13 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         y0 = pack(init)
         active = jnp.ones(n, bool)
         out, n_valid, residual = registry_refine(y0, active, normals, roughness, times, camera, tail_rows,
-                                                  solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
-                                                  rtol=rtol, atol=atol, roughness_weight=roughness_weight,
-                                                  history=history, options=options)
+                                                 solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
+                                                 rtol=rtol, atol=atol, roughness_weight=roughness_weight,
+                                                 history=history, options=options)
         y, steps, success, hist, half = out.params, out.steps, out.success, out.history, out.loss
         jtj = dense_jtj(residual, y)
     res = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
-                  hist if history else None, roughness_weight, n_min, n_max, t0)
+                     hist if history else None, roughness_weight, n_min, n_max, t0)
     return maybe_throw(res, throw, max_steps)
 
 
@@ -401,16 +401,17 @@ def maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False, unex
 
 
 def dense_jtj(residual, y):
-    # the solvers' blocked forward-mode Jacobian: jax.jacfwd's single vmap of 4N JVPs hits
-    # the XLA:CPU float32 miscompile described in jaxocean.fit.solvers
-    from jaxocean.fit.solvers import _value_and_jacfwd
+    """``J^T J`` of ``residual(y, None)`` by the solvers' blocked forward-mode Jacobian
+    (:func:`jaxocean.fit.solvers.value_and_jacobian`: jax.jacfwd's single vmap of 4N JVPs
+    hits the XLA:CPU float32 miscompile described there)."""
+    from jaxocean.fit.solvers import value_and_jacobian
 
-    _, J = _value_and_jacfwd(residual, y, None)
+    _, J = value_and_jacobian(residual, y, None)
     return J.T @ J
 
 
 def fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success, hist,
-            roughness_weight, n_min, n_max, t0):
+               roughness_weight, n_min, n_max, t0):
     n = active.shape[0]
     w = to_waves(y, n)
     unc = _uncertainty(y, jtj, active, half, 2.0 * n_valid)

@@ -17,10 +17,10 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from jaxocean import hierarchy, render, shading
-from jaxocean._math import safe_sqrt, sincos, smoothstep
+from jaxocean._math import angle_between, safe_sqrt, sincos
+from jaxocean._roughness import row_roughness
 from jaxocean.fit.waves._inputs import (Samples, check_inputs, clean_inputs, plane_hits, valid_weights)
 from jaxocean.surface import normal_from_sums
 from jaxocean.waves import GRAVITY, Waves, validate
@@ -147,27 +147,10 @@ def jacobian(P, act, s: Samples, n_min, n_max):
 
 
 def roughness_rows(y, active, fp_row, n_min, n_max):
-    """Model roughness per image row ``(H,)`` from the fitted waves (no floor)."""
+    """Model roughness per image row ``(H,)`` from the fitted waves (no floor):
+    :func:`jaxocean._roughness.row_roughness` of the active waves at the row footprints."""
     w = to_waves(y, active.shape[0])
-    w = w._replace(amplitude=w.amplitude * active)
-    lam = 2 * jnp.pi * GRAVITY / (w.omega * w.omega)
-    rough_w = 1.0 - smoothstep(n_min, n_max, lam / fp_row[:, None])  # (H, N)
-    kh2 = (w.amplitude * w.omega * w.omega / GRAVITY) ** 2
-    per_wave = kh2 / (1.0 + safe_sqrt(1.0 - kh2))
-    return rough_w @ per_wave
-
-
-def fitted_roughness_rows(waves_: Waves, fp_row, n_min, n_max) -> np.ndarray:
-    """Host-side (NumPy float64) :func:`roughness_rows`: the sub-pixel slope variance
-    ``sum_i (1 - w_n(lambda_i / fp)) (1 - sqrt(1 - k_i^2 h_i^2))`` per image row ``(H,)`` of
-    ``waves_`` for row footprints ``fp_row (H,)`` [m] (steepness capped at ``k h = 1``)."""
-    om = np.asarray(waves_.omega, np.float64)
-    h = np.asarray(waves_.amplitude, np.float64)
-    k = om * om / GRAVITY
-    lam = 2 * np.pi / k
-    q = np.clip((lam[None, :] / np.asarray(fp_row, np.float64)[:, None] - n_min) / (n_max - n_min), 0, 1)
-    kh2 = np.minimum((k * h) ** 2, 1.0)
-    return (1 - q * q * (3 - 2 * q)) @ (kh2 / (1 + np.sqrt(1 - kh2)))
+    return row_roughness(w.omega * w.omega / GRAVITY, w.amplitude * active, fp_row, n_min, n_max)
 
 
 class RoughRows(NamedTuple):
@@ -216,9 +199,7 @@ def metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, 
     cos = jnp.clip(jnp.sum(n_pred * normals, -1), -1.0, 1.0)
     one_minus = jnp.sum((1.0 - cos) * weight) / n_valid
     rough = jnp.sum((r_pred - roughness) ** 2 * weight) / n_valid
-    # angle from the cross product's norm: finite gradient at zero error
-    cross = jnp.cross(n_pred, normals)
-    angle = jnp.arctan2(safe_sqrt(jnp.sum(cross * cross, -1)), cos)
+    angle = angle_between(n_pred, normals)
     return (one_minus + roughness_weight * rough, jnp.sum(angle * weight) / n_valid,
             jnp.sum(jnp.abs(r_pred - roughness) * weight) / n_valid)
 

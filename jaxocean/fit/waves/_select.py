@@ -27,8 +27,8 @@ from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clea
                                         valid_weights)
 from jaxocean.fit.waves._lm import (SOLVER_NAMES, WaveFit, dense_jtj, fit_result, maybe_throw,
                                     normal_error_bound, refine_kernel, registry_refine)
-from jaxocean.fit.waves._model import (bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle,
-                                       fitted_roughness_rows)
+from jaxocean._roughness import normal_weight, row_roughness
+from jaxocean.fit.waves._model import bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -290,8 +290,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         n_pad = bucket_size(n)
         wp, active = pad_waves(w, n_pad)
         out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
-                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                                max_steps=steps, roughness_weight=0.0)
+                               jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
+                               max_steps=steps, roughness_weight=0.0)
         fitted = jax.tree.map(lambda x: x[:n], to_waves(out.y, n_pad))
         return fitted, out
 
@@ -383,8 +383,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         timing["detect"] += t_b - t_a
         smp_ref = subsample(smp, 2 * score_samples)
         r_om, r_th, e_ref, _, _ = (np.asarray(x) for x in _refine_candidates(
-            jnp.asarray(_pad_to(np.asarray(c_om)[pj], n_cand, 1.0)), jnp.asarray(_pad_to(np.asarray(c_th)[pj], n_cand, 0.0)),
-            smp_ref, n_min, n_max, 8))
+            jnp.asarray(_pad_to(np.asarray(c_om)[pj], n_cand, 1.0)),
+            jnp.asarray(_pad_to(np.asarray(c_th)[pj], n_cand, 0.0)), smp_ref, n_min, n_max, 8))
         e_ref = np.where(np.arange(n_cand) < pj.size, e_ref, -np.inf)
         # a candidate is worth a trial only if it would explain more than the criterion's
         # penalty for 4 parameters in units of the residual variance (energies are on a
@@ -472,16 +472,16 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             n_pad = bucket_size(w.omega.shape[0])
             wp, active = pad_waves(w, n_pad)
             out, n_valid = refine_kernel(pack(wp), active, normals, roughness, times, camera, tail,
-                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
-                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
-                                          else 0.0, history=history)
+                                         jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
+                                         n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
+                                         else 0.0, history=history)
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
                         active=active, n_valid=n_valid, n_pad=n_pad)
         active = jnp.ones(w.omega.shape[0], bool)
         o, n_valid, residual = registry_refine(pack(w), active, normals, roughness, times, camera, tail,
-                                                solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
-                                                rtol=rtol, atol=atol, roughness_weight=rw if rough_info else 0.0,
-                                                history=history, options=None)
+                                               solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
+                                               rtol=rtol, atol=atol, roughness_weight=rw if rough_info else 0.0,
+                                               history=history, options=None)
         return dict(y=o.params, jtj=dense_jtj(residual, o.params), half=o.loss, steps=o.steps, success=o.success,
                     hist=o.history, active=active, n_valid=n_valid, n_pad=w.omega.shape[0])
 
@@ -515,7 +515,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     active, n_valid = best["active"], best["n_valid"]
     rw = rw if rough_info else 0.0
     result = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, total_steps, success,
-                     hist if history else None, rw, n_min, n_max, t0)
+                        hist if history else None, rw, n_min, n_max, t0)
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
     # the loop ran into the cap, not into the criterion: the count was not selected
@@ -556,11 +556,11 @@ def _nnls_tail(w: Waves, roughness, camera, n_min, n_max, dtype, n_virtual=24):
     r = np.asarray(roughness, np.float64)
     rows = mask.any(1)
     obs = np.array([np.nanmean(r[:, i][:, mask[i]]) if rows[i] else 0.0 for i in range(H)])
-    share = fitted_roughness_rows(w, fp_row, n_min, n_max)
+    share = np.asarray(row_roughness(np.asarray(w.omega) ** 2 / GRAVITY, w.amplitude, fp_row, n_min, n_max),
+                       np.float64)
     fp_sea = fp_row[rows]
     lam_v = np.geomspace(0.5 * n_min * fp_sea.min(), n_max * fp_sea.max(), n_virtual)
-    qv = np.clip((lam_v[None, :] / fp_row[:, None] - n_min) / (n_max - n_min), 0, 1)
-    B = 1 - qv * qv * (3 - 2 * qv)
+    B = 1.0 - np.asarray(normal_weight(lam_v, fp_row, n_min, n_max), np.float64)  # (H, n_virtual)
     target = obs - share
     tail = np.zeros(H)
     if rows.any():
@@ -581,8 +581,12 @@ def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2):
         sigma2 = float(noise) ** 2 / (m / 2.0)
     sigma2 = max(sigma2, 1e-300)
     A = np.asarray(jtj, np.float64)
-    d = np.sqrt(np.maximum(np.diag(A), 1e-300))
-    cov = np.linalg.pinv(A / d[:, None] / d[None, :] + 1e-9 * np.eye(p)) / d[:, None] / d[None, :]
+    # a column without information (omega and theta of a wave whose amplitude went to 0)
+    # is scaled as an identity row instead of dividing by its zero norm
+    has = np.diag(A) > 1e-300
+    d = np.where(has, np.sqrt(np.where(has, np.diag(A), 1.0)), 1.0)
+    scaled = np.where(has[:, None] & has[None, :], A / d[:, None] / d[None, :], np.eye(p))
+    cov = np.linalg.pinv(scaled + 1e-9 * np.eye(p)) / d[:, None] / d[None, :]
     yy = np.asarray(y, np.float64).reshape(4, n)
     pen = 8.0 if criterion == "aic" else 4.0 * math.log(m)
     keep = np.ones(n, bool)
