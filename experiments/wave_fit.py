@@ -160,6 +160,7 @@ def score_sea(fitted, scene, geo) -> dict:
     hs, tp, th = float(scene.spectrum.hs), float(scene.spectrum.tp), float(scene.spectrum.theta_mean)
     return dict(fit_hs=float(sea.spectrum.hs), fit_tp=float(sea.spectrum.tp),
                 fit_theta_mean=float(sea.spectrum.theta_mean), peak_observed=bool(sea.peak_observed),
+                sea_success=bool(sea.success), sea_misfit=float(sea.misfit),
                 oracle_hs=float(oracle.spectrum.hs), oracle_tp=float(oracle.spectrum.tp),
                 oracle_theta_mean=float(oracle.spectrum.theta_mean),
                 hs_rel_error=abs(float(sea.spectrum.hs) / hs - 1), tp_rel_error=abs(float(sea.spectrum.tp) / tp - 1),

@@ -434,6 +434,30 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     assert abs(fit.alpha / alpha_true - 1) < 0.15
 
 
+def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
+    truth, waves = sampled_sea
+    fit = fit_spectrum.spectrum(waves)
+    assert fit.success and fit.misfit <= fit.misfit_bound
+    assert fit.misfit_bound == pytest.approx(fit_spectrum.ENERGY_FLOOR)
+    # two wave systems (a swell of 2.5 Tp from another direction beside the wind sea): no
+    # single JONSWAP spectrum describes them; the solver converges all the same, and the
+    # fit is reported failed with the misfit that says why
+    swell = spectrum.Spectrum(hs=1.2, tp=12.5, gamma=5.0, theta_mean=1.5, s_max=50.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        wind = spectrum.sample_waves(jax.random.key(3), truth, 30).waves
+        far = spectrum.sample_waves(jax.random.key(7), swell, 30).waves
+    both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), wind, far)
+    bad = fit_spectrum.spectrum(both)
+    assert not bad.success and bad.misfit > 2 * bad.misfit_bound
+    # a stated noise of the cumulative energy widens the bound: the same answer is accepted
+    lenient = fit_spectrum.spectrum(both, noise=0.2)
+    assert lenient.success and lenient.misfit == pytest.approx(bad.misfit)
+    assert lenient.misfit_bound == pytest.approx(np.sqrt(1.5 * 0.2 ** 2 + fit_spectrum.ENERGY_FLOOR ** 2))
+    with pytest.raises(InvalidValueError, match="noise must be >= 0"):
+        fit_spectrum.spectrum(waves, noise=-0.1)
+
+
 def test_spectrum_tail_waves_and_errors(sampled_sea):
     truth, waves = sampled_sea
     tail = fit_spectrum.tail_waves(jax.random.key(0), truth, 8.0, 12)
