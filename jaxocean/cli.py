@@ -277,6 +277,9 @@ def build_parser():
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
+    from jaxocean.nn import cli as nn_cli
+
+    COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits, camera_from_args=_camera_from_args))
     return ap
 
 
@@ -852,6 +855,9 @@ _INTERRUPTED = {
     "forecast": "frames written so far are kept; running the command again renders every frame again",
     "fit-lighting": "nothing was written; running the command again starts the fit over",
     "fit-waves": "nothing was written; running the command again starts the fit over",
+    "train-geometry": "the last checkpoint is kept; run the same command to resume",
+    "predict-geometry": "frames written so far are kept; running the command again predicts every frame again",
+    "eval-geometry": "nothing was written; running the command again starts over",
 }
 
 COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, "demo": cmd_demo,

@@ -1,0 +1,99 @@
+"""Pytrees of arrays on disk: atomic ``.npz`` files with JSON metadata.
+
+Protocol
+--------
+* ``save_tree(path, tree, meta) -> Path``: the leaves of ``tree`` (arrays, NumPy or JAX,
+  any dtype NumPy can store; PRNG keys as their key data) in flattening order as ``leaf_0,
+  leaf_1, ...`` plus ``__meta__`` (the JSON of ``meta`` with the leaves' shapes and dtypes),
+  written through :func:`jaxocean.files.atomic_write` -- a crash leaves the previous file.
+* ``load_tree(path, template) -> (tree, meta)``: the leaves put back into ``template``'s
+  structure (a pytree of the same structure, e.g. a freshly initialised model), checked
+  leaf by leaf for shape and dtype. ``load_tree(path, None, meta_only=True)`` reads the
+  metadata alone.
+
+Every problem -- missing file, not an npz, truncated, another structure -- raises
+:class:`CheckpointError` naming the file. Host-side only.
+"""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from jaxocean.files import atomic_write
+
+__all__ = ["CheckpointError", "save_tree", "load_tree"]
+
+
+class CheckpointError(ValueError):
+    """A checkpoint or model file that cannot be used; the message names the file."""
+
+    def __init__(self, path, reason: str):
+        self.path = Path(path)
+        super().__init__(f"{path}: {reason}")
+
+
+def _host(leaf):
+    if isinstance(leaf, jax.Array) and jax.dtypes.issubdtype(leaf.dtype, jax.dtypes.prng_key):
+        return np.asarray(jax.random.key_data(leaf)), "key"
+    return np.asarray(leaf), "array"
+
+
+def save_tree(path, tree, meta: dict | None = None) -> Path:
+    leaves = jax.tree.leaves(tree)
+    arrays, kinds = zip(*[_host(x) for x in leaves]) if leaves else ((), ())
+    info = dict(meta or {})
+    info["leaves"] = [{"shape": list(a.shape), "dtype": str(a.dtype), "kind": k} for a, k in zip(arrays, kinds)]
+    payload = {f"leaf_{i}": a for i, a in enumerate(arrays)}
+    payload["__meta__"] = np.frombuffer(json.dumps(info).encode(), np.uint8)
+
+    def write(tmp: Path):
+        with open(tmp, "wb") as f:
+            np.savez(f, **payload)
+
+    return atomic_write(path, write)
+
+
+_READ_ERRORS = (OSError, ValueError, KeyError, zipfile.BadZipFile, EOFError, UnicodeDecodeError)
+
+
+def _read(path: Path, meta_only: bool):
+    """``(meta, arrays)`` of a checkpoint, every array read (the file is closed on return)."""
+    if not path.exists():
+        raise CheckpointError(path, "no such file")
+    try:
+        # our own file handle: np.load leaves its own open when the zip is bad
+        with open(path, "rb") as f, np.load(f, allow_pickle=False) as data:
+            meta = json.loads(bytes(data["__meta__"]).decode())
+            n = len(meta.get("leaves", []))
+            arrays = [] if meta_only else [np.asarray(data[f"leaf_{i}"]) for i in range(n)]
+    except _READ_ERRORS as err:
+        raise CheckpointError(path, f"not a readable jaxocean checkpoint (corrupt or truncated?): {err}") from None
+    return meta, arrays
+
+
+def load_tree(path, template, *, meta_only: bool = False):
+    path = Path(path)
+    meta, arrays = _read(path, meta_only)
+    if meta_only:
+        return meta
+    leaves, treedef = jax.tree.flatten(template)
+    stored = meta.get("leaves", [])
+    if len(stored) != len(leaves):
+        raise CheckpointError(path, f"holds {len(stored)} arrays but the model expects {len(leaves)} "
+                              "(another architecture or version)")
+    out = []
+    for i, (leaf, info, arr) in enumerate(zip(leaves, stored, arrays)):
+        if info["kind"] == "key":
+            out.append(jax.random.wrap_key_data(arr))
+            continue
+        want = np.shape(leaf)
+        if arr.shape != tuple(want):
+            raise CheckpointError(path, f"array {i} has shape {arr.shape}, the model expects {tuple(want)} "
+                                  "(another architecture)")
+        out.append(arr)
+    return jax.tree.unflatten(treedef, out), meta

@@ -1,0 +1,166 @@
+"""The network subcommands of the ``jaxocean`` CLI: ``train-geometry``, ``predict-geometry``
+and ``eval-geometry``. :func:`register` adds them to the main parser (``jaxocean.cli``),
+which owns error handling and exit codes; each command returns an exit code.
+
+* ``train-geometry DATASET --config {cpu,paper} --out RUN``: train (or resume: rerun the
+  same command) a geometry model; ``RUN/model.npz`` is the best one, ``RUN/curves.png`` and
+  ``RUN/history.json`` the curves.
+* ``predict-geometry FRAMES... --out DIR``: per frame an EXR (the input as linear ``R G B``
+  plus predicted ``normal``, ``roughness``, ``slope_variance``, ``mask``) and PNG previews of
+  the normal and roughness maps. FRAMES are PNG / JPEG / 16-bit PNG / EXR files or one
+  video; the camera comes from ``--scene`` or the ``--camera-*`` options.
+* ``eval-geometry DATASET``: the model's scores on a split next to the flat-normal
+  baseline (:func:`jaxocean.nn.geometry_train.evaluate`), printed and written as JSON.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+__all__ = ["register"]
+
+_SCORE_COLUMNS = (("within_5deg", "5deg", "{:.1%}"), ("normal_mae", "MAE rad", "{:.4f}"),
+                  ("skill_along", "skill along", "{:.3f}"), ("skill_across", "across", "{:.3f}"),
+                  ("log_slope_variance_mse", "log10 sv MSE", "{:.3f}"), ("image_mse", "image MSE", "{:.2e}"),
+                  ("frames_per_s", "frames/s", "{:.1f}"))
+
+
+def register(sub, *, add_camera_options, camera_from_args) -> dict:
+    """Add the subcommands to ``sub``; returns ``{name: command}``. ``add_camera_options(p)``
+    and ``camera_from_args(args, base, resolution, where)`` are the main CLI's camera
+    options and their reader, shared by every command that needs a camera."""
+    from jaxocean.nn.geometry_train import CONFIGS, LOSS_TERMS
+
+    p = sub.add_parser("train-geometry", help="train a geometry network (image -> normal, roughness)",
+                       description="Train a geometry network on a `jaxocean simulate` dataset. Killing it and "
+                                   "running the same command again resumes where it stopped. RUN/model.npz is "
+                                   "the model with the best validation score.")
+    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
+    p.add_argument("--config", choices=sorted(CONFIGS), default="cpu",
+                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
+    p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
+    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
+    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
+    p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(LOSS_TERMS)}")
+    p.add_argument("--backbone", choices=("unet", "resnet"), help="override the backbone")
+    p.add_argument("--normal-head", choices=("vec", "sphere", "slope"), help="override the normal head")
+    p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("predict-geometry", help="per-pixel normal and roughness of images with a trained network",
+                       description="Predict normal and roughness maps of ocean images with a geometry network "
+                                   "(the shipped pretrained model unless --model). Writes DIR/frame_XXXXX.exr "
+                                   "(linear RGB + normal, roughness, slope_variance, mask) and PNG previews.")
+    p.add_argument("frames", nargs="+", help="image files (PNG, JPEG, EXR) or one video file")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--model", help="model file (default: the shipped pretrained model)")
+    p.add_argument("--scene", help="scene directory or scene.json holding the camera")
+    p.add_argument("--space", choices=("srgb", "bruneton", "linear"), default="srgb",
+                   help="tone curve of display-referred inputs (PNG, JPEG, video; default srgb)")
+    p.add_argument("--exposure", type=float, default=1.0, help="exposure the display images were made with")
+    add_camera_options(p, resolution=False)
+
+    p = sub.add_parser("eval-geometry", help="score a geometry network on a dataset split (Table 1)",
+                       description="Score a geometry network and the flat-normal baseline on a dataset split: "
+                                   "angle errors, slope skill along and across the view, roughness and image "
+                                   "errors, frames per second.")
+    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
+    p.add_argument("--model", help="model file (default: the shipped pretrained model)")
+    p.add_argument("--split", default="test", help="split to score (default test)")
+    p.add_argument("--max-frames", type=int, help="score at most this many frames")
+    p.add_argument("--out", help="JSON file for the scores (with per-scene rows)")
+
+    def predict_cmd(args):
+        return _predict(args, camera_from_args)
+
+    return {"train-geometry": _train, "predict-geometry": predict_cmd, "eval-geometry": _eval}
+
+
+def _train(args) -> int:
+    from jaxocean.nn import geometry_train as gt
+
+    config = gt.CONFIGS[args.config]
+    config = gt.variant(config, losses=args.losses, backbone=args.backbone, normal_head=args.normal_head)
+    changes = {k: v for k, v in (("epochs", args.epochs), ("steps_per_epoch", args.steps_per_epoch),
+                                 ("time_budget_minutes", args.time_budget_min)) if v is not None}
+    config = config._replace(**changes)
+    config.terms()
+    summary = gt.train(args.dataset, args.out, config, progress=not args.quiet)
+    summary.pop("state")
+    print(f"stopped: {summary['stopped']} after {summary['steps']} steps; best validation loss "
+          f"{summary['best_val_loss']:.4g}\n-> {summary['model']}")
+    return 0
+
+
+def _load_frames(paths, space, exposure):
+    import numpy as np
+
+    from jaxocean.io.images import VIDEO_SUFFIXES, load_image, load_video
+
+    paths = [Path(p) for p in paths]
+    if len(paths) == 1 and paths[0].suffix.lower() in VIDEO_SUFFIXES:
+        return load_video(paths[0], space=space, exposure=exposure)
+    if any(p.suffix.lower() in VIDEO_SUFFIXES for p in paths):
+        raise ValueError("give one video file or image files, not both")
+    images = [load_image(p, space=space, exposure=exposure) for p in paths]
+    shapes = {im.shape for im in images}
+    if len(shapes) > 1:
+        raise ValueError(f"the frames differ in size: {sorted(shapes)}")
+    return np.stack(images)
+
+
+def _predict(args, camera_from_args) -> int:
+    import imageio.v3 as iio
+
+    from jaxocean import plots
+    from jaxocean.files import atomic_write
+    from jaxocean.io import read_scene
+    from jaxocean.io.exr import write_frame
+    from jaxocean.io.sequence import HALF_MAX, frame_name
+    from jaxocean.nn import geometry as geo
+
+    model = geo.load(args.model)
+    images = _load_frames(args.frames, args.space, args.exposure)
+    scene = read_scene(args.scene) if args.scene else None
+    if scene is not None and scene.camera is None:
+        raise ValueError(f"{args.scene}: the scene has no camera")
+    camera = camera_from_args(args, None if scene is None else scene.camera, tuple(images.shape[1:3]),
+                              where=f"frame {args.frames[0]}")
+    pred = geo.predict(model, images, camera)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory")
+    for t in range(len(images)):
+        g = {"normal": pred.normal[t], "roughness": pred.roughness[t], "mask": pred.mask[t],
+             "slope_variance": pred.slope_variance[t]}
+        name = frame_name(t)
+        write_frame(out / name, images[t], g, {"frame": t, "source": str(args.frames[min(t, len(args.frames) - 1)])},
+                    half=bool(abs(images[t]).max() < HALF_MAX))
+        for suffix, rgb in (("normal", plots.normal_to_rgb(pred.normal[t], pred.mask[t])),
+                            ("roughness", plots.roughness_to_rgb(pred.roughness[t], pred.mask[t]))):
+            atomic_write(out / name.replace(".exr", f"_{suffix}.png"),
+                         lambda tmp, rgb=rgb: iio.imwrite(tmp, rgb, extension=".png"))
+    print(f"{len(images)} frame(s) -> {out}/frame_XXXXX.exr (+ _normal.png, _roughness.png)")
+    return 0
+
+
+def _eval(args) -> int:
+    from jaxocean.files import write_json
+    from jaxocean.nn import geometry as geo
+    from jaxocean.nn import geometry_train as gt
+
+    model = geo.load(args.model)
+    rows = {"flat normal": gt.evaluate(gt.flat_method, args.dataset, args.split, max_frames=args.max_frames),
+            "model": gt.evaluate(model, args.dataset, args.split, max_frames=args.max_frames)}
+    header = f"{'method':<14}" + "".join(f"{title:>14}" for _, title, _ in _SCORE_COLUMNS)
+    print(header)
+    for name, r in rows.items():
+        print(f"{name:<14}" + "".join(f"{fmt.format(r[k]):>14}" for k, _, fmt in _SCORE_COLUMNS))
+    worse = [s for s, sc in rows["model"]["scenes"].items() if sc["cos_loss"] >= rows["flat normal"]["scenes"][s]["cos_loss"]]
+    print(f"scenes where the model is not better than flat (mean 1 - cos): {len(worse)} of "
+          f"{len(rows['model']['scenes'])}" + (f" ({worse})" if worse else ""))
+    if args.out:
+        write_json(args.out, {"split": args.split, "model": str(args.model or geo.PRETRAINED_PATH), "rows": rows})
+        print(f"-> {args.out}", file=sys.stderr)
+    return 0

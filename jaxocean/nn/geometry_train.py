@@ -1,0 +1,452 @@
+"""Training and evaluating geometry networks on a `jaxocean simulate` dataset.
+
+Protocol
+--------
+* :class:`TrainConfig` -- everything a run depends on: the model architecture
+  (:class:`~jaxocean.nn.geometry.GeometryConfig`), the losses, the schedule. :data:`CONFIGS`
+  holds the named ones: ``"cpu"`` (trains in under an hour on two CPU cores: the shipped
+  model) and ``"paper"`` (the paper's setting, for a GPU). :func:`variant` derives the
+  ablation rows.
+* Losses (``TrainConfig.losses``, "+"-joined terms):
+
+  - ``image`` -- the paper's eq. 3 through the renderer: the predicted normal and slope
+    variances are shaded (:func:`jaxocean.shading.shade_pixel`, the scene's known camera
+    and lighting) and compared with the input image, both compressed as ``log1p(I / m)``
+    (``m`` the input's sea median per channel) so that sun glints do not drown the rest;
+  - ``gan`` -- eq. 4's four least-squares discriminators (spatial on normals and on
+    log slope variances, temporal on consecutive frames of each), updated alternately with
+    the networks;
+  - ``supervised`` -- ``1 - cos`` to the true normal and the squared error of ``log10``
+    slope variances (the synthetic data carry the truth).
+
+* :func:`train(dataset, out, config)` runs :func:`jaxocean.nn.training.train_loop`, writes
+  ``out/model.npz`` (best validation score) and returns the summary.
+* :func:`evaluate(model_or_method, dataset, split)` scores a method on a split (see
+  :mod:`jaxocean.nn.metrics`), overall and per scene, with frames per second.
+
+Batches are random ``crop x crop`` windows of the frames (the networks are fully
+convolutional and run on whole frames at inference); validation uses whole frames.
+"""
+
+from __future__ import annotations
+
+import functools
+import time
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+
+from jaxocean import camera as cam
+from jaxocean import render, shading
+from jaxocean.files import write_json
+from jaxocean.io.dataset import Dataset
+from jaxocean.nn import discriminators as disc
+from jaxocean.nn import geometry as geo
+from jaxocean.nn import metrics
+from jaxocean.nn.training import data_parallel, train_loop
+
+__all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "variant", "train", "evaluate", "flat_method", "model_method"]
+
+LOSS_TERMS = ("image", "gan", "supervised")
+_DISC_DEPTH = 3
+
+
+class TrainConfig(NamedTuple):
+    name: str = "cpu"
+    model: geo.GeometryConfig = geo.GeometryConfig()
+    losses: str = "supervised+image"
+    epochs: int = 25
+    steps_per_epoch: int = 200
+    batch_size: int = 8
+    crop: int = 64
+    learning_rate: float = 2e-3
+    image_weight: float = 1.0  # alpha of eq. 4
+    gan_weight: float = 0.02  # beta_1 = beta_2
+    temporal_weight: float = 0.02  # gamma_1 = gamma_2
+    roughness_weight: float = 0.1
+    val_frames: int = 48
+    patience: int = 6
+    time_budget_minutes: float | None = 55.0
+    seed: int = 0
+
+    def terms(self) -> tuple:
+        terms = tuple(self.losses.split("+"))
+        bad = [t for t in terms if t not in LOSS_TERMS]
+        if bad or not terms:
+            raise ValueError(f"losses must be '+'-joined terms of {LOSS_TERMS}; got {self.losses!r}")
+        return terms
+
+    def to_json(self) -> dict:
+        d = self._asdict()
+        d["model"] = self.model.to_json()
+        return d
+
+
+CONFIGS = {
+    # two CPU cores, under an hour: UNet sub-networks on 64^2 crops
+    "cpu": TrainConfig(),
+    # the paper: ResNet-VecN, image + GAN losses, 200 epochs of whole 128^2 frames (a GPU)
+    "paper": TrainConfig(name="paper", model=geo.GeometryConfig(backbone="resnet", normal_head="vec",
+                                                                 roughness_widths=(32,)),
+                         losses="image+gan", epochs=200, steps_per_epoch=1000, batch_size=16, crop=128,
+                         learning_rate=2e-4, val_frames=400, patience=20, time_budget_minutes=None),
+}
+
+
+def variant(config: TrainConfig, *, losses=None, backbone=None, normal_head=None, **changes) -> TrainConfig:
+    """``config`` with other losses / backbone / head (an ablation row)."""
+    model = config.model
+    if backbone is not None:
+        model = model._replace(backbone=backbone)
+    if normal_head is not None:
+        model = model._replace(normal_head=normal_head)
+    return config._replace(model=model.validate(), losses=losses or config.losses, **changes)
+
+
+# --------------------------------------------------------------------------- batches
+
+
+class _Views(NamedTuple):
+    feats: jax.Array  # (N, h, w, C)
+    mask: jax.Array  # (N, h, w)
+    view: jax.Array  # (N, h, w, 3) world frame, toward the camera
+    yaw: jax.Array  # (N,)
+
+
+def _scene_inputs(images, camera, color):
+    """Features, mask and world view vectors of one scene's frames ``(S, H, W, 3)``."""
+    feats, mask = jax.vmap(lambda im: geo.features(im, camera, color))(images)
+    view = jnp.broadcast_to(cam.intersect_sea(camera).view, images.shape[:-1] + (3,)).astype(jnp.float32)
+    return feats, mask, view
+
+
+def _crop(key, arrays, crop, H, W):
+    """The same random ``crop x crop`` window of every array ``(S, H, W, ...)``."""
+    if crop >= H and crop >= W:
+        return arrays
+    ky, kx = jax.random.split(key)
+    y0 = jax.random.randint(ky, (), 0, H - crop + 1)
+    x0 = jax.random.randint(kx, (), 0, W - crop + 1)
+    return [jax.lax.dynamic_slice_in_dim(jax.lax.dynamic_slice_in_dim(a, y0, crop, 1), x0, crop, 2) for a in arrays]
+
+
+def _prepare(batch, key, color, crop):
+    """Device-side batch: features etc. of every frame, cropped; leading axes (B, S)."""
+    images = batch["image"]
+    B, S, H, W, _ = images.shape
+
+    def one(k, im, normal, sv, camera, lighting):
+        feats, mask, view = _scene_inputs(im, camera, color)
+        yaw = jnp.broadcast_to(jnp.asarray(camera.yaw, jnp.float32), (S,))
+        feats, mask, view, im, normal, sv = _crop(k, [feats, mask, view, im, normal, sv], crop, H, W)
+        return dict(feats=feats, mask=mask, view=view, yaw=yaw, image=im, normal=normal, sv=sv,
+                    lighting=jax.tree.map(lambda x: jnp.broadcast_to(x, (S,) + jnp.shape(x)), lighting))
+
+    return jax.vmap(one)(jax.random.split(key, B), images, batch["normal"], batch["slope_variance"],
+                         batch["camera"], batch["lighting"])
+
+
+def _flat(x):
+    """(B, S, ...) -> (B S, ...)"""
+    return jax.tree.map(lambda a: a.reshape((-1,) + a.shape[2:]), x)
+
+
+def _sea_mean(x, mask):
+    m = mask.astype(x.dtype)
+    return jnp.sum(x * m) / jnp.maximum(jnp.sum(m), 1.0)
+
+
+def _image_loss(pred: geo.GeometryPrediction, d):
+    def shade_one(normal, sv, view, lighting):
+        return shading.shade_pixel(normal, sv[..., 0], sv[..., 1], view, lighting)
+
+    rendered = jax.vmap(shade_one)(pred.normal, pred.slope_variance, d["view"], d["lighting"])
+    image = d["image"]
+    sea = jnp.where(d["mask"][..., None], image, jnp.nan)
+    med = jnp.nanmedian(sea.reshape(sea.shape[0], -1, 3), axis=1)
+    med = jnp.where(jnp.isfinite(med) & (med > 0), med, 1.0)[:, None, None, :]
+    err = jnp.square(jnp.log1p(jnp.maximum(rendered, 0) / med) - jnp.log1p(jnp.maximum(image, 0) / med)).mean(-1)
+    return _sea_mean(err, d["mask"])
+
+
+def _supervised_losses(pred: geo.GeometryPrediction, d):
+    cos_loss = _sea_mean(1.0 - jnp.sum(pred.normal * d["normal"], -1), d["mask"])
+    floor = shading.MIN_SLOPE_VARIANCE_AXIS
+    lp = jnp.log10(jnp.maximum(pred.slope_variance, floor))
+    lt = jnp.log10(jnp.maximum(d["sv"], floor))
+    return cos_loss, _sea_mean(jnp.square(lp - lt).mean(-1), d["mask"])
+
+
+def _disc_inputs(normal, sv, mask):
+    """Spatial inputs of D_n / D_r for frames ``(B, S, h, w, .)`` and temporal ones (pairs)."""
+    floor = shading.MIN_SLOPE_VARIANCE_AXIS
+    m = mask[..., None].astype(normal.dtype)
+    n_map = normal * m
+    r_map = (jnp.log10(jnp.maximum(sv, floor)) - jnp.log10(floor)) * m
+    spatial = (_flat(n_map), _flat(r_map))
+    temporal = (jnp.concatenate([n_map[:, :-1], n_map[:, 1:]], -1), jnp.concatenate([r_map[:, :-1], r_map[:, 1:]], -1))
+    return spatial, tuple(_flat(t) for t in temporal)
+
+
+def _disc_nets():
+    return {name: disc.PatchDiscriminator() for name in ("normal", "roughness", "normal_t", "roughness_t")}
+
+
+def _disc_logits(dparams, spatial, temporal):
+    nets = _disc_nets()
+    ins = dict(zip(("normal", "roughness"), spatial)) | dict(zip(("normal_t", "roughness_t"), temporal))
+    return {k: nets[k].apply(dparams[k], ins[k]) for k in nets}
+
+
+# --------------------------------------------------------------------------- training
+
+
+def _optimizer(config: TrainConfig, total_steps: int):
+    schedule = optax.cosine_decay_schedule(config.learning_rate, max(total_steps, 1), alpha=0.05)
+    return optax.adam(schedule, b1=0.9, b2=0.999, eps=1e-8)
+
+
+def init_state(config: TrainConfig, key):
+    """The training state: network params, their Adam state and (with ``gan``) the four
+    discriminators and theirs."""
+    model = geo.init(key, config.model)
+    total = config.epochs * config.steps_per_epoch
+    state = {"g": model.params, "g_opt": _optimizer(config, total).init(model.params)}
+    if "gan" in config.terms():
+        crop = config.crop
+        ch = {"normal": 3, "roughness": 2, "normal_t": 6, "roughness_t": 4}
+        keys = jax.random.split(jax.random.fold_in(key, 1), 4)
+        dparams = {k: net.init(kk, (-1, crop, crop, ch[k]))[1] for (k, net), kk in zip(_disc_nets().items(), keys)}
+        state["d"] = dparams
+        state["d_opt"] = optax.adam(config.learning_rate, b1=0.5, b2=0.999, eps=1e-8).init(dparams)
+    return state
+
+
+@functools.lru_cache(maxsize=8)
+def make_step(config: TrainConfig):
+    """The jitted ``step(state, batch, key) -> (state, logs)`` of ``config`` (one compiled
+    function per config)."""
+    terms = config.terms()
+    total = config.epochs * config.steps_per_epoch
+    g_opt = _optimizer(config, total)
+    d_opt = optax.adam(config.learning_rate, b1=0.5, b2=0.999, eps=1e-8)
+
+    def g_loss(gparams, dparams, d, key):
+        fd = _flat({k: v for k, v in d.items() if k != "lighting"})
+        fd["lighting"] = _flat(d["lighting"])
+        pred = geo.apply(geo.GeometryModel(config.model, gparams), fd["feats"], fd["yaw"], fd["mask"], key=key,
+                         train=True)
+        logs, loss = {}, 0.0
+        if "supervised" in terms:
+            cos_loss, rough = _supervised_losses(pred, fd)
+            loss = loss + cos_loss + config.roughness_weight * rough
+            logs |= {"cos": cos_loss, "logsv": rough}
+        if "image" in terms:
+            img = _image_loss(pred, fd)
+            loss = loss + config.image_weight * img
+            logs["image"] = img
+        if "gan" in terms:
+            B, S = d["mask"].shape[:2]
+            normal = pred.normal.reshape((B, S) + pred.normal.shape[1:])
+            sv = pred.slope_variance.reshape((B, S) + pred.slope_variance.shape[1:])
+            spatial, temporal = _disc_inputs(normal, sv, d["mask"])
+            logits = _disc_logits(dparams, spatial, temporal)
+            w_s = disc.patch_weight(fd["mask"], _DISC_DEPTH)
+            w_t = disc.patch_weight(_flat(d["mask"][:, 1:]), _DISC_DEPTH)
+            gen = {k: disc.generator_loss(v, w_t if k.endswith("_t") else w_s) for k, v in logits.items()}
+            loss = loss + config.gan_weight * (gen["normal"] + gen["roughness"]) \
+                + config.temporal_weight * (gen["normal_t"] + gen["roughness_t"])
+            logs["gan_g"] = sum(gen.values())
+            logs["_fake"] = (jax.lax.stop_gradient(normal), jax.lax.stop_gradient(sv))
+        logs["loss"] = loss
+        return loss, logs
+
+    def d_loss(dparams, fake, d):
+        real_s, real_t = _disc_inputs(d["normal"], d["sv"], d["mask"])
+        fake_s, fake_t = _disc_inputs(*fake, d["mask"])
+        lr, lf = _disc_logits(dparams, real_s, real_t), _disc_logits(dparams, fake_s, fake_t)
+        w_s = disc.patch_weight(_flat(d["mask"]), _DISC_DEPTH)
+        w_t = disc.patch_weight(_flat(d["mask"][:, 1:]), _DISC_DEPTH)
+        return sum(disc.discriminator_loss(lr[k], lf[k], w_t if k.endswith("_t") else w_s) for k in lr)
+
+    @jax.jit
+    def step(state, batch, key):
+        k_prep, k_drop = jax.random.split(key)
+        d = _prepare(batch, k_prep, config.model.color, config.crop)
+        (_, logs), grads = jax.value_and_grad(g_loss, has_aux=True)(state["g"], state.get("d"), d, k_drop)
+        updates, g_state = g_opt.update(grads, state["g_opt"], state["g"])
+        new = dict(state, g=optax.apply_updates(state["g"], updates), g_opt=g_state)
+        if "gan" in terms:
+            fake = logs.pop("_fake")
+            dl, dgrads = jax.value_and_grad(d_loss)(state["d"], fake, d)
+            dupd, d_state = d_opt.update(dgrads, state["d_opt"], state["d"])
+            new |= {"d": optax.apply_updates(state["d"], dupd), "d_opt": d_state}
+            logs["gan_d"] = dl
+        return new, logs
+
+    return step
+
+
+def _batch_dict(b):
+    return {"image": b.image, "normal": b.normal, "slope_variance": b.slope_variance, "camera": b.camera,
+            "lighting": b.lighting}
+
+
+def _require_complete(data: Dataset):
+    b = next(iter(data.batches(jax.random.key(0), "train", 1)))
+    if b.slope_variance is None:
+        raise ValueError(f"{data.root}: frames lack slope_variance channels (written by an older jaxocean); "
+                         "regenerate the dataset with `jaxocean simulate`")
+
+
+def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = True, parallel=None,
+          stop_after_steps: int | None = None, **overrides) -> dict:
+    """Train (or resume) a geometry model on ``dataset``; the best model goes to
+    ``out/model.npz``. ``overrides`` replace :class:`TrainConfig` fields."""
+    if isinstance(config, str):
+        if config not in CONFIGS:
+            raise ValueError(f"unknown config {config!r}; known: {sorted(CONFIGS)}")
+        config = CONFIGS[config]
+    config = config._replace(**overrides)
+    terms = config.terms()
+    data = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
+    _require_complete(data)
+    parallel = parallel or data_parallel()
+    if config.batch_size % parallel.size:
+        raise ValueError(f"batch size {config.batch_size} does not split over {parallel.size} devices")
+    out = Path(out)
+    key = jax.random.key(config.seed)
+    state = init_state(config, key)
+    sequence = 2 if "gan" in terms else 1
+    step = make_step(config)
+
+    def batches(epoch):
+        for b in data.batches(jax.random.fold_in(key, 1000 + epoch), "train", config.batch_size, sequence):
+            yield _batch_dict(b)
+
+    val_windows = data.windows("val")[: config.val_frames]
+    if not val_windows or not data.windows("train"):
+        raise ValueError(f"{data.root}: the dataset's train or validation split is empty "
+                         f"({len(data.splits['train'])} / {len(data.splits['val'])} scenes); simulate at least 12 scenes")
+
+    def validate(state):
+        model = geo.GeometryModel(config.model, state["g"])
+        scores = _score_frames(model_method(model), data, val_windows)
+        loss = scores["cos_loss"] if "supervised" in terms else scores["image_loss"]
+        return {"loss": loss, **{k: scores[k] for k in ("cos_loss", "image_loss", "skill_along", "skill_across",
+                                                        "within_5deg", "log_slope_variance_mse")}}
+
+    def on_best(state, scores, pos):
+        geo.save(out / "model.npz", geo.GeometryModel(config.model, jax.device_get(state["g"])),
+                 {"train_config": config.to_json(), "val": scores, "epoch": pos["epoch"], "steps": pos["step"],
+                  "train_s": pos["train_s"], "dataset": str(data.root)})
+
+    signature = {"config": config.to_json(), "dataset": data.settings, "devices": parallel.size}
+    budget = None if config.time_budget_minutes is None else 60.0 * config.time_budget_minutes
+    t0 = time.perf_counter()
+    result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
+                        steps_per_epoch=config.steps_per_epoch, key=jax.random.fold_in(key, 2), signature=signature,
+                        patience=config.patience, time_budget_s=budget, on_best=on_best, parallel=parallel,
+                        progress=progress, stop_after_steps=stop_after_steps)
+    summary = {"config": config.to_json(), "stopped": result["stopped"], "steps": result["steps"],
+               "best_val_loss": result["best"], "wall_s_this_call": time.perf_counter() - t0,
+               "train_s": result["history"][-1]["wall_s"] if result["history"] else None,
+               "model": str(out / "model.npz")}
+    if result["stopped"] != "step_limit":
+        write_json(out / "summary.json", summary)
+    summary["state"] = result["state"]
+    return summary
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def model_method(model: geo.GeometryModel):
+    """A scoring method ``(images (T,H,W,3), camera) -> GeometryPrediction`` from a model."""
+    return lambda images, camera: geo.predict(model, images, camera)
+
+
+def flat_method(images, camera):
+    """The flat-sea baseline: normal (0, 0, 1) and the roughness floor everywhere."""
+    T = images.shape[0]
+    _, mask = geo.camera_channels(camera)
+    mask = np.broadcast_to(np.asarray(mask), (T,) + mask.shape)
+    normal = np.zeros(images.shape, np.float32)
+    normal[..., 2] = 1
+    sv = np.full(images.shape[:-1] + (2,), shading.MIN_SLOPE_VARIANCE_AXIS, np.float32)
+    return geo.GeometryPrediction(normal, sv, sv.sum(-1), mask)
+
+
+@jax.jit
+def _frame_scores(pred_normal, pred_sv, true_normal, true_sv, image, camera, lighting):
+    hit = cam.intersect_sea(camera)
+    mask = hit.mask[None]
+    yaw = jnp.broadcast_to(jnp.asarray(camera.yaw, jnp.float32), pred_normal.shape[:1])
+    sums = metrics.normal_scores(pred_normal, true_normal, mask, yaw)
+    sums |= metrics.roughness_scores(pred_sv, true_sv, mask, shading.MIN_SLOPE_VARIANCE_AXIS)
+    rendered = jax.vmap(lambda n, s: render.shade(n, None, camera, lighting, slope_variance=s))(pred_normal, pred_sv)
+    sums |= metrics.image_scores(shading.tonemap(rendered), shading.tonemap(image), mask)
+    d = {"image": image, "view": jnp.broadcast_to(hit.view, image.shape), "mask": jnp.broadcast_to(mask, image.shape[:-1]),
+         "lighting": jax.tree.map(lambda x: jnp.broadcast_to(x, (image.shape[0],) + jnp.shape(x)), lighting)}
+    pred = geo.GeometryPrediction(pred_normal, pred_sv, pred_sv.sum(-1), d["mask"])
+    sums["image_loss_sum"] = _image_loss(pred, d) * jnp.sum(d["mask"])
+    return sums
+
+
+def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timing: dict | None = None):
+    by_scene: dict = {}
+    for s, f in windows:
+        by_scene.setdefault(s, []).append(f)
+    total: dict = {}
+    scenes = {}
+    for s, frames in by_scene.items():
+        sc = data.scene(s)
+        fr = [data.frame(s, f) for f in frames]
+        images = np.stack([x.image for x in fr])
+        t0 = time.perf_counter()
+        pred = method(images, sc.camera)
+        jax.block_until_ready(pred.normal)
+        if timing is not None:
+            timing["s"] = timing.get("s", 0.0) + time.perf_counter() - t0
+            timing["frames"] = timing.get("frames", 0) + len(frames)
+        sums = _frame_scores(jnp.asarray(pred.normal), jnp.asarray(pred.slope_variance),
+                             jnp.asarray(np.stack([x.normal for x in fr])),
+                             jnp.asarray(np.stack([x.slope_variance for x in fr])), jnp.asarray(images),
+                             sc.camera, sc.lighting)
+        sums = {k: float(v) for k, v in sums.items()}
+        if per_scene:
+            scenes[s] = _finish(sums)
+        for k, v in sums.items():
+            total[k] = total.get(k, 0.0) + v
+    out = _finish(total)
+    if per_scene:
+        out["scenes"] = scenes
+    return out
+
+
+def _finish(sums):
+    out = metrics.finish(sums)
+    out["image_loss"] = sums["image_loss_sum"] / max(sums["pixels"], 1.0)
+    return out
+
+
+def evaluate(method, dataset, split: str = "test", *, max_frames: int | None = None, warmup: bool = True) -> dict:
+    """Scores of ``method`` (a :class:`~jaxocean.nn.geometry.GeometryModel`, or a function
+    ``(images, camera) -> GeometryPrediction``) on ``split``, overall and per scene, with
+    ``frames_per_s`` of the method alone (after one warm-up call that compiles it)."""
+    data = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
+    if isinstance(method, geo.GeometryModel):
+        method = model_method(method)
+    windows = data.windows(split)[:max_frames]
+    if warmup and windows:
+        s, f = windows[0]
+        jax.block_until_ready(method(np.stack([data.frame(s, f).image]), data.scene(s).camera).normal)
+    timing: dict = {}
+    out = _score_frames(method, data, windows, per_scene=True, timing=timing)
+    out["frames_per_s"] = timing["frames"] / max(timing["s"], 1e-9)
+    out["frames"] = timing["frames"]
+    return out

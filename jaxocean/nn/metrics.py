@@ -1,0 +1,96 @@
+"""Scores of predicted per-pixel geometry against the truth (the paper's Table 1 and more).
+
+Protocol
+--------
+Inputs have leading axes ``(...)`` (frames, batch) over images ``(H, W)``: ``normal``
+``(..., H, W, 3)`` unit vectors in the world frame, ``slope_variance (..., H, W, 2)``,
+``mask (..., H, W)`` bool (sea pixels; only they are scored), ``yaw (...)`` the camera
+yaw (radians) that defines the along-view direction ``(cos yaw, sin yaw)``.
+
+* :func:`normal_scores` -> dict of sums over sea pixels (add them over batches, then
+  :func:`finish`): angle error, ``1 - cos``, counts within 1/2/5/10/15 degrees, slope
+  errors along and across the view, and the slope sums needed for the skill.
+* :func:`finish(sums)` -> the scores: ``normal_mae`` (mean angle error, radians: the
+  paper's "normal MAE"), ``cos_loss`` (mean ``1 - cos``: its "CosSim loss"),
+  ``within_{k}deg`` (fraction), ``skill_along`` / ``skill_across`` / ``skill`` (the slope
+  skill R^2 = 1 - sum |s - s_hat|^2 / sum |s - mean(s)|^2, slope ``s = (-n_x/n_z,
+  -n_y/n_z)``; 0 for the flat prediction, 1 when exact), ``roughness_mse`` (of sigma^2 =
+  sum of the pair, dimensionless), ``log_slope_variance_mse`` (of log10 of each variance,
+  decades^2), ``image_mse`` (display values in [0, 1]).
+
+Host and device agnostic (jnp); sums are float64 on the host when accumulated there.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+__all__ = ["THRESHOLDS_DEG", "slopes", "normal_scores", "roughness_scores", "image_scores", "finish"]
+
+THRESHOLDS_DEG = (1, 2, 5, 10, 15)
+
+
+def slopes(normal):
+    """Surface slope ``(-n_x / n_z, -n_y / n_z)`` ``(..., 2)``."""
+    nz = jnp.maximum(normal[..., 2], 1e-3)
+    return -normal[..., :2] / nz[..., None]
+
+
+def _along_across(slope, yaw):
+    c, s = jnp.cos(yaw)[..., None, None], jnp.sin(yaw)[..., None, None]
+    along = slope[..., 0] * c + slope[..., 1] * s
+    across = slope[..., 0] * s - slope[..., 1] * c
+    return along, across
+
+
+def normal_scores(pred, true, mask, yaw) -> dict:
+    cos = jnp.clip(jnp.sum(pred * true, -1), -1.0, 1.0)
+    m = jnp.broadcast_to(mask, cos.shape).astype(jnp.float32)
+    angle = jnp.arccos(cos)
+    out = {"pixels": m.sum(), "angle_sum": (angle * m).sum(), "one_minus_cos_sum": ((1 - cos) * m).sum()}
+    for k in THRESHOLDS_DEG:
+        out[f"within_{k}deg_count"] = ((angle <= math.radians(k)) * m).sum()
+    pa, pc = _along_across(slopes(pred), yaw)
+    ta, tc = _along_across(slopes(true), yaw)
+    for name, p, t in (("along", pa, ta), ("across", pc, tc)):
+        out[f"{name}_err_sq"] = (jnp.square(p - t) * m).sum()
+        out[f"{name}_sum"] = (t * m).sum()
+        out[f"{name}_sq_sum"] = (jnp.square(t) * m).sum()
+    return out
+
+
+def roughness_scores(pred_sv, true_sv, mask, floor: float) -> dict:
+    m = jnp.broadcast_to(mask, pred_sv.shape[:-1]).astype(jnp.float32)
+    r_err = jnp.square(pred_sv.sum(-1) - true_sv.sum(-1))
+    lp = jnp.log10(jnp.maximum(pred_sv, floor))
+    lt = jnp.log10(jnp.maximum(true_sv, floor))
+    return {"roughness_err_sq": (r_err * m).sum(), "log_sv_err_sq": (jnp.square(lp - lt).mean(-1) * m).sum()}
+
+
+def image_scores(pred_display, true_display, mask) -> dict:
+    m = jnp.broadcast_to(mask, pred_display.shape[:-1]).astype(jnp.float32)
+    return {"image_err_sq": (jnp.square(pred_display - true_display).mean(-1) * m).sum()}
+
+
+def finish(sums: dict) -> dict:
+    """Turn accumulated sums into scores (see the module docstring)."""
+    s = {k: float(np.asarray(v, np.float64)) for k, v in sums.items()}
+    n = max(s["pixels"], 1.0)
+    out = {"normal_mae": s["angle_sum"] / n, "cos_loss": s["one_minus_cos_sum"] / n}
+    for k in THRESHOLDS_DEG:
+        out[f"within_{k}deg"] = s[f"within_{k}deg_count"] / n
+    err, var = 0.0, 0.0
+    for name in ("along", "across"):
+        v = s[f"{name}_sq_sum"] - s[f"{name}_sum"] ** 2 / n
+        out[f"skill_{name}"] = 1.0 - s[f"{name}_err_sq"] / v if v > 0 else float("nan")
+        err, var = err + s[f"{name}_err_sq"], var + v
+    out["skill"] = 1.0 - err / var if var > 0 else float("nan")
+    if "roughness_err_sq" in s:
+        out["roughness_mse"] = s["roughness_err_sq"] / n
+        out["log_slope_variance_mse"] = s["log_sv_err_sq"] / n
+    if "image_err_sq" in s:
+        out["image_mse"] = s["image_err_sq"] / n
+    return out

@@ -1,0 +1,213 @@
+"""Training machinery shared by the networks: the epoch loop, resumable checkpoints,
+validation with early stopping, loss curves, and data parallelism over local devices.
+
+Protocol
+--------
+:func:`train_loop` drives a pure, jitted ``step(state, batch, key) -> (state, logs)``:
+
+* ``state`` is a pytree (params, optimiser states, ...); ``logs`` a dict of scalars.
+* ``batches(epoch)`` yields the epoch's batches (pytrees of arrays with the batch axis
+  first) in a deterministic order; the loop takes at most ``steps_per_epoch`` of them.
+* ``validate(state) -> dict`` with at least ``"loss"`` (lower is better) runs after every
+  epoch; the best state so far is handed to ``on_best(state, scores)`` (the caller writes
+  its model file there).
+* The step key is ``fold_in(key, step)``: it depends on the step count alone, so nothing
+  random needs saving.
+
+Resuming. ``run_dir/checkpoint.npz`` holds ``state`` and the loop's position (epoch, batch,
+step, history, best score, epochs without improvement), written atomically every
+``checkpoint_every`` steps and at every epoch's end. Calling :func:`train_loop` again with
+the same arguments continues from it -- the batches already consumed in the current epoch
+are skipped -- so a killed run, rerun, ends where an uninterrupted run ends (tested
+bit-for-bit on the CPU). A checkpoint written with other settings (``signature``) is an
+error, not silently mixed.
+
+Data parallel. With more than one local device (GPUs, or CPU devices made with
+``XLA_FLAGS=--xla_force_host_platform_device_count=N``) :func:`data_parallel` puts the
+state on every device and splits each batch along its first axis (``jax.sharding``:
+a 1-D mesh ``"data"``); the jitted step then computes the same mean gradient as on one
+device, XLA inserting the all-reduce. On several hosts call ``jax.distributed.initialize()``
+first (one process per host, same command) and every process feeds its share of the batch:
+see docs/training.md.
+
+Outputs in ``run_dir``: ``checkpoint.npz``, ``history.json`` (per-epoch train and
+validation scores, wall time), ``curves.png``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from pathlib import Path
+from typing import Callable
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+from jaxocean.files import write_json
+from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
+
+__all__ = ["data_parallel", "train_loop", "CHECKPOINT", "HISTORY", "CURVES"]
+
+CHECKPOINT = "checkpoint.npz"
+HISTORY = "history.json"
+CURVES = "curves.png"
+
+
+class DataParallel:
+    """Placement of the state (replicated) and batches (split along axis 0) on local devices."""
+
+    def __init__(self, devices=None):
+        self.devices = list(devices or jax.local_devices())
+        self.mesh = Mesh(np.asarray(self.devices), ("data",))
+        self.replicated = NamedSharding(self.mesh, PartitionSpec())
+        self.split = NamedSharding(self.mesh, PartitionSpec("data"))
+
+    @property
+    def size(self) -> int:
+        return len(self.devices)
+
+    def state(self, tree):
+        return jax.device_put(tree, self.replicated)
+
+    def batch(self, tree):
+        def put(x):
+            x = np.asarray(x) if not isinstance(x, jax.Array) else x
+            if x.ndim == 0 or x.shape[0] % self.size:
+                raise ValueError(f"batch axis {x.shape[:1]} does not split over {self.size} devices; "
+                                 f"use a batch size divisible by {self.size}")
+            return jax.device_put(x, self.split)
+
+        return jax.tree.map(put, tree)
+
+
+def data_parallel(devices=None) -> DataParallel:
+    """The placement over ``devices`` (default: every local device)."""
+    return DataParallel(devices)
+
+
+def _plot_curves(path: Path, history: list) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxocean.files import atomic_write
+
+    keys = sorted({k for h in history for k in h.get("train", {})})
+    vkeys = sorted({k for h in history for k in h.get("val", {}) if k == "loss" or k.startswith("skill")})
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+    ep = [h["epoch"] + 1 for h in history]
+    for k in keys:
+        axes[0].plot(ep, [h["train"].get(k, np.nan) for h in history], label=f"train {k}")
+    if history and "val" in history[0]:
+        axes[0].plot(ep, [h["val"].get("loss", np.nan) for h in history], "k--", label="val loss")
+    axes[0].set_yscale("log")
+    axes[0].set_xlabel("epoch")
+    axes[0].legend(fontsize=7)
+    for k in vkeys:
+        if k != "loss":
+            axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
+    axes[1].set_xlabel("epoch")
+    axes[1].set_ylabel("slope skill")
+    axes[1].legend(fontsize=7)
+    fig.tight_layout()
+    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=90))
+    plt.close(fig)
+
+
+def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: Callable, epochs: int,
+               steps_per_epoch: int, key, signature: dict, checkpoint_every: int = 200, patience: int = 5,
+               time_budget_s: float | None = None, on_best: Callable | None = None, parallel: DataParallel | None = None,
+               progress: bool = True, stop_after_steps: int | None = None) -> dict:
+    """Run (or resume) training; returns ``{"state", "history", "best", "stopped", "steps"}``.
+
+    ``stopped`` says why it ended: ``"epochs"``, ``"early_stopping"``, ``"time_budget"``, or
+    ``"step_limit"`` (``stop_after_steps``: end the process after that many steps of this
+    call, as a crash would -- used to test resuming).
+    """
+    run_dir = Path(run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    ckpt = run_dir / CHECKPOINT
+    signature = json.loads(json.dumps(signature))
+    pos = {"epoch": 0, "batch": 0, "step": 0, "history": [], "best": math.inf, "bad_epochs": 0, "train_s": 0.0,
+           "epoch_logs": {}}
+    if ckpt.exists():
+        meta = load_tree(ckpt, None, meta_only=True)
+        if meta.get("signature") != signature:
+            raise CheckpointError(ckpt, "was written by a run with other settings; use a new --out directory "
+                                  "or the same settings to resume")
+        state, _ = load_tree(ckpt, state)
+        pos = meta["position"]
+    parallel = parallel or data_parallel()
+    state = parallel.state(state)
+
+    def save():
+        save_tree(ckpt, state, {"signature": signature, "position": pos})
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+        bar = tqdm(total=epochs * steps_per_epoch, initial=pos["epoch"] * steps_per_epoch + pos["batch"],
+                   unit="step", desc="train", smoothing=0.05)
+    stopped, taken = "epochs", 0
+    t_start = time.perf_counter() - pos["train_s"]
+    try:
+        while pos["epoch"] < epochs:
+            it = batches(pos["epoch"])
+            for _ in range(pos["batch"]):  # resume mid-epoch: skip what was consumed
+                next(it)
+            logs_sum = {k: float(v) for k, v in pos["epoch_logs"].items()}
+            while pos["batch"] < steps_per_epoch:
+                try:
+                    batch = next(it)
+                except StopIteration:
+                    break
+                state, logs = step(state, parallel.batch(batch), jax.random.fold_in(key, pos["step"]))
+                logs = {k: float(v) for k, v in logs.items()}
+                for k, v in logs.items():
+                    logs_sum[k] = logs_sum.get(k, 0.0) + v
+                pos["batch"] += 1
+                pos["step"] += 1
+                taken += 1
+                pos["epoch_logs"] = logs_sum
+                if bar is not None:
+                    bar.update(1)
+                    bar.set_postfix({k: f"{v:.3g}" for k, v in list(logs.items())[:3]})
+                if pos["step"] % checkpoint_every == 0:
+                    pos["train_s"] = time.perf_counter() - t_start
+                    save()
+                if stop_after_steps is not None and taken >= stop_after_steps:
+                    return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": "step_limit",
+                            "steps": pos["step"]}
+            n = max(pos["batch"], 1)
+            scores = {k: float(v) for k, v in validate(state).items()}
+            pos["train_s"] = time.perf_counter() - t_start
+            pos["history"].append({"epoch": pos["epoch"], "train": {k: v / n for k, v in logs_sum.items()},
+                                   "val": scores, "wall_s": pos["train_s"], "steps": pos["step"]})
+            if scores["loss"] < pos["best"]:
+                pos["best"], pos["bad_epochs"] = scores["loss"], 0
+                if on_best is not None:
+                    on_best(state, scores, pos)
+            else:
+                pos["bad_epochs"] += 1
+            pos["epoch"] += 1
+            pos["batch"] = 0
+            pos["epoch_logs"] = {}
+            save()
+            write_json(run_dir / HISTORY, pos["history"])
+            _plot_curves(run_dir / CURVES, pos["history"])
+            if bar is not None:
+                bar.write(f"epoch {pos['epoch']}: " + ", ".join(f"{k} {v:.4g}" for k, v in scores.items()))
+            if pos["bad_epochs"] >= patience:
+                stopped = "early_stopping"
+                break
+            if time_budget_s is not None and pos["train_s"] >= time_budget_s:
+                stopped = "time_budget"
+                break
+    finally:
+        if bar is not None:
+            bar.close()
+    return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": stopped, "steps": pos["step"]}

@@ -1,0 +1,265 @@
+"""Geometry networks: outputs, files, training (resume, data parallel), CLI, the shipped model."""
+
+import json
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxocean import camera as cam
+from jaxocean import shading
+from jaxocean.io import dataset
+from jaxocean.nn import CheckpointError
+from jaxocean.nn import geometry as geo
+from jaxocean.nn import geometry_train as gt
+from jaxocean.nn import metrics
+
+TINY = geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8))
+TINY_TRAIN = gt.TrainConfig(name="tiny", model=TINY, epochs=2, steps_per_epoch=3, batch_size=2, crop=16,
+                            val_frames=2, time_budget_minutes=None, learning_rate=1e-3)
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    root = tmp_path_factory.mktemp("geo_data")
+    dataset.simulate(root, 12, 2, (32, 32), seed=3, progress=False)
+    return root
+
+
+@pytest.mark.parametrize("head", geo.NORMAL_HEADS)
+def test_zero_network_output_is_a_flat_sea_at_the_floor(head, key):
+    model = geo.init(key, TINY._replace(normal_head=head))
+    zero = jax.tree.map(jnp.zeros_like, model.params)
+    camera = cam.make_camera(height=10.0, pitch=0.5, fov=0.8, resolution=(16, 24))
+    feats, mask = geo.features(jnp.ones((16, 24, 3)), camera)
+    pred = geo.apply(model._replace(params=zero), feats[None], jnp.zeros(1), mask[None])
+    np.testing.assert_allclose(pred.normal[..., 2], 1.0, atol=1e-6)
+    # softplus(0) = log 2 above the floor
+    np.testing.assert_allclose(pred.slope_variance, 2 * shading.MIN_SLOPE_VARIANCE_AXIS, rtol=1e-5)
+
+
+def test_prediction_shapes_unit_normals_and_sky(key):
+    model = geo.init(key, TINY)
+    camera = cam.make_camera(height=10.0, pitch=0.2, fov=0.9, resolution=(20, 28))  # horizon in view
+    images = jax.random.uniform(key, (3, 20, 28, 3))
+    pred = geo.predict(model, images, camera)
+    assert pred.normal.shape == (3, 20, 28, 3) and pred.slope_variance.shape == (3, 20, 28, 2)
+    assert pred.roughness.shape == pred.mask.shape == (3, 20, 28)
+    np.testing.assert_allclose(np.linalg.norm(pred.normal, axis=-1), 1.0, atol=1e-5)
+    sky = ~pred.mask
+    assert sky.any() and pred.mask.any()
+    np.testing.assert_array_equal(pred.normal[sky], np.broadcast_to([0, 0, 1.0], pred.normal[sky].shape))
+    assert np.all(pred.slope_variance >= shading.MIN_SLOPE_VARIANCE_AXIS * (1 - 1e-6))
+    one = geo.predict(model, images[1], camera)
+    np.testing.assert_allclose(one.normal, pred.normal[1], atol=1e-6)
+    gray = geo.predict(model, images[..., 0], camera)  # gray: equal R, G, B
+    ref = geo.predict(model, np.repeat(np.asarray(images[..., :1]), 3, -1), camera)
+    np.testing.assert_allclose(gray.normal, ref.normal, atol=1e-6)
+
+
+def test_the_along_view_slope_follows_the_camera_yaw(key):
+    """A model predicting a pure along-view slope gives a world normal tilted along the yaw."""
+    model = geo.init(key, TINY)
+    params = jax.tree.map(jnp.zeros_like, model.params)
+    head = params["normal"][-1]
+    params["normal"] = params["normal"][:-1] + ({"w": head["w"], "b": jnp.asarray([0.0, 0.2])},)
+    for yaw in (0.0, 1.0, -2.5):
+        camera = cam.make_camera(height=10.0, pitch=0.6, fov=0.8, yaw=yaw, resolution=(8, 8))
+        n = geo.predict(model._replace(params=params), np.ones((8, 8, 3)), camera).normal[4, 4]
+        s = -n[:2] / n[2]
+        np.testing.assert_allclose(s, [0.2 * np.cos(yaw), 0.2 * np.sin(yaw)], atol=1e-5)
+
+
+def test_bad_inputs_are_named(key, tmp_path):
+    model = geo.init(key, TINY)
+    camera = cam.make_camera(height=10.0, pitch=0.6, fov=0.8, resolution=(16, 16))
+    with pytest.raises(ValueError, match="resolution"):
+        geo.predict(model, np.ones((2, 16, 20, 3)), camera)
+    with pytest.raises(ValueError, match="non-finite"):
+        geo.predict(model, np.full((16, 16, 3), np.nan), camera)
+    with pytest.raises(ValueError, match="features"):
+        geo.apply(model, jnp.ones((1, 16, 16, 4)), jnp.zeros(1), jnp.ones((1, 16, 16), bool))
+    with pytest.raises(CheckpointError, match="no such file"):
+        geo.load(tmp_path / "missing.npz")
+    bad = tmp_path / "corrupt.npz"
+    bad.write_bytes(b"PK\x03\x04 truncated")
+    with pytest.raises(CheckpointError, match="corrupt.npz.*corrupt or truncated"):
+        geo.load(bad)
+    # another architecture under the same format
+    other = geo.init(key, TINY._replace(widths=(4, 8, 8)))
+    path = geo.save(tmp_path / "other.npz", other)
+    meta = json.loads(bytes(np.load(path)["__meta__"]).decode())
+    assert meta["config"]["widths"] == [4, 8, 8]
+    with pytest.raises(ValueError, match="losses"):
+        gt.variant(TINY_TRAIN, losses="image+typo").terms()
+
+
+def test_model_file_round_trip(key, tmp_path):
+    model = geo.init(key, TINY._replace(normal_head="sphere", color="gray"))
+    geo.save(tmp_path / "m.npz", model, {"note": "x"})
+    back = geo.load(tmp_path / "m.npz")
+    assert back.config == model.config
+    for a, b in zip(jax.tree.leaves(model.params), jax.tree.leaves(back.params)):
+        np.testing.assert_array_equal(a, b)
+    assert geo.model_info(tmp_path / "m.npz")["note"] == "x"
+
+
+def test_metrics_reference_values():
+    n_true = np.zeros((1, 2, 2, 3))
+    n_true[..., 2] = 1
+    tilt = np.radians(4.0)
+    n_pred = np.broadcast_to([np.sin(tilt), 0, np.cos(tilt)], (1, 2, 2, 3))
+    mask = np.ones((1, 2, 2), bool)
+    s = metrics.finish(metrics.normal_scores(jnp.asarray(n_pred), jnp.asarray(n_true), mask, jnp.zeros(1)))
+    assert s["normal_mae"] == pytest.approx(tilt, rel=1e-5)
+    assert s["within_5deg"] == 1.0 and s["within_2deg"] == 0.0
+    assert s["cos_loss"] == pytest.approx(1 - np.cos(tilt), rel=1e-4)
+    # skill: exact prediction 1, flat prediction 0 on zero-mean slopes
+    rng = np.random.default_rng(0)
+    slope = rng.normal(0, 0.1, (1, 8, 8, 2))
+    slope -= slope.mean((0, 1, 2))
+    n = np.concatenate([-slope, np.ones((1, 8, 8, 1))], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    flat = np.zeros_like(n)
+    flat[..., 2] = 1
+    m = np.ones((1, 8, 8), bool)
+    exact = metrics.finish(metrics.normal_scores(jnp.asarray(n), jnp.asarray(n), m, jnp.zeros(1)))
+    none = metrics.finish(metrics.normal_scores(jnp.asarray(flat), jnp.asarray(n), m, jnp.zeros(1)))
+    assert exact["skill"] == pytest.approx(1.0) and none["skill"] == pytest.approx(0.0, abs=1e-5)
+    assert none["skill_along"] == pytest.approx(0.0, abs=1e-5) and none["skill_across"] == pytest.approx(0.0, abs=1e-5)
+
+
+def test_image_loss_is_zero_for_the_true_geometry(tiny_dataset):
+    """The training loss's renderer reproduces the dataset's images from their geometry."""
+    data = dataset.Dataset(tiny_dataset)
+    b = next(data.batches(jax.random.key(0), "train", 2))
+    d = gt._prepare(gt._batch_dict(b), jax.random.key(1), "rgb", 32)
+    fd = gt._flat({k: v for k, v in d.items() if k != "lighting"})
+    fd["lighting"] = gt._flat(d["lighting"])
+    true = geo.GeometryPrediction(fd["normal"], fd["sv"], fd["sv"].sum(-1), fd["mask"])
+    assert float(gt._image_loss(true, fd)) < 1e-6
+    flat = true._replace(normal=jnp.zeros_like(true.normal).at[..., 2].set(1.0))
+    assert float(gt._image_loss(flat, fd)) > 1e-4
+
+
+def test_training_resumes_to_the_uninterrupted_result(tiny_dataset, tmp_path):
+    full = gt.train(tiny_dataset, tmp_path / "full", TINY_TRAIN, progress=False)
+    with pytest.raises(CheckpointError, match="other settings"):
+        gt.train(tiny_dataset, tmp_path / "full", TINY_TRAIN._replace(learning_rate=2e-3), progress=False)
+    cut = gt.train(tiny_dataset, tmp_path / "cut", TINY_TRAIN._replace(), progress=False, stop_after_steps=4)
+    assert cut["stopped"] == "step_limit"
+    resumed = gt.train(tiny_dataset, tmp_path / "cut", TINY_TRAIN, progress=False)
+    assert resumed["steps"] == full["steps"] == 6
+    for a, b in zip(jax.tree.leaves(full["state"]), jax.tree.leaves(resumed["state"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    assert (tmp_path / "full" / "curves.png").stat().st_size > 0
+    assert len(json.loads((tmp_path / "full" / "history.json").read_text())) == 2
+    model = geo.load(tmp_path / "full" / "model.npz")
+    assert model.config == TINY
+
+
+def test_gan_step_updates_networks_and_discriminators(tiny_dataset):
+    config = TINY_TRAIN._replace(losses="image+gan")
+    state = gt.init_state(config, jax.random.key(0))
+    data = dataset.Dataset(tiny_dataset)
+    b = gt._batch_dict(next(data.batches(jax.random.key(0), "train", 2, sequence=2)))
+    new, logs = gt.make_step(config)(state, b, jax.random.key(1))
+    assert {"image", "gan_g", "gan_d"} <= set(logs)
+    for part in ("g", "d"):
+        moved = [not np.array_equal(x, y) for x, y in zip(jax.tree.leaves(state[part]), jax.tree.leaves(new[part]))]
+        assert any(moved)
+
+
+def test_sharded_step_equals_the_single_device_step(tiny_dataset, tmp_path):
+    script = textwrap.dedent(f"""
+        import jax, numpy as np
+        from jaxocean.io import dataset
+        from jaxocean.nn import geometry as geo, geometry_train as gt
+        from jaxocean.nn.training import data_parallel
+        assert jax.local_device_count() == 2
+        config = gt.TrainConfig(model=geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8)), batch_size=2,
+                                crop=16, losses="supervised")
+        data = dataset.Dataset({str(tiny_dataset)!r})
+        batch = gt._batch_dict(next(data.batches(jax.random.key(0), "train", 2)))
+        step = gt.make_step(config)
+        out = []
+        for par in (data_parallel(), data_parallel(jax.local_devices()[:1])):
+            state = par.state(gt.init_state(config, jax.random.key(0)))
+            new, logs = step(state, par.batch(batch), jax.random.key(1))
+            out.append(jax.device_get(new))
+            if par.size == 2:
+                assert len(jax.tree.leaves(new)[0].sharding.device_set) == 2
+        worst = max(float(np.max(np.abs(a - b))) for a, b in zip(jax.tree.leaves(out[0]), jax.tree.leaves(out[1])))
+        print("max difference", worst)
+        assert worst < 1e-5, worst
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+
+
+def test_evaluate_scores_flat_and_a_model(tiny_dataset):
+    flat = gt.evaluate(gt.flat_method, tiny_dataset, "test")
+    assert flat["frames"] == 2 and set(flat["scenes"]) == set(dataset.Dataset(tiny_dataset).splits["test"])
+    assert flat["cos_loss"] > 0 and flat["skill_along"] < 0.1
+    # the truth itself scores perfectly
+    data = dataset.Dataset(tiny_dataset)
+    order = iter(data.splits["test"])  # evaluate visits the split's scenes in order
+
+    def truth(images, camera):
+        s = next(order)
+        fr = [data.frame(s, f) for f in range(len(images))]
+        sv = np.stack([f.slope_variance for f in fr])
+        return geo.GeometryPrediction(np.stack([f.normal for f in fr]), sv, sv.sum(-1), np.stack([f.mask for f in fr]) > 0)
+
+    exact = gt.evaluate(truth, tiny_dataset, "test", warmup=False)
+    assert exact["skill"] == pytest.approx(1.0, abs=1e-4) and exact["within_1deg"] == pytest.approx(1.0)
+    assert exact["image_mse"] < 1e-6
+
+
+def _cli(*args):
+    from jaxocean.cli import main
+
+    return main([str(a) for a in args])
+
+
+def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
+    model_path = tmp_path / "m.npz"
+    geo.save(model_path, geo.init(jax.random.key(0), TINY))
+    scene_index = dataset.Dataset(tiny_dataset).splits["test"][0]
+    scene = dataset.scene_dir(tiny_dataset, scene_index)
+    assert _cli("predict-geometry", scene / "frame_00000.exr", scene / "frame_00001.exr", "--scene", scene,
+                "--model", model_path, "--out", tmp_path / "pred") == 0
+    from jaxocean.io import read_frame
+
+    frame = read_frame(tmp_path / "pred" / "frame_00001.exr")
+    assert frame.normal.shape == (32, 32, 3) and frame.slope_variance.shape == (32, 32, 2)
+    assert (tmp_path / "pred" / "frame_00000_normal.png").exists()
+    assert _cli("eval-geometry", tiny_dataset, "--model", model_path, "--out", tmp_path / "e.json") == 0
+    assert "flat normal" in capsys.readouterr().out
+    assert json.loads((tmp_path / "e.json").read_text())["rows"]["model"]["frames"] == 2
+    # bad inputs: exit 2 with the reason
+    assert _cli("predict-geometry", scene / "frame_00000.exr", "--model", tmp_path / "nope.npz", "--out",
+                tmp_path / "p2") == 2
+    assert "nope.npz: no such file" in capsys.readouterr().err
+    assert _cli("predict-geometry", scene / "frame_00000.exr", "--model", model_path, "--out", tmp_path / "p3") == 2
+    assert "camera" in capsys.readouterr().err
+    assert _cli("train-geometry", tiny_dataset, "--out", tmp_path / "r", "--losses", "image+nonsense") == 2
+
+
+@pytest.mark.skipif(not geo.PRETRAINED_PATH.exists(), reason="the pretrained model is not built yet")
+def test_the_shipped_model_loads_and_beats_flat(key):
+    model = geo.load()
+    scene = dataset.sample_scene(jax.random.key(2024), dataset.SceneRanges(), (64, 64), 2)
+    images, g = dataset.render_scene(scene)
+    pred = geo.predict(model, images, scene.camera)
+    mask = np.asarray(g.mask, bool)
+    cos_model = np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask])
+    cos_flat = np.mean((1 - np.asarray(g.normal)[..., 2])[mask])
+    assert cos_model < 0.5 * cos_flat, (cos_model, cos_flat)
+    assert "train_config" in geo.model_info()
