@@ -5,6 +5,9 @@ The paper's dataset is 2,000 scenes x 10 frames. This script generates ``--scene
 reports wall time, frames/s, bytes on disk and where the time goes (render vs EXR encode +
 write, the latter on writer threads overlapping the rendering), and extrapolates linearly to
 2,000 scenes. Target on the 2-core machine: 128^2 paper size in <= 10 min and <= 3 GB.
+Each row also says how many of its scenes take the converged-hits path (``render.plan``),
+which costs far more per frame than the rows path (``bench_hits.py``), and the machine's
+load average when the run started (the machine is shared).
 It also measures the loader: frames/s from a cold (decode from disk) and a warm (decoded
 cache) read.
 
@@ -15,6 +18,7 @@ Usage: ``python experiments/bench_dataset.py [--scenes 100] [--quick]``; writes
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 import tempfile
@@ -26,16 +30,27 @@ import jax
 sys.path.insert(0, __file__.rsplit("/", 1)[0])
 import benchutil  # noqa: E402
 
+from jaxocean import render  # noqa: E402
 from jaxocean.io import dataset  # noqa: E402
 
 PAPER_SCENES, FRAMES = 2000, 10
 TARGET_S, TARGET_BYTES = 600.0, 3e9
 
 
+def hits_scenes(scenes: int, res: int) -> int:
+    """How many of the first ``scenes`` default scenes (seed 0) render on the hits path."""
+    base = jax.random.key(0)
+    return sum(render.plan(s.waves, s.camera).refine > 0
+               for s in (dataset.sample_scene(jax.random.fold_in(base, i), resolution=(res, res), n_frames=FRAMES)
+                         for i in range(scenes)))
+
+
 def generate(root: Path, scenes: int, res: int):
+    load = os.getloadavg()[0]
     stats = dataset.simulate(root, scenes, FRAMES, (res, res), seed=0, progress=False)
     per_scene_s = stats["wall_s"] / scenes
-    return dict(res=res, scenes=scenes, frames=scenes * FRAMES, wall_s=stats["wall_s"],
+    return dict(res=res, scenes=scenes, hits_scenes=hits_scenes(scenes, res), load_at_start=load,
+                frames=scenes * FRAMES, wall_s=stats["wall_s"],
                 frames_per_s=stats["frames_per_s"], render_s=stats["render_s"], write_s_threads=stats["write_s"],
                 bytes=stats["bytes"], bytes_per_frame=stats["bytes"] / (scenes * FRAMES),
                 paper_size_s=per_scene_s * PAPER_SCENES, paper_size_bytes=stats["bytes"] / scenes * PAPER_SCENES)
@@ -84,7 +99,7 @@ def main(argv=None):
             rows.append(generate(root, n, res))
             if res == 128:
                 rows[-1].update(loader(root))
-            benchutil.print_table(rows[-1:], ["res", "scenes", "wall_s", "frames_per_s", "render_s", "write_s_threads",
+            benchutil.print_table(rows[-1:], ["res", "scenes", "hits_scenes", "load_at_start", "wall_s", "frames_per_s", "render_s", "write_s_threads",
                                               "bytes_per_frame", "paper_size_s", "paper_size_bytes"])
             shutil.rmtree(root)
     r128 = rows[0]

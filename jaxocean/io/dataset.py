@@ -156,8 +156,8 @@ def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128)
 
 
 def render_scene(scene: SceneSample, plan="auto"):
-    """Images ``(T, H, W, 3)`` and ``Geometry`` with a leading frame axis, one compiled call
-    per frame.
+    """Images ``(T, H, W, 3)`` and ``Geometry`` with a leading frame axis (``position`` None,
+    as from ``render(..., with_geometry=True)``), one compiled call per frame.
 
     ``plan="auto"`` renders what :func:`jaxocean.render.render` renders by default (the rows
     path or converged hits, by :func:`jaxocean.render.needs_refinement`) with every wave
@@ -183,8 +183,9 @@ def _render_frames(waves, camera, lighting, times, plan):
 
 @functools.partial(jax.jit, static_argnames=("plan",))
 def _render_frame(waves, camera, lighting, t, plan):
-    geo = render.geometry(waves, camera, t, plan=plan)
-    return render.shade(geo.normal, geo.roughness, camera, lighting, slope_variance=geo.slope_variance), geo
+    # render() shades the geometry it returns; it skips the positions (not stored), 10% of a
+    # hits-path frame (measured 24.4 ms against 27.1 ms at 128^2, same images)
+    return render.render(waves, camera, lighting, t, plan=plan, with_geometry=True)
 
 
 def scene_dir(root, index: int) -> Path:
