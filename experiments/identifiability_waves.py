@@ -88,7 +88,7 @@ def one_scene(seed: int, resolution: int, deltas, saved: dict) -> dict:
     scene, geo = wave_fit.dataset_scene(seed, resolution)
     truth = scene.waves
     ok = np.asarray(fw.resolvable(truth, scene.camera))
-    sep = wave_fit.separable(truth, ok, scene.camera, scene.times)
+    sep = fw.separable(truth, scene.camera, scene.times)
     nonsep = ok & ~sep
     truth_res = jax.tree.map(lambda x: x[ok], truth)
 

@@ -66,46 +66,6 @@ def dataset_scene(seed: int, resolution: int, n_frames: int = 10):
     return scene, geo
 
 
-def separable(truth_all, ok, camera, times, n_max=1.5):
-    """Resolvable true waves that are also *separable* from every other true wave: the
-    Rayleigh limit of the observation window, ``|k_i - k_j| L_ij >= 2 pi`` (``L_ij``: the
-    extent of the sea pixels, that resolve the shorter wave, along ``k_i - k_j``) or
-    ``|omega_i - omega_j| T >= 2 pi`` (``T``: the observed duration). Closer pairs are one
-    blurred peak in any space-time spectrum of the data; a fit explains them with one or
-    two waves whose split is not determined by the data to better than the window allows."""
-    from jaxocean import camera as cam_
-
-    hit = cam_.intersect_sea(camera)
-    mask = np.asarray(hit.mask)
-    fp = np.asarray(hit.footprint)[mask]
-    xy = np.asarray(hit.xy)[mask]
-    om = np.asarray(truth_all.omega, np.float64)
-    th = np.asarray(truth_all.theta, np.float64)
-    k = om ** 2 / 9.81
-    kv = np.stack([k * np.cos(th), k * np.sin(th)], -1)
-    lam = 2 * np.pi / k
-    duration = float(np.asarray(times)[-1] - np.asarray(times)[0])
-    out = np.zeros(om.shape, bool)
-    for i in np.flatnonzero(ok):
-        good = True
-        for j in range(om.size):
-            if j == i:
-                continue
-            dk = kv[i] - kv[j]
-            n = np.linalg.norm(dk)
-            if abs(om[i] - om[j]) * duration >= 2 * np.pi:
-                continue
-            sel = fp * n_max <= min(lam[i], lam[j])
-            if not sel.any():
-                sel = fp * n_max <= lam[i]
-            proj = xy[sel] @ (dk / max(n, 1e-12))
-            if n * (proj.max() - proj.min()) < 2 * np.pi:
-                good = False
-                break
-        out[i] = good
-    return out
-
-
 def wrap_deg(a):
     return abs(math.degrees(math.atan2(math.sin(a), math.cos(a))))
 
@@ -128,7 +88,7 @@ def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
     # ones at their full amplitude error (an upper bound of what a one-to-one table shows)
     missed_h = np.asarray(truth.amplitude)[m.missed] if m.missed.size else np.zeros(0)
     h_all = float((np.sum(np.abs(np.asarray(m.abs_error.amplitude))) + np.sum(missed_h)) / max(ok.sum(), 1))
-    sep = separable(truth_all, ok, scene.camera, scene.times)
+    sep = fw.separable(truth_all, scene.camera, scene.times)
     sep_truth = jax.tree.map(lambda x: x[sep], truth_all)
     ms = fw.match(result.waves, sep_truth)
     mae_sep = {f: float(np.mean(np.abs(np.asarray(getattr(ms.abs_error, f))))) if ms.true_index.size

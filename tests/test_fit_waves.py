@@ -384,6 +384,30 @@ def test_non_unit_normals_are_refused(ortho_scene):
     assert fw.check_inputs(half, rough, c, TIMES)[0].shape == normals.shape
 
 
+def test_determined_waves_are_the_separable_ones(ortho_fit):
+    # three waves well apart in k: each is measured, and the fit says so
+    fit, _ = ortho_fit
+    assert fit.determined is not None and fit.determined.tolist() == [True, True, True]
+    c = ortho()
+    w = few_waves()
+    join = lambda a, b: jax.tree.map(lambda x, y: jnp.concatenate([x, y]), a, b)  # noqa: E731
+    # a wave 0.5% off the first in frequency, same direction: |dk| L ~ 0.14 and |d omega| T
+    # ~ 0.008, far below 2 pi, so neither of the pair is determined
+    pair = join(w, make_waves([0.01], [2.8 * 1.005], [0.4], [1.0]))
+    assert fw.separable(pair, c, TIMES).tolist() == [False, True, True, False]
+    # a 246 m wave in a 12 m view is not resolvable, so not determined either
+    long = join(w, make_waves([0.05], [0.5], [0.0], [0.0]))
+    assert fw.separable(long, c, TIMES).tolist() == [True, True, True, False]
+    # a refine result carries no such flag (it does not select the set)
+    assert fw.refine(*ortho_fit_inputs(), w, max_steps=2).determined is None
+
+
+def ortho_fit_inputs():
+    c = ortho()
+    normals, rough = fw.predict(few_waves(), c, TIMES)
+    return normals, rough, c, TIMES
+
+
 def test_match_and_resolvable_helpers():
     truth = few_waves()
     fitted = Waves(*[jnp.asarray(x)[::-1] for x in truth])

@@ -78,7 +78,7 @@ explains them with some long waves, not with the true ones (``experiments/WAVES.
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import WaveMatch, match, resolvable
+from jaxocean.fit.waves._match import WaveMatch, match, resolvable, separable
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -101,6 +101,7 @@ __all__ = [
     "loss",
     "predict",
     "resolvable",
+    "separable",
     "match",
     "check_inputs",
 ]

@@ -57,6 +57,10 @@ class WaveFit(NamedTuple):
     * ``n_waves``      number of fitted waves.
     * ``time_s``       wall time [s] of the eager call (NaN under tracing).
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
+    * ``determined``   (:func:`waves` only, else None) bool ``(N,)``: the wave is
+      :func:`separable` -- resolved by the image and separated from every other fitted wave
+      by the observation window, so its parameters are measured; the others stand in for
+      what the view cannot separate (waves longer than the view, close pairs).
     """
 
     waves: Waves
@@ -69,6 +73,7 @@ class WaveFit(NamedTuple):
     n_waves: jax.Array
     time_s: jax.Array
     history: jax.Array | None = None
+    determined: np.ndarray | None = None
 
 
 def _chunk_size(n_pad):

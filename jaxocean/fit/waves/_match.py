@@ -1,7 +1,8 @@
 """Scoring and matching of fitted waves (:mod:`jaxocean.fit.waves`): eager NumPy helpers.
 
 Protocol: :func:`resolvable` says which waves ``(N,)`` a camera's image resolves
-individually; :func:`match` pairs fitted with true waves one to one and returns the
+individually, :func:`separable` which of those the observation window also separates from
+every other wave of the set (the waves a fit determines); :func:`match` pairs fitted with true waves one to one and returns the
 absolute errors of the pairs (:class:`WaveMatch`).
 """
 
@@ -58,6 +59,50 @@ def resolvable(waves_: Waves, camera, *, cycles: float = 1.0, n_min=hierarchy.DE
             continue
         proj = xy[sel] @ np.array([np.cos(th[i]), np.sin(th[i])])
         out[i] = (proj.max() - proj.min()) >= cycles * lam[i]
+    return out
+
+
+def separable(waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
+              max_distance=cam.DEFAULT_MAX_DISTANCE) -> np.ndarray:
+    """Which waves are resolvable (:func:`resolvable`) *and* separated from every other wave
+    of ``waves_`` by the observation window: bool ``(N,)`` (eager, NumPy).
+
+    Waves ``i`` and ``j`` are separated when ``|omega_i - omega_j| T >= 2 pi`` (``T`` the
+    observed duration ``times[-1] - times[0]`` [s]) or ``|k_i - k_j| L_ij >= 2 pi`` (``L_ij``
+    the extent, along ``k_i - k_j``, of the sea pixels that resolve both waves, or the
+    shorter-footprint ones resolving wave ``i`` when none resolves both): the Rayleigh limit.
+    Closer pairs are one blurred peak in any space-time spectrum of the data, and a fit
+    explains them with waves whose split the data do not determine.
+    """
+    validate(waves_, max_steepness=None)
+    ok = resolvable(waves_, camera, n_max=n_max, max_distance=max_distance)
+    hit = cam.intersect_sea(camera, max_distance=max_distance)
+    mask = np.asarray(hit.mask)
+    fp = np.asarray(hit.footprint)[mask]
+    xy = np.asarray(hit.xy)[mask]
+    om = np.asarray(waves_.omega, np.float64)
+    th = np.asarray(waves_.theta, np.float64)
+    k = om ** 2 / GRAVITY
+    kv = np.stack([k * np.cos(th), k * np.sin(th)], -1)
+    lam = 2 * np.pi / k
+    t = np.asarray(times, np.float64)
+    duration = float(t[-1] - t[0])
+    out = np.zeros(om.shape, bool)
+    for i in np.flatnonzero(ok):
+        good = True
+        for j in range(om.size):
+            if j == i or abs(om[i] - om[j]) * duration >= 2 * np.pi:
+                continue
+            dk = kv[i] - kv[j]
+            n = np.linalg.norm(dk)
+            sel = fp * n_max <= min(lam[i], lam[j])
+            if not sel.any():
+                sel = fp * n_max <= lam[i]
+            proj = xy[sel] @ (dk / max(n, 1e-12))
+            if n * (proj.max() - proj.min()) < 2 * np.pi:
+                good = False
+                break
+        out[i] = good
     return out
 
 

@@ -29,6 +29,7 @@ from jaxocean.fit.waves._lm import (SOLVER_NAMES, WaveFit, dense_jtj, fit_result
                                     normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, row_roughness
 from jaxocean.fit.waves._model import bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle
+from jaxocean.fit.waves._match import separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -525,7 +526,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     bound = normal_error_bound(noise)
     unexplained = not float(result.normal_error) <= bound
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
-                             success=jnp.asarray(result.success) & (not capped) & (not unexplained))
+                             success=jnp.asarray(result.success) & (not capped) & (not unexplained),
+                             determined=separable(result.waves, camera, times, n_max=n_max))
     maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
