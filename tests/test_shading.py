@@ -172,6 +172,8 @@ def test_flat_sea_without_sun_is_fresnel_mix_of_sky_and_sea(x64):
         # sigma^2 = 0 is clamped to the floor on each axis
         pixel = np.asarray(shade_pixel_jit(jnp.asarray(UP), 0.0, 0.0, jnp.asarray(v), lighting))
         f = reference_mean_fresnel(math.sin(elevation), MIN_SLOPE_VARIANCE_AXIS)
+        # the public F_mean itself (test_render builds its expected image from it)
+        assert float(mean_fresnel_jit(math.sin(elevation), MIN_SLOPE_VARIANCE_AXIS)) == pytest.approx(f, rel=1e-12)
         np.testing.assert_allclose(pixel, f * np.array([0.3, 0.5, 0.9]) + (1 - f) * np.array([0.02, 0.05, 0.04]),
                                    rtol=1e-12)
     # an anisotropic flat sea: the projected variance enters F_mean
