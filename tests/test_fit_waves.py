@@ -510,5 +510,6 @@ def test_the_fit_model_is_the_renderers_rows_path_with_every_wave():
 
 def test_package_exports_the_fits_and_their_modules():
     assert fit_package.waves is fw.waves and fit_package.spectrum is fit_spectrum.spectrum
+    assert fit_package.separable is fw.separable and fit_package.resolvable is fw.resolvable
     assert fit_package.waves_fit.__name__ == "jaxocean.fit.waves"
     assert set(fw.__all__) >= {"waves", "refine", "match", "resolvable", "spectral_estimate", "spectral_init"}

@@ -60,6 +60,7 @@ from jaxocean.fit.waves import (
     match,
     refine,
     resolvable,
+    separable,
     spectral_estimate,
     spectral_init,
     waves,
@@ -118,6 +119,7 @@ __all__ = [
     "refine",
     "match",
     "resolvable",
+    "separable",
     "spectral_estimate",
     "spectral_init",
     # spectrum

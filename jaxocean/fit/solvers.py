@@ -183,10 +183,6 @@ def value_and_jacobian(fn, y, args):
     return r, blocks[0] if len(blocks) == 1 else jnp.concatenate(blocks, axis=-1)
 
 
-#: the former private name, still imported by fit.waves; use :func:`value_and_jacobian`
-_value_and_jacfwd = value_and_jacobian
-
-
 def _finite(x):
     return jnp.all(jnp.isfinite(x))
 
