@@ -435,7 +435,7 @@ def section_demo(args, out):
 def section_camera(args, out):
     """Camera fit on the demo scene at 48^2 (float32; every residual renders the refined
     geometry): from the documented start (8% high, 0.02 rad off) alone with the default
-    coarse-to-fine levels, alone with the full model only (the former default: levels=(1,))
+    coarse-to-fine levels, alone with the full model only (levels=(1,))
     and its denser start search, and jointly with the lighting; then a sweep of random starts
     within +-15% height / +-0.04 rad pitch (``--camera-starts``, default 20; 4 with --quick)."""
     import dataclasses

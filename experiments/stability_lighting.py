@@ -23,11 +23,11 @@ Axes: (1) distance of the initial guess (sun angle d, colours off by a factor e^
 leaving the frame at high sun); (4) view angle (pitch, down to grazing) with the sun at the
 mirror elevation; (5) roughness (the slope variance scaled from mirror-like to very rough).
 
-Horizon sweep (``--horizon``, its own results): the view of issue 13 -- a 30-wave sea (steepness
-k h 0.02-0.2 per wave, omega 0.8-3 rad/s), camera 10 m high, pitch 20 deg, vertical fov 50
-deg (the horizon in the image), 48^2, float64, noise-free, the default colours -- with the
-sun in front of the camera (azimuth 0 and 0.3 rad off the view), at the frame's edge (0.6
-rad), beside it (pi/2) and behind it (pi), at elevations 0.15, 0.3, 0.45 and 0.7 rad, on
+Horizon sweep (``--horizon``, its own results): a 30-wave sea (steepness k h 0.02-0.2 per
+wave, omega 0.8-3 rad/s), camera 10 m high, pitch 20 deg, vertical fov 50 deg (the horizon
+in the image), 48^2, float64, noise-free, the default colours -- with the sun in front of
+the camera (azimuth 0 and 0.3 rad off the view), at the frame's edge (0.6 rad), beside it
+(pi/2) and behind it (pi), at elevations 0.15, 0.3, 0.45 and 0.7 rad, on
 ``--seas`` sea states (random waves per seed), one random initial guess each. Per problem the
 true sun's glitter fraction (its share of the weighted image energy) puts it in one of three
 bins: *in frame* (>= 1e-3), *flank only* (1e-8 to 1e-3: only the lobe's edge is in the
@@ -196,7 +196,7 @@ HORIZON_ELEVATIONS = (0.15, 0.3, 0.45, 0.7)
 
 
 def horizon_scene(seed, n=48, n_waves=30):
-    """The issue's view (module docstring) on the sea state of ``seed``: waves, camera, geometry."""
+    """The horizon view (module docstring) on the sea state of ``seed``: waves, camera, geometry."""
     from jaxocean import camera as cam
     from jaxocean import render
     from jaxocean.waves import GRAVITY, make_waves

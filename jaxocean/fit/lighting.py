@@ -60,10 +60,11 @@ Structures (``structure=``):
   censored, plus near, resolved pixels with lobes 0.003 rad wide. Those near pixels that
   are dark exclude every sun direction within a fraction of a degree of their mirror
   direction, and they surround the sun: the full loss is a well < 1 deg wide in a
-  plateau that no grid or averaged glint estimate hits (measured on issue 13's view: the
-  glint estimate 5-17 deg off, the grid's best minimum 54 deg off at loss 4e-4 against 1e-33
-  at the truth). On the rough pixels alone the model is still exact and the loss is
-  smooth with a basin of many degrees; its minimum is the sun (noise-free), or next to it.
+  plateau that no grid or averaged glint estimate hits (measured on the horizon view of
+  ``experiments/LIGHTING.md``: the glint estimate 5-17 deg off, the grid's best minimum 54
+  deg off at loss 4e-4 against 1e-33 at the truth). On the rough pixels alone the model is
+  still exact and the loss is smooth with a basin of many degrees; its minimum is the sun
+  (noise-free), or next to it.
 * ``"plain"``: every fitted parameter at once from ``init`` alone -- the formulation of the
   paper's Adam baseline, kept for comparison charts (it fails from most random starts).
 
