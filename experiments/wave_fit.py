@@ -11,7 +11,7 @@ hierarchical normal and roughness maps, 10 frames):
    (:func:`jaxocean.fit.waves.resolvable`: at least one cycle across the view and longer than
    the Nyquist limit of the footprint); mean absolute errors of (h, omega, theta) of the
    matched pairs against the paper's Table 2 (MLP, 60 waves: h 0.00518 m, omega 0.131
-   rad/s, theta 0.227 rad) and the issue's targets (ten times better). Also: how many
+   rad/s, theta 0.227 rad) and the targets (ten times better). Also: how many
    resolvable waves were found, chosen count against the true count, Hs / Tp / mean
    direction of the full sea from ``fit.spectrum`` (targets 5%, 5%, 5 deg), and time.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
