@@ -178,8 +178,11 @@ def _iterate(waves, origin, direction, xy0, t, weights, active, max_iterations, 
     with finished dummies) are gathered into a buffer of that size and the loop goes on
     there, and so on down the levels of :func:`_compaction_sizes`; results are scattered
     back. A point's iterates are its own arithmetic whatever buffer it is in, so this
-    changes the cost, not the value: the stragglers -- typically grazing rays whose Newton
-    path cycles until the cap -- no longer keep every point's iteration going.
+    changes the cost and, through the float rounding of the sums over the waves in buffers
+    of another shape, the value by a few ulps only (measured: converged hits within 1.5e-5 m
+    of the uncompacted loop in float32, the same flags, on seven 128^2 views): the
+    stragglers -- typically grazing rays whose Newton path cycles until the cap -- no longer
+    keep every point's iteration going.
     """
     shape = xy0.shape[:-1]
     n = math.prod(shape)
