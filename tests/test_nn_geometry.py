@@ -211,7 +211,7 @@ def test_evaluate_scores_flat_and_a_model(tiny_dataset):
     data = dataset.Dataset(tiny_dataset)
     order = iter(data.splits["test"])  # evaluate visits the split's scenes in order
 
-    def truth(images, camera):
+    def truth(images, scene):
         s = next(order)
         fr = [data.frame(s, f) for f in range(len(images))]
         sv = np.stack([f.slope_variance for f in fr])

@@ -40,6 +40,7 @@ vmappable; params are float32.
 from __future__ import annotations
 
 import functools
+import importlib.resources
 from pathlib import Path
 from typing import NamedTuple
 
@@ -75,7 +76,8 @@ NORMAL_HEADS = ("vec", "sphere", "slope")
 COLOR_MODES = ("rgb", "gray")
 LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 weights: gray images as the luminance of the RGB model
 _SLOPE_FLOOR = shading.MIN_SLOPE_VARIANCE_AXIS
-PRETRAINED_PATH = Path(__file__).parent / "pretrained" / "geometry_cpu.npz"
+# package data (pyproject's package-data), found wherever the package is installed
+PRETRAINED_PATH = Path(str(importlib.resources.files("jaxocean.nn") / "pretrained" / "geometry_cpu.npz"))
 _FORMAT = "jaxocean.nn.geometry/1"
 
 

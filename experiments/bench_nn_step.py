@@ -1,0 +1,204 @@
+"""Train-step speed of a network written with jaxocean.nn against the same network in PyTorch.
+
+The network of the comparison: a 4-block, 32-channel GroupNorm ResNet at full resolution
+(stem conv-GN-ReLU, four residual blocks conv-GN-ReLU-conv-GN + x, ReLU, 1x1 head to 3
+channels), 64x64 inputs with 3 channels, batch 8, MSE loss, Adam. Also timed: the train
+step of the geometry model's ``cpu`` config (jaxocean.nn.geometry_train) and its 128^2
+inference.
+
+PyTorch is optional and not a dependency: pass ``--torch-python PATH`` (a Python with torch
+installed, e.g. a scratch venv). Its steps run in a persistent subprocess, interleaved round
+by round with the JAX steps, so that both see the same machine load; the ratio is taken from
+the same rounds. Medians over rounds after compilation (JAX) / warm-up (PyTorch); compile
+time reported apart. Writes experiments/results/bench_nn_step.json and .png.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+
+TORCH_WORKER = r"""
+import sys, time, torch
+torch.manual_seed(0)
+C, B, H = 32, 8, 64
+class Block(torch.nn.Module):
+    def __init__(s):
+        super().__init__()
+        s.c1 = torch.nn.Conv2d(C, C, 3, padding=1); s.n1 = torch.nn.GroupNorm(8, C)
+        s.c2 = torch.nn.Conv2d(C, C, 3, padding=1); s.n2 = torch.nn.GroupNorm(8, C)
+    def forward(s, x):
+        return torch.relu(x + s.n2(s.c2(torch.relu(s.n1(s.c1(x))))))
+net = torch.nn.Sequential(torch.nn.Conv2d(3, C, 3, padding=1), torch.nn.GroupNorm(8, C), torch.nn.ReLU(),
+                          *[Block() for _ in range(4)], torch.nn.Conv2d(C, 3, 1))
+opt = torch.optim.Adam(net.parameters(), 1e-3)
+x = torch.randn(B, 3, H, H); y = torch.randn(B, 3, H, H)
+def step():
+    opt.zero_grad(); loss = ((net(x) - y) ** 2).mean(); loss.backward(); opt.step()
+for _ in range(3):
+    step()
+print(json.dumps({"threads": torch.get_num_threads(), "version": torch.__version__}), flush=True)
+for line in sys.stdin:
+    n = int(line)
+    ts = []
+    for _ in range(n):
+        t = time.perf_counter(); step(); ts.append(time.perf_counter() - t)
+    print(json.dumps(ts), flush=True)
+""".replace("import sys, time, torch", "import sys, time, json, torch")
+
+
+def _jax_resnet_step():
+    import jax
+    import jax.numpy as jnp
+    import optax
+
+    from jaxocean.nn import backbones
+    from jaxocean.nn import layers as nl
+
+    net = nl.serial(backbones.ResNet(32, 4, downsample=0), nl.Conv(3, 1))
+    _, params = net.init(jax.random.key(0), (8, 64, 64, 3))
+    x = jax.random.normal(jax.random.key(1), (8, 64, 64, 3))
+    y = jax.random.normal(jax.random.key(2), (8, 64, 64, 3))
+    opt = optax.adam(1e-3)
+
+    @jax.jit
+    def step(params, state):
+        loss, g = jax.value_and_grad(lambda p: jnp.mean((net.apply(p, x) - y) ** 2))(params)
+        u, state = opt.update(g, state)
+        return optax.apply_updates(params, u), state, loss
+
+    carry = [params, opt.init(params)]
+
+    def run():
+        carry[0], carry[1], loss = step(*carry)
+        jax.block_until_ready(loss)
+
+    return run
+
+
+def _geometry_step(dataset):
+    import jax
+
+    from jaxocean.io.dataset import Dataset
+    from jaxocean.nn import geometry_train as gt
+
+    config = gt.CONFIGS["cpu"]
+    data = Dataset(dataset)
+    batch = gt._batch_dict(next(data.batches(jax.random.key(0), "train", config.batch_size)))
+    step = gt.make_step(config)
+    carry = [gt.init_state(config, jax.random.key(0))]
+
+    def run():
+        carry[0], logs = step(carry[0], batch, jax.random.key(1))
+        jax.block_until_ready(logs["loss"])
+
+    return run
+
+
+def _geometry_inference():
+    import jax
+    import numpy as np
+
+    from jaxocean import camera as cam
+    from jaxocean.nn import geometry as geo
+
+    model = geo.load() if geo.PRETRAINED_PATH.exists() else geo.init(jax.random.key(0))
+    camera = cam.make_camera(height=10.0, pitch=0.6, fov=0.8, resolution=(128, 128))
+    image = np.random.default_rng(0).uniform(0.02, 0.2, (1, 128, 128, 3)).astype(np.float32)
+
+    def run():
+        jax.block_until_ready(geo.predict(model, image, camera).normal)
+
+    return run
+
+
+def _time(fn, n):
+    ts = []
+    for _ in range(n):
+        t = time.perf_counter()
+        fn()
+        ts.append(time.perf_counter() - t)
+    return ts
+
+
+def main(argv=None):
+    import numpy as np
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--torch-python", help="a Python interpreter with torch installed (optional)")
+    ap.add_argument("--dataset", help="a jaxocean dataset, to time the geometry model's train step too")
+    ap.add_argument("--rounds", type=int, default=6)
+    ap.add_argument("--steps", type=int, default=8, help="steps per round")
+    ap.add_argument("--out", default=str(HERE / "results" / "bench_nn_step"))
+    args = ap.parse_args(argv)
+    sys.path.insert(0, str(HERE.parent))
+
+    jobs = {"jaxocean.nn ResNet step": _jax_resnet_step()}
+    if args.dataset:
+        jobs["geometry cpu-config step (64^2 crops, batch 8)"] = _geometry_step(args.dataset)
+    jobs["geometry inference, one 128^2 frame"] = _geometry_inference()
+    compile_s = {name: _time(fn, 1)[0] for name, fn in jobs.items()}
+    torch_proc, torch_info = None, None
+    if args.torch_python:
+        torch_proc = subprocess.Popen([args.torch_python, "-c", TORCH_WORKER], stdin=subprocess.PIPE,
+                                      stdout=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONWARNINGS="ignore"))
+        torch_info = json.loads(torch_proc.stdout.readline())
+    rounds = {name: [] for name in jobs}
+    if torch_proc:
+        rounds["PyTorch ResNet step"] = []
+    for _ in range(args.rounds):
+        for name, fn in jobs.items():
+            rounds[name].append(float(np.median(_time(fn, args.steps))))
+        if torch_proc:
+            torch_proc.stdin.write(f"{args.steps}\n")
+            torch_proc.stdin.flush()
+            rounds["PyTorch ResNet step"].append(float(np.median(json.loads(torch_proc.stdout.readline()))))
+    if torch_proc:
+        torch_proc.stdin.close()
+        torch_proc.wait()
+    medians = {name: float(np.median(v)) for name, v in rounds.items()}
+    result = {"median_s": medians, "per_round_median_s": rounds, "compile_s": compile_s, "torch": torch_info,
+              "load_average": os.getloadavg(), "cpu_count": os.cpu_count()}
+    if torch_proc:
+        ratios = [j / t for j, t in zip(rounds["jaxocean.nn ResNet step"], rounds["PyTorch ResNet step"])]
+        result["jax_over_torch_per_round"] = ratios
+        result["jax_over_torch_median"] = float(np.median(ratios))
+    from jaxocean.files import write_json
+
+    write_json(args.out + ".json", result)
+    _chart(args.out + ".png", rounds)
+    for name, v in medians.items():
+        print(f"{name:<52} {1000 * v:9.1f} ms")
+    if torch_proc:
+        print(f"JAX / PyTorch (same rounds): {result['jax_over_torch_median']:.2f}; load average {os.getloadavg()}")
+
+
+def _chart(path, rounds):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxocean import plots
+
+    fig, ax = plt.subplots(figsize=(8, 3.5))
+    names = list(rounds)
+    for i, name in enumerate(names):
+        ax.scatter([i] * len(rounds[name]), [1000 * v for v in rounds[name]], s=14)
+    ax.set_xticks(range(len(names)))
+    ax.set_xticklabels(names, rotation=12, fontsize=7)
+    ax.set_ylabel("ms per call (median of each round)")
+    ax.set_yscale("log")
+    fig.tight_layout()
+    plots.save_figure(fig, path)
+
+
+if __name__ == "__main__":
+    main()
