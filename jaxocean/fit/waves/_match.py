@@ -36,6 +36,16 @@ class WaveMatch(NamedTuple):
 # =============================================================================== evaluation helpers
 
 
+def _sea_view(waves_: Waves, camera, max_distance):
+    """The validated waves' ``omega`` [rad/s] and ``theta`` [rad] ``(N,)`` (float64) and the
+    camera's sea pixels: footprints ``(P,)`` [m] and sea-plane points ``xy`` ``(P, 2)`` [m]."""
+    validate(waves_, max_steepness=None)
+    hit = cam.intersect_sea(camera, max_distance=max_distance)
+    mask = np.asarray(hit.mask)
+    return (np.asarray(waves_.omega, np.float64), np.asarray(waves_.theta, np.float64),
+            np.asarray(hit.footprint)[mask], np.asarray(hit.xy)[mask])
+
+
 def resolvable(waves_: Waves, camera, *, cycles: float = 1.0, n_min=hierarchy.DEFAULT_N_MIN,
                n_max=hierarchy.DEFAULT_N_MAX, max_distance=cam.DEFAULT_MAX_DISTANCE) -> np.ndarray:
     """Which waves the image resolves individually: bool ``(N,)`` (eager, NumPy).
@@ -44,13 +54,7 @@ def resolvable(waves_: Waves, camera, *, cycles: float = 1.0, n_min=hierarchy.DE
     some sea pixels, and the extent of those pixels on the sea, measured along the wave's
     direction of travel, holds at least ``cycles`` wavelengths.
     """
-    validate(waves_, max_steepness=None)
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
-    mask = np.asarray(hit.mask)
-    fp = np.asarray(hit.footprint)[mask]
-    xy = np.asarray(hit.xy)[mask]
-    om = np.asarray(waves_.omega, np.float64)
-    th = np.asarray(waves_.theta, np.float64)
+    om, th, fp, xy = _sea_view(waves_, camera, max_distance)
     lam = 2 * np.pi * GRAVITY / om ** 2
     out = np.zeros(om.shape, bool)
     for i in range(om.size):
@@ -74,14 +78,8 @@ def separable(waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
     Closer pairs are one blurred peak in any space-time spectrum of the data, and a fit
     explains them with waves whose split the data do not determine.
     """
-    validate(waves_, max_steepness=None)
+    om, th, fp, xy = _sea_view(waves_, camera, max_distance)
     ok = resolvable(waves_, camera, n_max=n_max, max_distance=max_distance)
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
-    mask = np.asarray(hit.mask)
-    fp = np.asarray(hit.footprint)[mask]
-    xy = np.asarray(hit.xy)[mask]
-    om = np.asarray(waves_.omega, np.float64)
-    th = np.asarray(waves_.theta, np.float64)
     k = om ** 2 / GRAVITY
     kv = np.stack([k * np.cos(th), k * np.sin(th)], -1)
     lam = 2 * np.pi / k
