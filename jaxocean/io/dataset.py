@@ -54,6 +54,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import render, shading, spectrum
+from jaxocean._records import record_from_json, record_to_json
 from jaxocean.errors import InvalidValueError
 from jaxocean.files import write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
@@ -109,15 +110,11 @@ class SceneRanges(NamedTuple):
     frame_dt: tuple = (0.1, 0.2)
 
     def to_json(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self._asdict().items()}
+        return record_to_json(self)
 
     @classmethod
     def from_json(cls, d: dict) -> "SceneRanges":
-        unknown = set(d) - set(cls._fields)
-        if unknown:
-            raise ValueError(f"unknown scene range(s) {sorted(unknown)}; known: {list(cls._fields)}")
-        return cls(**{k: (tuple(tuple(x) if isinstance(x, list) else x for x in v) if isinstance(v, list) else v)
-                      for k, v in d.items()})
+        return record_from_json(cls, d, "scene range")
 
 
 class SceneSample(NamedTuple):

@@ -51,6 +51,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import safe_normalize
+from jaxocean._records import record_from_json, record_to_json
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
@@ -112,14 +113,11 @@ class GeometryConfig(NamedTuple):
         return 2
 
     def to_json(self) -> dict:
-        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in self._asdict().items()}
+        return record_to_json(self)
 
     @classmethod
     def from_json(cls, d: dict) -> "GeometryConfig":
-        unknown = set(d) - set(cls._fields)
-        if unknown:
-            raise ValueError(f"unknown geometry config field(s) {sorted(unknown)}")
-        return cls(**{k: (tuple(v) if isinstance(v, list) else v) for k, v in d.items()}).validate()
+        return record_from_json(cls, d, "geometry config").validate()
 
 
 class GeometryModel(NamedTuple):
