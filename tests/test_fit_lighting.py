@@ -536,3 +536,21 @@ def test_reedit_scene_writes_frames_and_scene(scene, singles, tmp_path, x64):
     assert float(edited.lighting.sun_elevation) == pytest.approx(math.radians(20.0))
     np.testing.assert_allclose(edited.lighting.sea_color, scene["truths"][0].sea_color, rtol=1e-6)
     np.testing.assert_allclose(np.asarray(edited.times), [0.25])
+
+
+def test_float32_fit_recovers_lighting(scene):
+    """The float32 path end to end (the library's default precision): the first scene's image
+    and geometry cast to float32, fitted from a float32 random start."""
+    geo = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32) if np.issubdtype(np.asarray(a).dtype, np.floating)
+                       else jnp.asarray(a), scene["geo"])
+    camera = jax.tree.map(lambda a: jnp.asarray(a, jnp.float32), scene["camera"])
+    image = jnp.asarray(scene["images"][0], jnp.float32)
+    res = fit.lighting(image, geo, camera, init=fit.random_lighting(jax.random.key(10), dtype=jnp.float32),
+                       throw=False)
+    assert res.lighting.sun_color.dtype == jnp.float32
+    truth = jax.tree.map(lambda a: jnp.asarray(np.asarray(a), jnp.float32), scene["truths"][0])
+    err = fit.lighting_error(res.lighting, truth)
+    assert bool(res.success)
+    assert float(err["sun_angle_deg"]) < 0.05
+    for name in fit.COLOR_FIELDS:
+        assert float(err[name]) < 1e-3, (name, float(err[name]))
