@@ -25,6 +25,8 @@ __all__ = [
     "materialize",
     "materialize_cotangent",
     "components",
+    "normal_from_slope",
+    "slope_from_normal",
     "sum_last",
     "dot_last",
 ]
@@ -79,6 +81,18 @@ def safe_normalize(x, fallback=None):
     if fallback is None:
         fallback = jnp.zeros(x.shape[-1], x.dtype).at[-1].set(1)
     return jnp.where(ok, x * inv, fallback)
+
+
+def normal_from_slope(slope):
+    """Unit normal ``normalize(-s_x, -s_y, 1)`` ``(..., 3)`` of a surface with slope
+    ``(..., 2)`` (the inverse of :func:`slope_from_normal`)."""
+    return safe_normalize(jnp.concatenate([-slope, jnp.ones_like(slope[..., :1])], -1))
+
+
+def slope_from_normal(normal, min_nz):
+    """Slope ``(-n_x / n_z, -n_y / n_z)`` ``(..., 2)`` with ``n_z`` floored at ``min_nz`` (the
+    slope diverges as a facet turns vertical)."""
+    return -normal[..., :2] / jnp.maximum(normal[..., 2:3], min_nz)
 
 
 def inv_sqrt(x):

@@ -80,3 +80,32 @@ def test_camera_to_dict_is_what_scene_json_stores_and_adds_degrees_on_request():
     deg = camera.camera_to_dict(cam, degrees=True)
     assert deg["pitch_deg"] == pytest.approx(math.degrees(float(cam.pitch)))
     assert deg["fov_deg"] == pytest.approx(math.degrees(float(cam.fov)))
+
+
+def test_slope_and_normal_are_inverse_maps():
+    from jaxocean._math import normal_from_slope, slope_from_normal
+
+    slope = jnp.asarray([[0.0, 0.0], [0.3, -0.2], [-2.0, 5.0]])
+    normal = normal_from_slope(slope)
+    np.testing.assert_allclose(jnp.linalg.norm(normal, axis=-1), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(normal[0], [0.0, 0.0, 1.0])
+    np.testing.assert_allclose(slope_from_normal(normal, 1e-3), slope, rtol=1e-5, atol=1e-6)
+    # a vertical facet: the floor bounds the slope
+    np.testing.assert_allclose(slope_from_normal(jnp.asarray([1.0, 0.0, 0.0]), 0.05), [-20.0, 0.0])
+
+
+def test_fits_half_is_the_half_float_range():
+    from jaxocean.io.sequence import HALF_MAX, fits_half
+
+    assert fits_half(np.full((2, 2), -65503.0)) and not fits_half(np.asarray([0.0, HALF_MAX]))
+    assert not fits_half(np.asarray([1.0, np.nan])) and not fits_half(np.asarray([np.inf]))
+
+
+def test_sea_median_ignores_the_sky_and_falls_back_to_one():
+    from jaxocean._sea_scale import compress, sea_median
+
+    image = jnp.stack([jnp.full((4, 4), 0.2), jnp.full((4, 4), 0.05), jnp.zeros((4, 4))], -1).at[0].set(9.0)
+    mask = jnp.ones((4, 4), bool).at[0].set(False)  # row 0: sky, brighter than the sea
+    np.testing.assert_allclose(sea_median(image, mask), [0.2, 0.05, 1.0])  # no positive median: 1
+    np.testing.assert_allclose(sea_median(image, jnp.zeros((4, 4), bool)), [1.0, 1.0, 1.0])
+    np.testing.assert_allclose(compress(image[1, 1], sea_median(image, mask)), [math.log(2.0)] * 2 + [0.0], rtol=1e-6)

@@ -31,7 +31,8 @@ import jax.numpy as jnp
 
 from jaxocean import camera as cam
 from jaxocean import shading
-from jaxocean._math import safe_normalize
+from jaxocean._math import normal_from_slope
+from jaxocean._sea_scale import compress, sea_median
 
 __all__ = ["PixelFit", "invert"]
 
@@ -47,14 +48,10 @@ class PixelFit(NamedTuple):
     mask: jax.Array
 
 
-def _normal(u):
-    return safe_normalize(jnp.stack([-u[0], -u[1], jnp.ones_like(u[0])]))
-
-
 def _pixel_residual(u, target, view, lighting, scale):
     var = 0.5 * jnp.exp(u[2])
-    color = shading.shade_pixel(_normal(u), var, var, view, lighting)
-    return jnp.log1p(jnp.maximum(color, 0.0) / scale) - target
+    color = shading.shade_pixel(normal_from_slope(u[:2]), var, var, view, lighting)
+    return compress(color, scale) - target
 
 
 def _solve_pixel(target, view, lighting, scale, iterations):
@@ -80,15 +77,13 @@ def _solve_pixel(target, view, lighting, scale, iterations):
 def _invert(image, camera, lighting, tolerance, iterations):
     hit = cam.intersect_sea(camera)
     mask = hit.mask
-    sea = jnp.where(mask[..., None], image, jnp.nan)
-    scale = jnp.nanmedian(sea.reshape(-1, 3), axis=0)
-    scale = jnp.where(jnp.isfinite(scale) & (scale > 0), scale, 1.0)
-    target = jnp.log1p(jnp.maximum(image, 0.0) / scale)
+    scale = sea_median(image, mask)
+    target = compress(image, scale)
     H, W = mask.shape
     solve = jax.vmap(lambda t, v: _solve_pixel(t, v, lighting, scale, iterations))
     u, res = solve(target.reshape(-1, 3), hit.view.reshape(-1, 3))
     u, res = u.reshape(H, W, 3), res.reshape(H, W)
-    normal = jax.vmap(jax.vmap(_normal))(u)
+    normal = normal_from_slope(u[..., :2])
     up = jnp.asarray([0.0, 0.0, 1.0], image.dtype)
     normal = jnp.where(mask[..., None], normal, up)
     var = jnp.where(mask, 0.5 * jnp.exp(u[..., 2]), shading.MIN_SLOPE_VARIANCE_AXIS)

@@ -50,8 +50,9 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
-from jaxocean._math import safe_normalize
+from jaxocean._math import normal_from_slope, safe_normalize
 from jaxocean._records import record_from_json, record_to_json
+from jaxocean._sea_scale import compress, sea_median
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
@@ -181,14 +182,6 @@ def camera_channels(camera):
     return chans, hit.mask
 
 
-def _compress(image, mask):
-    """``log1p(I / m)``, ``m`` the per-channel median over the sea (1 where there is none)."""
-    sea = jnp.where(mask[..., None], image, jnp.nan)
-    m = jnp.nanmedian(sea.reshape(-1, image.shape[-1]), axis=0)
-    m = jnp.where(jnp.isfinite(m) & (m > 0), m, 1.0)
-    return jnp.log1p(jnp.maximum(image, 0.0) / m)
-
-
 def features(image, camera, color: str = "rgb"):
     """Network input ``(H, W, C)`` for one linear image ``(H, W, 3)`` (or ``(H, W)`` gray)."""
     chans, mask = camera_channels(camera)
@@ -197,7 +190,7 @@ def features(image, camera, color: str = "rgb"):
         if image.ndim == 3:
             image = image @ jnp.asarray(LUMINANCE, image.dtype)
         image = image[..., None]
-    return jnp.concatenate([_compress(image, mask), chans.astype(jnp.float32)], -1), mask
+    return jnp.concatenate([compress(image, sea_median(image, mask)), chans.astype(jnp.float32)], -1), mask
 
 
 def _check_features(config: GeometryConfig, feats) -> None:
@@ -215,8 +208,7 @@ def _local_normal(head: str, raw):
         polar, azimuth = raw[..., 0], raw[..., 1]
         sp = jnp.sin(polar)
         return jnp.stack([sp * jnp.cos(azimuth), sp * jnp.sin(azimuth), jnp.cos(polar)], -1)
-    slope = raw
-    return safe_normalize(jnp.concatenate([-slope, jnp.ones_like(slope[..., :1])], -1))
+    return normal_from_slope(raw)
 
 
 def _pad_to(x, multiple: int):

@@ -42,6 +42,7 @@ import optax
 
 from jaxocean import camera as cam
 from jaxocean import render, shading
+from jaxocean._sea_scale import compress, sea_median
 from jaxocean.files import write_json
 from jaxocean.io.dataset import Dataset
 from jaxocean.nn import discriminators as disc
@@ -167,10 +168,8 @@ def _image_loss(pred: geo.GeometryPrediction, d):
 
     rendered = jax.vmap(shade_one)(pred.normal, pred.slope_variance, d["view"], d["lighting"])
     image = d["image"]
-    sea = jnp.where(d["mask"][..., None], image, jnp.nan)
-    med = jnp.nanmedian(sea.reshape(sea.shape[0], -1, 3), axis=1)
-    med = jnp.where(jnp.isfinite(med) & (med > 0), med, 1.0)[:, None, None, :]
-    err = jnp.square(jnp.log1p(jnp.maximum(rendered, 0) / med) - jnp.log1p(jnp.maximum(image, 0) / med)).mean(-1)
+    scale = jax.vmap(sea_median)(image, d["mask"])[:, None, None, :]
+    err = jnp.square(compress(rendered, scale) - compress(image, scale)).mean(-1)
     return _sea_mean(err, d["mask"])
 
 

@@ -30,6 +30,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from jaxocean._math import slope_from_normal
+
 __all__ = ["THRESHOLDS_DEG", "UNFOLDED_MIN_COS", "slopes", "normal_scores", "roughness_scores", "image_scores", "finish"]
 
 THRESHOLDS_DEG = (1, 2, 5, 10, 15)
@@ -41,8 +43,7 @@ UNFOLDED_MIN_COS = 0.5
 
 def slopes(normal):
     """Surface slope ``(-n_x / n_z, -n_y / n_z)`` ``(..., 2)``."""
-    nz = jnp.maximum(normal[..., 2], 1e-3)
-    return -normal[..., :2] / nz[..., None]
+    return slope_from_normal(normal, 1e-3)
 
 
 def _along_across(slope, yaw):

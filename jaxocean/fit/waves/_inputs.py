@@ -20,6 +20,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
+from jaxocean._math import slope_from_normal
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
 
 
@@ -108,8 +109,7 @@ def clean_inputs(normals, roughness, weight):
 
 def slope_field(normals):
     """Slope field ``(-n_x / n_z, -n_y / n_z)`` ``(..., 2)``; normals must face up (cleaned)."""
-    nz = jnp.maximum(normals[..., 2:3], MIN_NZ)
-    return -normals[..., :2] / nz
+    return slope_from_normal(normals, MIN_NZ)
 
 
 def plane_hits(camera):
