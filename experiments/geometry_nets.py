@@ -179,7 +179,6 @@ def _chart(path, data, rows, per_scene, models):
         fig.colorbar(im, ax=a, fraction=0.046)
     fig.tight_layout()
     plots.save_figure(fig, path)
-    plt.close(fig)
 
 
 if __name__ == "__main__":

@@ -59,7 +59,7 @@ from jaxocean.errors import InvalidValueError
 from jaxocean.files import write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
-from jaxocean.io.sequence import HALF_MAX, frame_name
+from jaxocean.io.sequence import fits_half, frame_name
 
 __all__ = [
     "SceneRanges",
@@ -284,7 +284,7 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
                      "slope_variance": geo.slope_variance[f], "converged": geo.converged[f]}
         # a frame whose glitter exceeds the half-float range keeps its RGB in float32
         # (exact values, same reader) rather than failing the dataset
-        frame_half = half and bool(np.abs(images[f]).max() < HALF_MAX)
+        frame_half = half and fits_half(images[f])
         write_frame(directory / frame_name(f), images[f], frame_geo,
                     {"scene": index, "frame": f, "time": float(scene.times[f])}, half=frame_half)
     write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,

@@ -35,10 +35,16 @@ from jaxocean.io.exr import write_frame
 from jaxocean.io.images import save_png
 from jaxocean.io.scene import SCENE_FILENAME, scene_to_dict, write_scene
 
-__all__ = ["HALF_MAX", "frame_name", "write_sequence"]
+__all__ = ["HALF_MAX", "fits_half", "frame_name", "write_sequence"]
 
 #: the largest finite half float: brighter radiance forces a float32 EXR
 HALF_MAX = 65504.0
+
+
+def fits_half(values) -> bool:
+    """Whether every value is finite and below :data:`HALF_MAX` in magnitude, i.e. can be
+    stored as half floats; writers fall back to float32 where it cannot."""
+    return bool(np.abs(np.asarray(values)).max() < HALF_MAX)
 
 _FRAME_FILE = re.compile(r"frame_(\d{5,})\.(exr|png)")
 
@@ -81,7 +87,7 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     times = np.atleast_1d(np.asarray(scene.times, np.float64))
     if times.shape != (n_frames,):
         raise ValueError(f"scene.times must be ({n_frames},) to match the images; got shape {times.shape}")
-    if half and not np.abs(images).max() < HALF_MAX:
+    if half and not fits_half(images):
         print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
         half = False
     frame_ids = range(n_frames) if frame_ids is None else frame_ids

@@ -117,7 +117,7 @@ def _predict(args, camera_from_args) -> int:
     from jaxocean.files import atomic_write
     from jaxocean.io import read_scene
     from jaxocean.io.exr import write_frame
-    from jaxocean.io.sequence import HALF_MAX, frame_name
+    from jaxocean.io.sequence import fits_half, frame_name
     from jaxocean.nn import geometry as geo
 
     model = geo.load(args.model)
@@ -136,7 +136,7 @@ def _predict(args, camera_from_args) -> int:
              "slope_variance": pred.slope_variance[t]}
         name = frame_name(t)
         write_frame(out / name, images[t], g, {"frame": t, "source": str(args.frames[min(t, len(args.frames) - 1)])},
-                    half=bool(abs(images[t]).max() < HALF_MAX))
+                    half=fits_half(images[t]))
         for suffix, rgb in (("normal", plots.normal_to_rgb(pred.normal[t], pred.mask[t])),
                             ("roughness", plots.roughness_to_rgb(pred.roughness[t], pred.mask[t]))):
             atomic_write(out / name.replace(".exr", f"_{suffix}.png"),

@@ -94,10 +94,10 @@ def _plot_curves(path: Path, history: list) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from jaxocean.files import atomic_write
+    from jaxocean.plots import save_figure
 
     keys = sorted({k for h in history for k in h.get("train", {})})
-    vkeys = sorted({k for h in history for k in h.get("val", {}) if k == "loss" or k.startswith("skill")})
+    skill_keys = sorted({k for h in history for k in h.get("val", {}) if k.startswith("skill")})
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     ep = [h["epoch"] + 1 for h in history]
     for k in keys:
@@ -107,15 +107,13 @@ def _plot_curves(path: Path, history: list) -> None:
     axes[0].set_yscale("log")
     axes[0].set_xlabel("epoch")
     axes[0].legend(fontsize=7)
-    for k in vkeys:
-        if k != "loss":
-            axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
+    for k in skill_keys:
+        axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
     axes[1].set_xlabel("epoch")
     axes[1].set_ylabel("slope skill")
     axes[1].legend(fontsize=7)
     fig.tight_layout()
-    atomic_write(path, lambda tmp: fig.savefig(tmp, format="png", dpi=90))
-    plt.close(fig)
+    save_figure(fig, path, dpi=90)
 
 
 def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: Callable, epochs: int,
