@@ -33,6 +33,7 @@ sys.path.insert(0, str(HERE.parent))
 
 from jaxocean import camera as cam  # noqa: E402
 from jaxocean import plots, shading  # noqa: E402
+from jaxocean._math import normal_from_slope  # noqa: E402
 from jaxocean.files import write_json  # noqa: E402
 from jaxocean.io.dataset import Dataset  # noqa: E402
 
@@ -40,18 +41,13 @@ HALF_NOISE = 2.0 ** -11 / math.sqrt(3.0)
 
 
 def _pixel_color(slope, sv, view, lighting):
-    n = jnp.stack([-slope[0], -slope[1], 1.0])
-    n = n / jnp.linalg.norm(n)
-    return shading.shade_pixel(n, sv[0], sv[1], view, lighting)
+    return shading.shade_pixel(normal_from_slope(slope), sv[0], sv[1], view, lighting)
 
 
 @jax.jit
-def _sensitivity(normal, sv, view, lighting, yaw):
-    slope = -normal[..., :2] / normal[..., 2:3]
+def _sensitivity(slope, sv, view, lighting, along, across):
     color = jax.vmap(lambda s, v, w: _pixel_color(s, v, w, lighting))(slope, sv, view)
     J = jax.vmap(jax.jacfwd(lambda s, v, w: _pixel_color(s, v, w, lighting)))(slope, sv, view)  # (N, 3, 2)
-    along = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
-    across = jnp.stack([jnp.sin(yaw), -jnp.cos(yaw)])
     rel = J / jnp.maximum(color, 1e-12)[..., None]
     return rel @ along, rel @ across  # (N, 3) relative change per unit slope
 
@@ -68,11 +64,14 @@ def main(argv=None):
         mask = frame.mask > 0.5
         view = np.asarray(cam.intersect_sea(scene.camera).view)[mask]
         yaw = float(scene.camera.yaw)
-        d_along, d_across = (np.asarray(x) for x in _sensitivity(frame.normal[mask], frame.slope_variance[mask],
-                                                                 view, scene.lighting, yaw))
+        along = np.array([math.cos(yaw), math.sin(yaw)])
+        across = np.array([math.sin(yaw), -math.cos(yaw)])
+        # unfloored: the few overturned facets (n_z < 0) of folding crests count as they are
         slope = -frame.normal[mask][:, :2] / frame.normal[mask][:, 2:3]
-        s_along = slope @ np.array([math.cos(yaw), math.sin(yaw)])
-        s_across = slope @ np.array([math.sin(yaw), -math.cos(yaw)])
+        d_along, d_across = (np.asarray(x) for x in _sensitivity(slope, frame.slope_variance[mask], view,
+                                                                 scene.lighting, along.astype(np.float32),
+                                                                 across.astype(np.float32)))
+        s_along, s_across = slope @ along, slope @ across
         row = {"scene": s, "pitch_deg": math.degrees(float(scene.camera.pitch)),
                "height_m": float(scene.camera.height)}
         priors = np.array([max(float(np.var(s_along)), 1e-12), max(float(np.var(s_across)), 1e-12)])
