@@ -22,12 +22,19 @@ Observed ocean images come in two kinds:
 Everything is returned as float32 NumPy arrays on the host, ``(H, W, 3)`` per image and
 ``(T, H, W, 3)`` per video. Video needs an imageio plugin for its container (PyAV or
 imageio-ffmpeg for MP4, MOV, AVI, ...); GIF is read by Pillow, which imageio always has.
+
+Step 1 alone is :func:`load_display` (one image) and :func:`load_display_video` (every frame
+of a video): display values in [0, 1] that keep the channel count -- a gray file stays
+``(H, W)``, colour is ``(H, W, 3)``, alpha dropped -- together with the file's bit depth
+(:class:`Display`), for callers that choose their own response curve and mask clipped
+pixels (:mod:`jaxocean.radiometry`).
 """
 
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
+from typing import NamedTuple
 
 import imageio.v3 as iio
 import numpy as np
@@ -37,7 +44,8 @@ from jaxocean.files import atomic_write
 from jaxocean.io.exr import FileFormatError, read_frame, require_file
 from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
 
-__all__ = ["VIDEO_SUFFIXES", "load_image", "load_video", "save_png"]
+__all__ = ["VIDEO_SUFFIXES", "Display", "load_display", "load_display_video", "load_image", "load_video",
+           "save_png"]
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 """Containers that imageio reads only through a video plugin (PyAV or imageio-ffmpeg)."""
@@ -47,6 +55,52 @@ _EXR_SUFFIX = ".exr"
 # Formats Pillow decodes: naming the plugin makes a broken file fail there, with Pillow's
 # message, instead of imageio probing every other backend (some warn while they fail).
 _PILLOW_SUFFIXES = (".png", ".jpg", ".jpeg", ".gif", ".bmp", ".webp")
+
+
+class Display(NamedTuple):
+    """Display values of a decoded file.
+
+    ``values``: float32 in [0, 1] (integers divided by their type's maximum; floats as they
+    are), ``(H, W)`` gray or ``(H, W, 3)`` colour, with a leading ``T`` axis for a video.
+    ``bits``: 8 or 16 for integer pixels (the quantisation step is ``1 / (2^bits - 1)``),
+    None for float pixels.
+    """
+
+    values: np.ndarray
+    bits: int | None
+
+
+def load_display(path) -> Display:
+    """Decode one display-referred image (PNG, JPEG, ...) to :class:`Display` values.
+
+    Gray (and gray + alpha) files give ``(H, W)``, colour (and colour + alpha) files
+    ``(H, W, 3)``. OpenEXR files are scene-referred and have no display values: use
+    :func:`load_image` for them.
+
+    Raises:
+        MissingFileError: no such file.
+        FileFormatError: a file imageio cannot decode, or an OpenEXR file, naming it.
+    """
+    path = require_file(path, "image file")
+    if path.suffix.lower() == _EXR_SUFFIX:
+        raise FileFormatError(path, "an OpenEXR file holds linear radiance, not display values (use load_image)")
+    values, bits = _decode_image(path)
+    return Display(values.astype(np.float32), bits)
+
+
+def load_display_video(path) -> Display:
+    """Decode every frame of a video (or animated GIF) to :class:`Display` values
+    ``(T, H, W)`` or ``(T, H, W, 3)`` (the channel count the decoder gives: most video
+    decoders give colour even for gray footage).
+
+    Raises:
+        MissingFileError: no such file.
+        ImportError: a video container (:data:`VIDEO_SUFFIXES`) and no imageio video plugin
+            installed; the message says what to install.
+        FileFormatError: undecodable file, no frames, or frames of different sizes.
+    """
+    values, bits = _decode_video(require_file(path, "video file"))
+    return Display(values.astype(np.float32), bits)
 
 
 def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
@@ -67,11 +121,7 @@ def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
     path = require_file(path, "image file")
     if path.suffix.lower() == _EXR_SUFFIX:
         return read_frame(path, warn_incomplete=False).image  # the image alone: no geometry used
-    try:
-        pixels = iio.imread(path, plugin=_plugin(path))
-    except (OSError, ValueError) as error:
-        raise FileFormatError(path, f"cannot read the image ({error})") from error
-    return _to_linear(_rgb_display(pixels, path), space, exposure)
+    return _to_linear(_rgb(_decode_image(path)[0], 2), space, exposure)
 
 
 def load_video(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
@@ -88,22 +138,7 @@ def load_video(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
         ValueError: unknown ``space``.
     """
     _check_space(space)
-    path = require_file(path, "video file")
-    if path.suffix.lower() in VIDEO_SUFFIXES and not _video_plugin_available():
-        raise ImportError(
-            f"reading the video {str(path)!r} needs an imageio video plugin, and neither PyAV nor "
-            f"imageio-ffmpeg is installed: pip install 'imageio[pyav]' (or 'imageio[ffmpeg]')"
-        )
-    try:
-        frames = [_rgb_display(frame, path) for frame in iio.imiter(path, plugin=_plugin(path))]
-    except (OSError, ValueError) as error:
-        raise FileFormatError(path, f"cannot read the video ({error})") from error
-    if not frames:
-        raise FileFormatError(path, "the video has no frames")
-    shapes = {frame.shape for frame in frames}
-    if len(shapes) != 1:
-        raise FileFormatError(path, f"frames of different sizes {sorted(shapes)}")
-    return _to_linear(np.stack(frames), space, exposure)
+    return _to_linear(_rgb(_decode_video(require_file(path, "video file"))[0], 3), space, exposure)
 
 
 def save_png(path, linear_image, exposure=1.0, mode: str = "bruneton") -> Path:
@@ -141,22 +176,66 @@ def _video_plugin_available() -> bool:
     return any(importlib.util.find_spec(module) is not None for module in ("av", "imageio_ffmpeg"))
 
 
-def _rgb_display(pixels: np.ndarray, path) -> np.ndarray:
-    """Decoded pixels ``(H, W)``, ``(H, W, 1|2|3|4)`` -> display values ``(H, W, 3)`` in [0, 1]."""
+def _display(pixels, path) -> tuple[np.ndarray, int | None]:
+    """Decoded pixels ``(H, W)``, ``(H, W, 1|2|3|4)`` -> display values ``(H, W)`` (gray) or
+    ``(H, W, 3)`` in [0, 1], float64, and the bit depth (None for floats)."""
     pixels = np.asarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[..., None]
     if pixels.ndim != 3 or pixels.shape[-1] not in (1, 2, 3, 4):
         raise FileFormatError(path, f"not an image of 1-4 channels: decoded shape {pixels.shape}")
     # Gray (+ alpha) -> gray; RGB (+ alpha) -> RGB: the alpha channel is not radiance.
-    colour = pixels[..., :1] if pixels.shape[-1] <= 2 else pixels[..., :3]
+    colour = pixels[..., 0] if pixels.shape[-1] <= 2 else pixels[..., :3]
     if colour.dtype.kind in "ui":
-        display = colour / float(np.iinfo(colour.dtype).max)
-    elif colour.dtype.kind in "fb":
-        display = colour.astype(np.float64)
-    else:
-        raise FileFormatError(path, f"unsupported pixel type {colour.dtype}")
-    return np.broadcast_to(display, display.shape[:-1] + (3,))
+        top = np.iinfo(colour.dtype).max
+        return colour / float(top), int(top).bit_length()
+    if colour.dtype.kind in "fb":
+        return colour.astype(np.float64), None
+    raise FileFormatError(path, f"unsupported pixel type {colour.dtype}")
+
+
+def _rgb(display: np.ndarray, gray_ndim: int) -> np.ndarray:
+    """Gray display values (``gray_ndim`` axes) repeated over R, G, B; colour as it is."""
+    return np.broadcast_to(display[..., None], display.shape + (3,)) if display.ndim == gray_ndim else display
+
+
+def _decode_image(path: Path) -> tuple[np.ndarray, int | None]:
+    try:
+        pixels = iio.imread(path, plugin=_plugin(path))
+    except (OSError, ValueError) as error:
+        raise FileFormatError(path, f"cannot read the image ({error})") from error
+    if np.asarray(pixels).dtype == np.uint8 and _png_bit_depth(path) == 16:
+        # Pillow decodes 16-bit gray PNG as uint16 but 16-bit colour PNG as 8 bits, silently.
+        raise FileFormatError(path, "a 16-bit colour PNG, which Pillow decodes to 8 bits only; convert it to "
+                                    "16-bit gray PNG(s), OpenEXR, or 8-bit PNG explicitly")
+    return _display(pixels, path)
+
+
+def _png_bit_depth(path: Path) -> int | None:
+    """The bit depth in a PNG file's header (None for other files)."""
+    with open(path, "rb") as stream:
+        head = stream.read(25)
+    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
+        return None
+    return head[24]
+
+
+def _decode_video(path: Path) -> tuple[np.ndarray, int | None]:
+    if path.suffix.lower() in VIDEO_SUFFIXES and not _video_plugin_available():
+        raise ImportError(
+            f"reading the video {str(path)!r} needs an imageio video plugin, and neither PyAV nor "
+            f"imageio-ffmpeg is installed: pip install 'imageio[pyav]' (or 'imageio[ffmpeg]')"
+        )
+    try:
+        decoded = [_display(frame, path) for frame in iio.imiter(path, plugin=_plugin(path))]
+    except (OSError, ValueError) as error:
+        raise FileFormatError(path, f"cannot read the video ({error})") from error
+    if not decoded:
+        raise FileFormatError(path, "the video has no frames")
+    shapes = {frame.shape for frame, _ in decoded}
+    if len(shapes) != 1:
+        raise FileFormatError(path, f"frames of different sizes {sorted(shapes)}")
+    return np.stack([frame for frame, _ in decoded]), decoded[0][1]
 
 
 def _to_linear(display: np.ndarray, space: str, exposure) -> np.ndarray:
