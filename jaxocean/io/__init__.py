@@ -14,6 +14,8 @@ A rendered or observed sequence is a directory::
   :func:`write_scene` / :func:`read_scene`.
 * :mod:`jaxocean.io.sequence` -- :func:`write_sequence`: a rendered sequence (EXR + PNG
   per frame, geometry previews, ``scene.json``) in one call.
+* :mod:`jaxocean.io.camera_file` -- :func:`read_camera_file` / :func:`write_camera_file`:
+  real footage's intrinsics, lens distortion and per-frame pose (``camera.json``).
 * :mod:`jaxocean.io.images`  -- :func:`load_image` / :func:`load_video` (display-referred
   pixels back to linear radiance) and :func:`save_png` previews.
 
@@ -24,7 +26,8 @@ resumes by skipping the files that exist. Reading errors name the file
 return NumPy arrays (frames, images) or JAX pytrees (scenes); nothing here is jitted.
 """
 
-from jaxocean.io import exr, images, scene, sequence
+from jaxocean.io import camera_file, exr, images, scene, sequence
+from jaxocean.io.camera_file import CameraFile, CameraFileError, read_camera_file, write_camera_file
 from jaxocean.io.exr import (
     COMPRESSIONS,
     GEOMETRY_CHANNELS,
@@ -55,6 +58,7 @@ from jaxocean.io.scene import (
 from jaxocean.io.sequence import HALF_MAX, frame_name, write_sequence
 
 __all__ = [
+    "camera_file",
     "exr",
     "images",
     "scene",
@@ -88,6 +92,11 @@ __all__ = [
     "HALF_MAX",
     "frame_name",
     "write_sequence",
+    # camera files
+    "CameraFile",
+    "CameraFileError",
+    "read_camera_file",
+    "write_camera_file",
     # images and video
     "VIDEO_SUFFIXES",
     "load_image",
