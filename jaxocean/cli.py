@@ -10,6 +10,8 @@ Subcommands (each has ``--help``):
 * ``reedit``    re-render a scene under a new camera and / or light (a fit's, or edited)
 * ``fit-waves`` the component waves behind a scene's normal / roughness frames -> waves.json
 * ``forecast``  render waves (a ``waves.json`` or ``scene.json``) at future frames
+* ``reconstruct`` photographs + camera file -> geometry, lighting, waves, spectrum, forecast;
+  ``result.json`` and ``report.html`` (:mod:`jaxocean.reconstruct`, :mod:`jaxocean.report`)
 
 Exit codes: 0 success, 1 a check found problems or a fit did not converge (its JSON is
 still written, with ``success: false``), 2 bad input (the message names it), 130
@@ -277,6 +279,34 @@ def build_parser():
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
+
+    p = sub.add_parser("reconstruct", help="photographs to waves: geometry, lighting, waves, spectrum, forecast",
+                       description="Reconstruct the sea behind a sequence of photographs (jaxocean.reconstruct): "
+                                   "radiometry and rectification into one ideal camera, geometry from the shipped "
+                                   "network, lighting, waves, photometric refinement against the images, spectrum, "
+                                   "forecast and re-edited views. Writes result.json, report.html and its figures "
+                                   "into --out; prints every stage's flag and time. Exit code 1 when a stage "
+                                   "failed (everything is written anyway; the report says which).")
+    p.add_argument("frames", nargs="*", help="frame files (PNG / JPEG / 16-bit PNG / EXR) or one video; default: "
+                                             "every frame the camera file lists")
+    p.add_argument("--camera", required=True, help="camera file (intrinsics, distortion, a pose per frame) or a "
+                                                   "synthetic scene.json")
+    p.add_argument("--out", required=True, help="output directory")
+    p.add_argument("--width", type=int, default=128, help="width [px] of the rectified working view (default 128)")
+    p.add_argument("--response", default="srgb", choices=("srgb", "gamma", "linear", "bruneton"),
+                   help="display response of 8/16-bit frames (default srgb)")
+    p.add_argument("--gamma", type=_positive, default=2.2, help="exponent for --response gamma (default 2.2)")
+    p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
+    p.add_argument("--max-frames", type=int, help="use at most this many frames")
+    p.add_argument("--wave-frames", type=int, default=16, help="frames the wave fits use, spread evenly (default 16)")
+    p.add_argument("--max-waves", type=int, default=24, help="most waves the wave fit tries (default 24)")
+    p.add_argument("--camera-height", type=_positive, help="camera height [m] when the camera file gives no pose "
+                                                           "(pitch and roll then come from the horizon)")
+    sky = p.add_mutually_exclusive_group()
+    sky.add_argument("--overcast", dest="overcast", action="store_true", default=None,
+                     help="no sun term (default: decided from the footage)")
+    sky.add_argument("--sunny", dest="overcast", action="store_false", help="fit a sun term")
+    p.add_argument("--no-refine", action="store_true", help="skip the photometric refinement (stage 5)")
     from jaxocean.nn import cli as nn_cli
 
     COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits, camera_from_args=_camera_from_args))
@@ -847,6 +877,25 @@ def cmd_forecast(args):
 
 
 # What an interrupted command leaves, and what running it again does.
+def cmd_reconstruct(args) -> int:
+    from jaxocean import reconstruct
+
+    out = _check_out_dir(args.out)
+    for name in ("step", "wave_frames", "max_waves", "width"):
+        if getattr(args, name) is not None and getattr(args, name) < 1:
+            raise ValueError(f"--{name.replace('_', '-')} must be >= 1; got {getattr(args, name)}")
+    if args.max_frames is not None and args.max_frames < 2:
+        raise ValueError(f"--max-frames must be >= 2; got {args.max_frames}")
+    result = reconstruct.reconstruct(args.frames, args.camera, out=out, width=args.width, response=args.response,
+                                     gamma=args.gamma, step=args.step, max_frames=args.max_frames,
+                                     height=args.camera_height, wave_frames=args.wave_frames,
+                                     max_waves=args.max_waves, overcast=args.overcast, refine=not args.no_refine)
+    failed = [n for n, r in result.stages.items() if not r.success]
+    print(f"wrote {out / 'report.html'} and {out / 'result.json'}"
+          + (f"; failed stages: {', '.join(failed)}" if failed else ""))
+    return EXIT_PROBLEMS if failed else EXIT_OK
+
+
 _INTERRUPTED = {
     "simulate": "completed scenes are kept; run the same command to resume",
     "render": "frames written so far are kept; running the command again renders every frame again",
@@ -858,11 +907,12 @@ _INTERRUPTED = {
     "train-geometry": "the last checkpoint is kept; run the same command to resume",
     "predict-geometry": "frames written so far are kept; running the command again predicts every frame again",
     "eval-geometry": "nothing was written; running the command again starts over",
+    "reconstruct": "files written so far are kept; running the command again starts over",
 }
 
 COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, "demo": cmd_demo,
             "fit-lighting": cmd_fit_lighting, "reedit": cmd_reedit, "fit-waves": cmd_fit_waves,
-            "forecast": cmd_forecast}
+            "forecast": cmd_forecast, "reconstruct": cmd_reconstruct}
 
 
 def main(argv=None) -> int:

@@ -1,0 +1,621 @@
+"""Photographs to waves: the stages of ``jaxocean reconstruct``.
+
+Protocol
+--------
+:func:`reconstruct` runs six stages; each is a function of its own, usable alone, that
+returns ``(value, StageReport)``. A :class:`StageReport` holds the stage's ``name``,
+``success``, wall time ``seconds``, a ``message`` (why it failed, or what it chose) and a
+JSON-safe ``details`` dict.
+
+1. :func:`load_sequence` (``radiometry``): frames (PNG / JPEG / 16-bit PNG / EXR files or
+   one video; RGB or gray) to linear radiance (:mod:`jaxocean.radiometry`: a documented
+   display response, sRGB by default; the exposure is unknown and is absorbed by the fitted
+   colours), saturated pixels masked, and every frame resampled
+   (:mod:`jaxocean.rectify`) into one ideal library :class:`~jaxocean.camera.Camera`: no
+   lens distortion, no roll, one pose. The camera is a camera file
+   (:mod:`jaxocean.io.camera_file`: intrinsics, Brown-Conrady distortion, a pose per frame)
+   or a synthetic ``scene.json``. Frames without a pose get pitch and roll from the visible
+   horizon (:mod:`jaxocean.horizon`).
+2. :func:`geometry_stage` (``geometry``): per-frame normal and roughness from the shipped
+   geometry network (:mod:`jaxocean.nn.geometry`).
+3. :func:`lighting_stage` (``lighting``): sun, sky and sea colours with the geometry held
+   fixed (:func:`jaxocean.fit.lighting`); ``overcast`` fits no sun term.
+4. :func:`waves_stage` (``waves``): the component waves behind the geometry sequence
+   (:func:`jaxocean.fit.waves`).
+5. :func:`photometric_stage` (``photometric``): waves, lighting and exposure refined jointly
+   against the images themselves through the renderer, with a robust loss and an outlier
+   mask (:func:`jaxocean.fit.photometric`).
+6. :func:`sea_stage` (``spectrum``): Hs, Tp, direction and spreading of the waves with
+   uncertainties or bounds (:func:`jaxocean.fit.spectrum`), the mean square slope, and the
+   evidence that the images hold linear waves (:func:`jaxocean.spacetime.dispersion_check`);
+   :func:`outlook_stage` (``forecast``): forecast frames and re-rendered views.
+
+Units: metres, seconds, radians in the library; ``result.json`` (:func:`result_dict`) gives
+directions in degrees, as the direction the waves travel *toward*: clockwise from north when
+the camera file gives compass headings, else from the library's +x counter-clockwise.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+from typing import Any, NamedTuple, Sequence as Seq
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import forecast as fc
+from jaxocean import render, shading
+from jaxocean.errors import InvalidValueError
+from jaxocean.io.images import VIDEO_SUFFIXES
+from jaxocean.waves import Waves
+
+__all__ = ["STAGES", "StageReport", "Sequence", "Reconstruction", "load_sequence", "sea_view", "geometry_stage",
+           "lighting_stage", "waves_stage", "photometric_stage", "sea_stage", "outlook_stage", "reconstruct",
+           "result_dict", "direction_deg"]
+
+STAGES = ("radiometry", "geometry", "lighting", "waves", "photometric", "spectrum", "forecast")
+
+#: default working width [px] of the rectified view; the height follows the view's aspect,
+#: rounded to a multiple of 16 (the geometry network halves the size four times)
+DEFAULT_WIDTH = 128
+#: the rectified view's top edge sits this far [rad] below the horizon (the sky carries no
+#: wave information and, in footage, is often clipped)
+HORIZON_MARGIN = 0.05
+#: and its bottom edge this far [rad] inside the lowest view of every frame
+BOTTOM_MARGIN = 0.03
+#: display values at or below this are black (the bottom code of an 8-bit file): masked
+BLACK_LEVEL = 0.5 / 255
+#: the shipped geometry network's error per normal component (x, y), the noise the wave fit
+#: is told: its mean angle error on the held-out test split of its dataset is 0.105 rad,
+#: i.e. sigma = 0.105 / sqrt(pi / 2) per component for a Gaussian error (experiments/NETS.md)
+GEOMETRY_NOISE = 0.084
+
+
+class StageReport(NamedTuple):
+    name: str
+    success: bool
+    seconds: float
+    message: str = ""
+    details: dict = {}
+
+
+class Sequence(NamedTuple):
+    """Stage 1's output: the observed sequence in one ideal camera.
+
+    * ``images``   ``(T, H, W, 3)`` linear radiance (gray footage: R = G = B = luminance),
+      up to the unknown exposure.
+    * ``usable``   ``(T, H, W)`` bool: inside the source frame and not saturated.
+    * ``display``  ``(T, H, W, 3)`` the rectified display values in [0, 1] (for reports).
+    * ``camera``   the ideal :class:`~jaxocean.camera.Camera` every frame was resampled into.
+    * ``times``    ``(T,)`` [s], strictly increasing.
+    * ``gray``     the footage was grayscale.
+    * ``compass``  the camera file gave compass headings (directions reported from north).
+    * ``files``    the frame files used.
+    * ``response`` the :class:`jaxocean.radiometry.Response` that made display values linear.
+    """
+
+    images: np.ndarray
+    usable: np.ndarray
+    display: np.ndarray
+    camera: cam.Camera
+    times: np.ndarray
+    gray: bool
+    compass: bool
+    files: tuple
+    response: Any = None
+
+
+class Reconstruction(NamedTuple):
+    sequence: Sequence
+    geometry: Any
+    lighting: Any
+    waves: Any
+    photometric: Any
+    sea: dict
+    outlook: dict
+    stages: dict
+
+
+def _timed(name, fn):
+    t0 = time.perf_counter()
+    value, success, message, details = fn()
+    return value, StageReport(name, bool(success), time.perf_counter() - t0, message, details)
+
+
+# ----------------------------------------------------------------------------- stage 1
+
+def sea_view(camera_file, *, width: int = DEFAULT_WIDTH, horizon_margin: float = HORIZON_MARGIN,
+             bottom_margin: float = BOTTOM_MARGIN) -> cam.Camera:
+    """The ideal camera a camera file's frames are resampled into: the frames' mean height,
+    heading and ground position, no roll, and a pitch and vertical field of view that span
+    from ``horizon_margin`` below the horizon down to ``bottom_margin`` inside the lowest
+    view any frame has (so every pixel is seen in every frame, barring roll at the corners);
+    ``width`` pixels across, the height from the source's aspect (a multiple of 16)."""
+    from jaxocean import lens
+
+    poses = camera_file.poses
+    W_src, H_src = camera_file.image_size
+    # the depression angle of the bottom-centre pixel in each frame
+    uv = jnp.asarray([[(W_src - 1) / 2.0, H_src - 1.0]])
+    lows = []
+    for i in range(len(camera_file.times)):
+        pose = lens.Pose(*(np.asarray(f)[i] for f in poses))
+        ray = np.asarray(lens.pixel_rays(uv, pose, camera_file.intrinsics, camera_file.distortion))[0]
+        lows.append(-math.asin(float(np.clip(ray[2], -1, 1))))
+    bottom = min(lows) - bottom_margin
+    top = horizon_margin
+    if bottom <= top + 0.1:
+        raise InvalidValueError(f"the frames see too little sea below the horizon (lowest view "
+                                f"{math.degrees(min(lows)):.1f} deg below it) for a sea view")
+    fov, pitch = bottom - top, (bottom + top) / 2
+    aspect = W_src / H_src
+    # the horizontal half-angle kept: tan(hfov/2) = tan(fov/2) * aspect
+    H = max(16, int(round(width / aspect / 16)) * 16)
+    heading = math.atan2(float(np.mean(np.sin(poses.heading))), float(np.mean(np.cos(poses.heading))))
+    return cam.make_camera(height=float(np.mean(poses.height)), pitch=pitch,
+                           yaw=float(lens.yaw_from_heading(heading)), fov=fov, resolution=(H, int(width)),
+                           x=float(np.mean(poses.east)), y=float(np.mean(poses.north)))
+
+
+def _is_scene_file(path: Path) -> bool:
+    try:
+        d = json.loads(Path(path).read_text())
+    except (OSError, ValueError) as error:
+        raise InvalidValueError(f"cannot read the camera file {path}: {error}") from None
+    return isinstance(d, dict) and "camera" in d and "intrinsics" not in d
+
+
+def _frame_files(frames, listed: Seq[Path], where) -> list:
+    """Match the given frame paths to the camera file's list (by resolved path, else by
+    name); every given frame must be listed."""
+    if not frames:
+        return list(range(len(listed)))
+    by_path = {Path(p).resolve(): i for i, p in enumerate(listed)}
+    by_name = {Path(p).name: i for i, p in enumerate(listed)}
+    out = []
+    for f in frames:
+        i = by_path.get(Path(f).resolve(), by_name.get(Path(f).name))
+        if i is None:
+            raise InvalidValueError(f"frame {f} is not listed in the camera file {where}")
+        out.append(i)
+    if np.any(np.diff(out) <= 0):
+        raise InvalidValueError("frames must be given in the camera file's (time) order, each once")
+    return out
+
+
+def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: str = "srgb", gamma: float = 2.2,
+                  step: int = 1, max_frames: int | None = None, height: float | None = None,
+                  full_view: bool = False):
+    """Stage 1 (module docstring). ``frames``: paths (or one video path, or empty to take
+    the camera file's list); ``camera_path``: a camera file or a ``scene.json`` (then the
+    frames must be the scene's, one per time). ``step`` / ``max_frames`` thin the sequence.
+    ``height``: the camera height [m] when the camera file gives no pose (pitch and roll
+    then come from the horizon). ``full_view``: keep the camera's own view (sky and all)
+    instead of :func:`sea_view`. Returns ``(Sequence, StageReport)``."""
+    from jaxocean import lens, radiometry, rectify
+    from jaxocean.io import camera_file as cf_io
+
+    camera_path = Path(camera_path)
+    frames = [Path(f) for f in (frames or [])]
+    if step < 1:
+        raise ValueError(f"step must be >= 1; got {step}")
+
+    video = len(frames) == 1 and frames[0].suffix.lower() in VIDEO_SUFFIXES + (".gif",)
+
+    def run():
+        details, scene_camera = {}, None
+        resp = radiometry.Response(response, gamma)
+
+        def load(paths):
+            # black pixels (vignetted corners, crushed shadows) carry no radiance either
+            return radiometry.load_frames(paths, response=resp, low=BLACK_LEVEL)
+
+        loaded = load(frames) if video else None
+        n_video = None if loaded is None else len(loaded.linear)
+        if _is_scene_file(camera_path):
+            from jaxocean.io.scene import read_scene
+
+            scene = read_scene(camera_path)
+            if scene.camera is None or scene.times is None:
+                raise InvalidValueError(f"{camera_path} has no camera or no times")
+            times = np.asarray(scene.times, np.float64)
+            listed = frames or sorted(camera_path.parent.glob("frame_*.exr")) or sorted(
+                camera_path.parent.glob("frame_*.png"))
+            count = n_video if video else len(listed)
+            if count != len(times):
+                raise InvalidValueError(f"{count} frames given for the {len(times)} times of {camera_path}")
+            scene_camera = scene.camera
+            H, W = scene.camera.resolution
+            pose0 = lens.pose_of(scene.camera)
+            poses = lens.Pose(*(np.full(len(times), float(v)) for v in pose0))
+            camera_file = cf_io.CameraFile(camera_path, (W, H), lens.pinhole_intrinsics(scene.camera),
+                                           lens.Distortion(), tuple(listed) * (len(times) if video else 1), times,
+                                           poses, False)
+        else:
+            camera_file = cf_io.read_camera_file(camera_path, require_pose=height is None, check_files=not video)
+            if video:
+                if n_video != len(camera_file.times):
+                    raise InvalidValueError(f"the video {frames[0]} has {n_video} frames; the camera file "
+                                            f"{camera_path} lists {len(camera_file.times)}")
+            else:
+                camera_file = cf_io.select(camera_file, _frame_files(frames, camera_file.files, camera_path))
+        idx = np.arange(0, len(camera_file.times), step)[:max_frames]
+        if len(idx) < 2:
+            raise InvalidValueError(f"reconstruct needs at least 2 frames; {len(idx)} selected")
+        camera_file = cf_io.select(camera_file, idx)
+        if video:
+            loaded = loaded._replace(display=None if loaded.display is None else loaded.display[idx],
+                                     linear=loaded.linear[idx], usable=loaded.usable[idx])
+        else:
+            loaded = load(list(camera_file.files))
+        if loaded.display is None:  # OpenEXR: radiance; shown through the library's tone map
+            resp = radiometry.Response("bruneton")
+            loaded = loaded._replace(display=np.asarray(radiometry.to_display(loaded.linear, resp), np.float32))
+        W_src, H_src = camera_file.image_size
+        if loaded.linear.shape[1:3] != (H_src, W_src):
+            raise InvalidValueError(f"the frames are {loaded.linear.shape[2]}x{loaded.linear.shape[1]} pixels; the "
+                                    f"camera file {camera_path} says {W_src}x{H_src}")
+        if camera_file.poses is None:
+            from jaxocean import horizon as hz
+
+            pitch, roll = [], []
+            for i in range(len(idx)):
+                h = hz.estimate_horizon(loaded.linear[i], camera_file.intrinsics, camera_file.distortion, height)
+                if not h.success:
+                    raise InvalidValueError(f"frame {camera_file.files[i]} has no pose and its horizon could not "
+                                            f"be found: {h.message}")
+                pitch.append(h.pitch), roll.append(h.roll)
+            n = len(idx)
+            camera_file = camera_file._replace(poses=lens.Pose(np.full(n, float(height)), np.asarray(pitch),
+                                                               np.asarray(roll), np.zeros(n), np.zeros(n),
+                                                               np.zeros(n)), headings=False)
+            details["pose_from_horizon"] = True
+        if full_view:
+            H = int(round(width * H_src / W_src))
+            camera = rectify.virtual_camera(camera_file, resolution=(H, int(width)))
+        elif scene_camera is not None:
+            # the scene's own view, at the working width
+            camera = scene_camera if scene_camera.resolution[1] == width else dataclasses.replace(
+                scene_camera, resolution=(int(round(width * H_src / W_src)), int(width)))
+        else:
+            camera = sea_view(camera_file, width=width)
+        linear = loaded.linear if loaded.linear.ndim == 4 else loaded.linear[..., None]
+        display = loaded.display if loaded.display.ndim == 4 else loaded.display[..., None]
+        stack = np.concatenate([linear, display, loaded.usable[..., None].astype(linear.dtype)], -1)
+        rect = rectify.rectify(stack, camera_file.poses, camera_file.intrinsics, camera_file.distortion, camera)
+        c = linear.shape[-1]
+        images, disp = rect.images[..., :c], rect.images[..., c:2 * c]
+        usable = rect.valid & (rect.images[..., -1] > 0.999)
+        if c == 1:
+            images, disp = (np.repeat(a, 3, -1) for a in (images, disp))
+        seq = Sequence(np.asarray(images, np.float32), np.asarray(usable), np.clip(np.asarray(disp, np.float32), 0, 1),
+                       camera, np.asarray(camera_file.times, np.float64), bool(loaded.gray),
+                       bool(camera_file.headings), tuple(str(f) for f in camera_file.files), resp)
+        sea = np.asarray(cam.intersect_sea(camera).mask)
+        frac = float(usable[:, sea].mean()) if sea.any() else 0.0
+        details.update(frames=len(idx), resolution=list(camera.resolution), source_size=[W_src, H_src],
+                       response=response, gray=bool(loaded.gray), usable_sea_fraction=frac,
+                       camera=cam.camera_to_dict(camera, degrees=True),
+                       duration_s=float(seq.times[-1] - seq.times[0]))
+        ok = frac >= 0.5
+        msg = (f"{len(idx)} frames at {camera.resolution[1]}x{camera.resolution[0]}, {frac:.0%} of the sea usable"
+               if ok else f"only {frac:.0%} of the sea pixels are usable (saturated or outside the frames)")
+        return seq, ok, msg, details
+
+    return _timed("radiometry", run)
+
+
+# ----------------------------------------------------------------------------- stages 2-5
+
+def geometry_stage(seq: Sequence, *, model=None):
+    """Stage 2: per-frame geometry from the geometry network (``model`` None: the shipped
+    one). Success: every sea pixel got a finite normal and roughness."""
+    from jaxocean.nn import geometry as geo_net
+
+    def run():
+        m = geo_net.load() if model is None else model
+        pred = geo_net.predict(m, seq.images[..., 0] if seq.gray else seq.images, seq.camera)
+        sea = np.asarray(pred.mask)
+        finite = np.isfinite(pred.normal).all(-1) & np.isfinite(pred.roughness)
+        ok = bool(finite[sea].all())
+        slope = -pred.normal[..., :2] / np.maximum(pred.normal[..., 2:], 1e-6)
+        mss_resolved = float(np.mean((slope ** 2).sum(-1)[sea]))
+        mss_sub = float(np.mean(pred.roughness[sea]))
+        details = dict(mean_square_slope=mss_resolved + mss_sub, mean_square_slope_resolved=mss_resolved,
+                       mean_square_slope_subpixel=mss_sub)
+        return pred, ok, "" if ok else "non-finite network output on sea pixels", details
+
+    return _timed("geometry", run)
+
+
+class _Geo(NamedTuple):
+    normal: Any
+    roughness: Any
+    slope_variance: Any
+    mask: Any
+
+
+def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcast: bool | None = None):
+    """Stage 3: the lighting of one frame (default the middle one) with its geometry held
+    fixed. ``overcast`` (None: decided from the footage -- gray images whose sky view is
+    clipped, or no usable glint) fixes the sun colour at 0 and fits the sky and sea colours."""
+    from jaxocean import fit
+
+    i = len(seq.times) // 2 if frame is None else frame
+
+    def run():
+        over = overcast
+        if over is None:
+            sea = np.asarray(cam.intersect_sea(seq.camera).mask)
+            clipped = 1.0 - float(seq.usable[i][sea].mean()) if sea.any() else 1.0
+            over = bool(seq.gray or clipped > 0.2)
+        g = _Geo(geometry.normal[i], geometry.roughness[i], geometry.slope_variance[i], geometry.mask[i])
+        kw = {}
+        if over:
+            kw = dict(init=shading.make_lighting(sun_color=(0.0, 0.0, 0.0)), fit=("sky_color", "sea_color"))
+        result = fit.lighting(seq.images[i], g, seq.camera, mask=seq.usable[i], throw=False, **kw)
+        details = fit.fit_to_dict(result)
+        details.update(overcast=over, frame=int(i))
+        msg = "overcast sky: no sun term" if over else ""
+        if not result.success:
+            msg = (msg + "; " if msg else "") + "the lighting does not explain the frame within its noise"
+        return result, result.success, msg, details
+
+    return _timed("lighting", run)
+
+
+def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: int = 24, init=None,
+                noise: float = GEOMETRY_NOISE):
+    """Stage 4: the component waves behind the geometry sequence (``frames`` of them, spread
+    evenly; None: all), at most ``max_waves``, with the order selection and success test of
+    :func:`jaxocean.fit.waves` told the geometry's ``noise`` (per normal component).
+    ``init``: starting :class:`Waves` (e.g. a wave network's answer), else the fit's
+    spectral start."""
+    from jaxocean import fit
+
+    idx = _spread(len(seq.times), frames)
+
+    def run():
+        kw = {} if init is None else dict(init=init)
+        result = fit.waves(geometry.normal[idx], geometry.roughness[idx], seq.camera, seq.times[idx],
+                           max_waves=max_waves, noise=noise, **kw)
+        n = int(result.n_waves)
+        details = dict(n_waves=n, frames=len(idx), normal_error_rad=float(result.normal_error),
+                       determined=int(np.sum(result.determined)) if result.determined is not None else None)
+        msg = "" if result.success else (f"stopped at the cap of {max_waves} waves" if n >= max_waves
+                                        else "the waves do not explain the geometry within its noise")
+        return result, bool(result.success), msg, details
+
+    return _timed("waves", run)
+
+
+def _spread(n: int, k: int | None) -> np.ndarray:
+    if k is None or k >= n:
+        return np.arange(n)
+    return np.unique(np.round(np.linspace(0, n - 1, k)).astype(int))
+
+
+def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | None = 16, overcast: bool = False,
+                      max_steps: int | None = None):
+    """Stage 5: waves, lighting and exposure refined jointly against the images through the
+    renderer with a robust loss (:func:`jaxocean.fit.photometric`)."""
+    from jaxocean.fit import photometric as ph
+
+    idx = _spread(len(seq.times), frames)
+
+    def run():
+        kw = {} if max_steps is None else dict(max_steps=max_steps)
+        images = seq.images[idx][..., 0] if seq.gray else seq.images[idx]
+        result = ph.photometric(images, seq.camera, seq.times[idx], waves, lighting, mask=seq.usable[idx],
+                                overcast=overcast, **kw)
+        details = ph.fit_to_dict(result)
+        details["frames"] = len(idx)
+        return result, bool(result.success), str(result.message), details
+
+    return _timed("photometric", run)
+
+
+# ----------------------------------------------------------------------------- stage 6
+
+def direction_deg(theta, compass: bool) -> float:
+    """A library direction of travel [rad, from +x counter-clockwise] in the report's
+    convention [deg]: clockwise from north when ``compass``, else from +x counter-clockwise;
+    in [0, 360)."""
+    d = math.degrees(math.pi / 2 - theta) if compass else math.degrees(theta)
+    return d % 360.0
+
+
+def _hs_uncertainty(waves: Waves, std: Waves | None) -> float:
+    """1-sigma of Hs = 4 sqrt(sum h^2 / 2) from the amplitudes' standard deviations (delta
+    method); NaN when none are known."""
+    if std is None:
+        return float("nan")
+    h, sh = np.asarray(waves.amplitude, np.float64), np.asarray(std.amplitude, np.float64)
+    m0 = np.sum(h ** 2) / 2
+    if m0 <= 0 or not np.all(np.isfinite(sh)):
+        return float("nan")
+    return float(4 * np.sqrt(np.sum((h * sh) ** 2)) / (2 * np.sqrt(m0)))
+
+
+def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None, waves_ok: bool = True):
+    """Stage 6a: the sea state. Hs, Tp and the mean direction of ``waves`` and of the
+    JONSWAP spectrum fitted to them (:func:`jaxocean.fit.spectrum`); whether the peak lies
+    in the observed band (else Hs and Tp are bounds); the spreading; the mean square slope
+    of the geometry; and the space-time evidence (:func:`jaxocean.spacetime.dispersion_check`)
+    computed from the images alone (sequences of at least ``spacetime.MIN_FRAMES`` frames).
+    Success: the spectrum fit succeeded, the waves before it did (``waves_ok``) and the
+    images show dispersive waves (when the check could run)."""
+    from jaxocean import fit, spacetime
+
+    min_frames = getattr(spacetime, "MIN_FRAMES", 8)
+
+    def run():
+        check = None
+        if len(seq.times) >= min_frames:
+            check = spacetime.dispersion_check(seq.images.mean(-1), seq.camera, seq.times)
+        sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
+        s = sf.spectrum
+        state = fit.sea_state(waves)
+        hs, tp, theta, spread = float(s.hs), float(s.tp), float(s.theta_mean), float(s.s_max)
+        sea = dict(
+            hs_m=hs, hs_std_m=_hs_uncertainty(waves, std), tp_s=tp,
+            direction_deg=direction_deg(theta, seq.compass),
+            direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
+            spreading_s_max=spread, gamma=float(s.gamma), peak_observed=bool(sf.peak_observed),
+            bound=None if sf.peak_observed else "Hs and Tp are bounds: the spectral peak lies outside the observed band",
+            omega_band=[float(x) for x in sf.omega_band],
+            waves_hs_m=float(state.hs), waves_tp_s=float(state.tp),
+            mean_square_slope=float(geometry_mss(geometry)),
+            spectrum_success=bool(sf.success), spectrum_misfit=float(sf.misfit),
+            dispersion=None if check is None else _check_dict(check),
+            dispersion_peak_period_s=None if check is None else float(check.peak_period_s),
+            dispersion_direction_deg=None if check is None else direction_deg(float(check.peak_direction),
+                                                                             seq.compass),
+        )
+        # too short a sequence for the space-time check: the evidence is missing, not negative
+        ok = bool(sf.success) and (check is None or bool(check.success)) and waves_ok
+        why = []
+        if not waves_ok:
+            why.append("the wave fit failed, so the spectrum describes waves that do not explain the data")
+        if not sf.success:
+            why.append("no single JONSWAP spectrum explains the fitted waves")
+        if check is None:
+            why.append(f"no space-time evidence: it needs {min_frames} frames, {len(seq.times)} given")
+        elif not check.success:
+            why.append(f"the images show little energy on the dispersion shell ({check.message})")
+        return (sea, check, sf), ok, "; ".join(why), sea
+
+    return _timed("spectrum", run)
+
+
+def _check_dict(check) -> dict:
+    out = {}
+    for name in ("shell_fraction", "null_fraction", "ratio", "peak_period_s", "peak_direction", "peak_wavelength_m",
+                 "success", "message"):
+        v = getattr(check, name, None)
+        out[name] = v if isinstance(v, (str, bool, type(None))) else float(v)
+    return out
+
+
+def geometry_mss(geometry) -> float:
+    mask = np.asarray(geometry.mask)
+    n = np.asarray(geometry.normal)
+    slope = -n[..., :2] / np.maximum(n[..., 2:], 1e-6)
+    return float(np.mean(((slope ** 2).sum(-1) + np.asarray(geometry.roughness))[mask]))
+
+
+def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.0, ahead=(2.0, 10.0, 30.0),
+                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0)):
+    """Stage 6b: forecast frames ``ahead`` seconds after the last observed frame, and the
+    last frame re-rendered from a camera ``height_factor`` times as high and under a new sun
+    (``sun_elevation``, from behind the camera; an overcast fit gets a sun 20 times its sky);
+    linear images in the footage's units (times ``exposure``)."""
+    from jaxocean import fit
+
+    def run():
+        t_end = float(seq.times[-1])
+        times = np.asarray([t_end + a for a in ahead])
+        fcast = fc.forecast(waves, times, seq.camera, lighting)
+        light = lighting
+        if float(np.max(np.asarray(lighting.sun_color))) <= 0:
+            light = lighting._replace(sun_color=20.0 * jnp.asarray(lighting.sky_color))
+        lower = fit.reedit(waves, seq.camera, lighting, t_end, camera_height=height_factor * float(seq.camera.height))
+        sun = fit.reedit(waves, seq.camera, light, t_end, sun_azimuth=float(seq.camera.yaw) + math.pi,
+                         sun_elevation=sun_elevation)
+        out = dict(times=times, forecast=exposure * np.asarray(fcast.image), lower=exposure * np.asarray(lower),
+                   new_sun=exposure * np.asarray(sun),
+                   normals=np.asarray(fcast.geometry.normal))
+        return out, True, "", dict(ahead_s=list(ahead), camera_height_m=height_factor * float(seq.camera.height),
+                                   sun_elevation_deg=math.degrees(sun_elevation))
+
+    return _timed("forecast", run)
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, response: str = "srgb",
+                gamma: float = 2.2, step: int = 1, max_frames: int | None = None, height: float | None = None,
+                wave_frames: int | None = 16, max_waves: int = 24, overcast: bool | None = None,
+                refine: bool = True, progress: bool = True) -> Reconstruction:
+    """Run every stage (module docstring) and, with ``out``, write ``result.json``, the
+    report and its figures there (:mod:`jaxocean.report`). A stage that fails does not stop
+    the pipeline while its output exists; its flag says what the later numbers rest on.
+    ``refine=False`` skips stage 5 (the two-step method of the paper)."""
+    stages = {}
+
+    def say(report):
+        stages[report.name] = report
+        if progress:
+            flag = "ok  " if report.success else "FAIL"
+            print(f"[{flag}] {report.name:<12s} {report.seconds:7.1f} s  {report.message}", flush=True)
+
+    seq, rep = load_sequence(frames, camera_path, width=width, response=response, gamma=gamma, step=step,
+                             max_frames=max_frames, height=height)
+    say(rep)
+    geometry, rep = geometry_stage(seq)
+    say(rep)
+    light, rep = lighting_stage(seq, geometry, overcast=overcast)
+    say(rep)
+    over = bool(rep.details.get("overcast", False))
+    wfit, rep = waves_stage(seq, geometry, frames=wave_frames, max_waves=max_waves)
+    say(rep)
+    waves, waves_ok, lighting = wfit.waves, rep.success, light.lighting
+    photo = None
+    if refine:
+        photo, rep = photometric_stage(seq, waves, lighting, frames=wave_frames, overcast=over)
+        say(rep)
+        if rep.success:
+            waves, lighting = photo.waves, photo.lighting
+        waves_ok = waves_ok or rep.success
+    (sea, check, sfit), rep = sea_stage(seq, waves, geometry, std=wfit.uncertainty if photo is None or not
+                                        stages["photometric"].success else None, waves_ok=waves_ok)
+    say(rep)
+    refined = photo is not None and stages["photometric"].success
+    outlook, rep = outlook_stage(seq, waves, lighting, exposure=float(photo.exposure) if refined else 1.0)
+    say(rep)
+    result = Reconstruction(seq, geometry, light, wfit, photo, dict(sea, waves=waves, check=check, spectrum_fit=sfit),
+                            outlook, stages)
+    if out is not None:
+        from jaxocean import report
+
+        report.write(Path(out), result)
+    return result
+
+
+def result_dict(result: Reconstruction) -> dict:
+    """The JSON-safe summary ``result.json`` holds (module docstring)."""
+    seq = result.sequence
+    sea = {k: v for k, v in result.sea.items() if k not in ("waves", "check", "spectrum_fit")}
+    waves = result.sea["waves"]
+    listed = [dict(amplitude_m=float(h), omega_rad_s=float(w), period_s=2 * math.pi / float(w),
+                   direction_deg=direction_deg(float(t), seq.compass), phase_rad=float(p))
+              for h, w, t, p in zip(*(np.asarray(x, np.float64) for x in waves))]
+    stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, **_json_safe(r.details))
+              for name, r in result.stages.items()}
+    return dict(spectrum=_json_safe(sea), waves=listed, stages=stages, success=all(r.success for r in
+                                                                                     result.stages.values()),
+                camera=cam.camera_to_dict(seq.camera, degrees=True), times_s=[float(t) for t in seq.times],
+                files=list(seq.files))
+
+
+def _json_safe(x):
+    if isinstance(x, dict):
+        return {str(k): _json_safe(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_json_safe(v) for v in x]
+    if isinstance(x, (bool, np.bool_)):
+        return bool(x)
+    if isinstance(x, (int, np.integer)):
+        return int(x)
+    if isinstance(x, (float, np.floating)) or (hasattr(x, "shape") and np.ndim(x) == 0):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    if isinstance(x, np.ndarray) or hasattr(x, "shape"):
+        return _json_safe(np.asarray(x).tolist())
+    return x

@@ -1,0 +1,188 @@
+"""The report of a reconstruction: ``result.json``, one HTML page and its figures.
+
+Protocol
+--------
+``write(out_dir, reconstruction) -> Path`` (the HTML page) writes into ``out_dir``:
+
+* ``result.json``  :func:`jaxocean.reconstruct.result_dict`: ``spectrum.hs_m``,
+  ``spectrum.tp_s``, ``spectrum.direction_deg``, ``spectrum.peak_observed``, the fitted
+  ``waves``, and per stage ``stages.NAME.success``, ``seconds`` and ``message``.
+* ``frames.png``   input frames, reconstructed normals and roughness, re-rendered frames,
+  display residuals and the outlier mask, at the first, middle and last frame.
+* ``sea.png``      the fitted waves' amplitude spectrum against frequency with the fitted
+  JONSWAP density, and a polar plot of the wave directions.
+* ``dispersion.png`` the images' space-time spectrum with the dispersion shell.
+* ``forecast.png`` forecast frames and the re-rendered views.
+* ``report.html``  all of the above with every stage's flag and time; a banner says when a
+  stage failed, i.e. when the numbers are not backed by a model that explains the footage.
+
+Every file is written atomically (:func:`jaxocean.files.atomic_write`).
+"""
+
+from __future__ import annotations
+
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from jaxocean import plots, render
+from jaxocean import spectrum as spec
+from jaxocean.files import atomic_write
+
+__all__ = ["write", "rerender"]
+
+
+def rerender(result, indices):
+    """Linear frames ``(len(indices), H, W, 3)`` of the final waves and lighting at the
+    sequence's ``indices`` (times), times the fitted exposure when stage 5 ran."""
+    import jax
+
+    seq = result.sequence
+    waves = result.sea["waves"]
+    photo = result.photometric
+    ok = photo is not None and result.stages["photometric"].success
+    lighting = photo.lighting if ok else result.lighting.lighting
+    exposure = float(photo.exposure) if ok else 1.0
+    plan = render.full_plan(int(np.asarray(waves.omega).shape[0]))
+    frames = jax.vmap(lambda t: render.render(waves, seq.camera, lighting, t, plan=plan))(
+        np.asarray(seq.times[indices], np.asarray(waves.omega).dtype))
+    return exposure * np.asarray(frames)
+
+
+def _display(linear, seq):
+    """Linear frames as the footage's display values (its response), in [0, 1]."""
+    from jaxocean import radiometry
+
+    return np.clip(np.asarray(radiometry.to_display(np.asarray(linear), seq.response)), 0.0, 1.0)
+
+
+def _frames_figure(path, result):
+    seq, geo = result.sequence, result.geometry
+    T = len(seq.times)
+    idx = sorted({0, T // 2, T - 1})
+    model = rerender(result, np.asarray(idx))
+    model_display = _display(model, seq)
+    observed = seq.display[idx]
+    residual = np.abs(model_display - observed).mean(-1)
+    rows = []
+    photo = result.photometric
+    for r, i in enumerate(idx):
+        outliers = None
+        if photo is not None and getattr(photo, "outliers", None) is not None and len(photo.outliers) == T:
+            outliers = np.asarray(photo.outliers[i], np.float32)
+        mask = np.asarray(geo.mask[i])
+        row = [observed[r], plots.normal_to_rgb(geo.normal[i], mask), plots.roughness_to_rgb(geo.roughness[i], mask),
+               model_display[r], plots.log_to_rgb(residual[r] + 1e-6, vmin=1e-3, vmax=0.3),
+               None if outliers is None else np.repeat(outliers[..., None], 3, -1)]
+        rows.append(row)
+    return plots.contact_sheet(path, rows, col_titles=["input (rectified)", "normal (net)", "roughness (net)",
+                                                       "re-rendered", "|display residual| 1e-3..0.3",
+                                                       "outliers (stage 5)"],
+                               row_titles=[f"t = {seq.times[i]:.1f} s" for i in idx])
+
+
+def _sea_figure(path, result):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    waves = result.sea["waves"]
+    sfit = result.sea["spectrum_fit"]
+    h, w, th = (np.asarray(x, np.float64) for x in (waves.amplitude, waves.omega, waves.theta))
+    fig = plt.figure(figsize=(10, 4))
+    ax = fig.add_subplot(1, 2, 1)
+    ax.stem(w, h, basefmt=" ")
+    ax.set_xlabel("frequency omega [rad/s]")
+    ax.set_ylabel("amplitude h [m]", color="C0")
+    if sfit is not None:
+        om = np.linspace(max(0.2, 0.5 * w.min()), 1.5 * w.max(), 200)
+        ax2 = ax.twinx()
+        ax2.plot(om, np.asarray(spec.spectrum_density(sfit.spectrum, om)), "C1")
+        ax2.set_ylabel("fitted JONSWAP S(omega) [m^2 s]", color="C1")
+        lo, hi = sfit.omega_band
+        ax.axvspan(lo, hi, color="0.9", zorder=-1)
+    ax.set_title(f"fitted waves ({len(h)}); grey: observed band")
+    pa = fig.add_subplot(1, 2, 2, projection="polar")
+    compass = result.sequence.compass
+    angles = (np.pi / 2 - th) if compass else th
+    if compass:
+        pa.set_theta_zero_location("N")
+        pa.set_theta_direction(-1)
+    pa.scatter(angles, 2 * np.pi / w, s=20 + 400 * h / max(h.max(), 1e-9), alpha=0.6)
+    pa.set_title("direction of travel (radius: period [s])" + (", from north" if compass else ", from +x"))
+    fig.tight_layout()
+    return plots.save_figure(fig, path)
+
+
+def _forecast_figure(path, result):
+    out = result.outlook
+    seq = result.sequence
+    row1 = list(_display(out["forecast"], seq))
+    row2 = [_display(out["lower"], seq), _display(out["new_sun"], seq)]
+    titles = [f"+{t - seq.times[-1]:.0f} s" for t in out["times"]]
+    return plots.contact_sheet(path, [row1, row2], col_titles=titles,
+                               row_titles=["forecast", "re-edited: lower camera / new sun"])
+
+
+def _banner(data) -> str:
+    failed = [n for n, s in data["stages"].items() if not s["success"]]
+    if not failed:
+        return ('<p class="ok">Every stage succeeded: the fitted waves and lighting explain the footage within its '
+                'noise.</p>')
+    return ('<p class="bad"><b>Stages failed: ' + ", ".join(failed) + '.</b> The model does not explain this footage '
+            'everywhere; the numbers below rest on the failed stages and are not measurements. Read each stage\'s '
+            'message.</p>')
+
+
+def _html(data, figures) -> str:
+    s = data["spectrum"]
+
+    def num(v, fmt="{:.3g}"):
+        return "n/a" if v is None else fmt.format(v)
+
+    rows = "".join(
+        f"<tr><td>{html.escape(n)}</td><td class={'ok' if st['success'] else 'bad'}>"
+        f"{'ok' if st['success'] else 'FAILED'}</td><td>{st['seconds']:.1f} s</td>"
+        f"<td>{html.escape(st.get('message') or '')}</td></tr>" for n, st in data["stages"].items())
+    bound = "" if s.get("peak_observed") else " (bound: the peak lies outside the observed band)"
+    disp = s.get("dispersion") or {}
+    headline = (f"<ul><li>Hs = {num(s.get('hs_m'))} m &plusmn; {num(s.get('hs_std_m'))}{bound}</li>"
+                f"<li>Tp = {num(s.get('tp_s'))} s{bound}</li>"
+                f"<li>mean direction of travel: {num(s.get('direction_deg'), '{:.0f}')} deg "
+                f"({html.escape(s.get('direction_convention', ''))}); spreading s_max = "
+                f"{num(s.get('spreading_s_max'))}</li>"
+                f"<li>mean square slope (geometry): {num(s.get('mean_square_slope'))}</li>"
+                f"<li>space-time spectrum: {num(disp.get('ratio'))} times more energy on the dispersion shell than "
+                f"without dispersion; its peak period {num(s.get('dispersion_peak_period_s'))} s, direction "
+                f"{num(s.get('dispersion_direction_deg'), '{:.0f}')} deg</li></ul>")
+    imgs = "".join(f'<h2>{html.escape(t)}</h2><img src="{html.escape(p.name)}">' for t, p in figures)
+    return f"""<!doctype html><html><head><meta charset="utf-8"><title>jaxocean reconstruction</title>
+<style>body{{font-family:sans-serif;max-width:1400px;margin:2em}} .ok{{color:#060}} .bad{{color:#a00}}
+td{{padding:2px 10px}} img{{max-width:100%}}</style></head><body>
+<h1>Reconstruction</h1>{_banner(data)}{headline}
+<h2>Stages</h2><table><tr><th>stage</th><th>flag</th><th>time</th><th>message</th></tr>{rows}</table>
+{imgs}<p>Numbers: <a href="result.json">result.json</a>.</p></body></html>"""
+
+
+def write(out_dir, result) -> Path:
+    """Write ``result.json``, the figures and ``report.html`` (module docstring) into
+    ``out_dir``; returns the HTML page's path."""
+    from jaxocean import reconstruct, spacetime
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    data = reconstruct.result_dict(result)
+    atomic_write(out / "result.json", lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
+    figures = [("Frames, geometry, re-rendering and residuals", _frames_figure(out / "frames.png", result)),
+               ("Waves and spectrum", _sea_figure(out / "sea.png", result))]
+    check = result.sea.get("check")
+    if check is not None:
+        figures.append(("Space-time spectrum of the images (evidence of linear waves)",
+                        spacetime.plot_dispersion(check, out / "dispersion.png")))
+    figures.append(("Forecast and re-edited views", _forecast_figure(out / "forecast.png", result)))
+    page = out / "report.html"
+    atomic_write(page, lambda tmp: Path(tmp).write_text(_html(data, figures)))
+    return page

@@ -1,0 +1,109 @@
+"""jaxocean.reconstruct and the `reconstruct` command: stage 1 on synthetic and real frames,
+the result file's contract, conventions and input errors; a 2-frame end-to-end run."""
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import jaxocean as jo
+from jaxocean import camera as cam
+from jaxocean import lens
+from jaxocean import reconstruct as rc
+from jaxocean import render
+from jaxocean.errors import InvalidValueError
+from jaxocean.io import camera_file as cf
+from jaxocean.io.images import save_png
+from jaxocean.io.scene import scene_to_dict, write_scene
+
+CLIP = Path(__file__).resolve().parents[1] / "experiments" / "data" / "ship_pacific_2014_clip"
+
+
+def _scene(tmp_path, *, res=32, frames=2):
+    waves = jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0])
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(res, res))
+    light = jo.make_lighting(sun_azimuth=2.5, sun_elevation=0.5)
+    times = np.arange(frames) * 0.25
+    files = [save_png(tmp_path / f"frame_{i:05d}.png", np.asarray(render.render(waves, camera, light, t)))
+             for i, t in enumerate(times)]
+    scene_json = write_scene(tmp_path, scene_to_dict(camera=camera, times=times))
+    return files, scene_json, camera, times
+
+
+def test_direction_conventions():
+    # travelling toward +y (north): 0 deg from north, 90 deg counter-clockwise from +x
+    assert rc.direction_deg(math.pi / 2, compass=True) == pytest.approx(0.0)
+    assert rc.direction_deg(math.pi / 2, compass=False) == pytest.approx(90.0)
+    # toward +x (east): 90 deg clockwise from north
+    assert rc.direction_deg(0.0, compass=True) == pytest.approx(90.0)
+    assert rc.direction_deg(-math.pi / 2, compass=False) == pytest.approx(270.0)
+
+
+def test_scene_sequence_keeps_the_scene_camera(tmp_path):
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, rep = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    assert rep.success and rep.name == "radiometry"
+    assert seq.camera.resolution == (32, 32)
+    assert float(seq.camera.pitch) == pytest.approx(float(camera.pitch))
+    np.testing.assert_allclose(seq.times, times)
+    # the rectification into the scene's own camera is the identity up to interpolation
+    truth = np.asarray(render.render(jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0]), camera,
+                                     jo.make_lighting(sun_azimuth=2.5, sun_elevation=0.5), times[0]))
+    sea = np.asarray(cam.intersect_sea(camera).mask) & seq.usable[0]
+    rel = np.abs(seq.images[0] - truth)[sea] / np.maximum(truth[sea], 1e-3)
+    assert np.median(rel) < 0.02  # 8-bit quantisation of the tone-mapped value
+
+
+def test_frames_must_match_the_camera_file(tmp_path):
+    files, scene_json, _, _ = _scene(tmp_path)
+    with pytest.raises(InvalidValueError, match="2 times"):
+        rc.load_sequence(files[:1] * 3, scene_json)
+    with pytest.raises(ValueError, match="step"):
+        rc.load_sequence(files, scene_json, step=0)
+
+
+@pytest.mark.skipif(not CLIP.exists(), reason="the real clip is not in this checkout")
+def test_sea_view_of_real_footage_lies_inside_every_frame():
+    camera_file = cf.read_camera_file(CLIP / "camera.json")
+    view = rc.sea_view(camera_file, width=64)
+    # top edge below the horizon by the margin, the source's aspect
+    assert float(view.pitch) - float(view.fov) / 2 == pytest.approx(rc.HORIZON_MARGIN, abs=1e-6)
+    assert view.resolution == (48, 64)
+    heading = lens.heading_from_yaw(float(view.yaw))
+    assert math.degrees(float(heading)) % 360 == pytest.approx(57.0, abs=4.0)  # ENE, as the file says
+    seq, rep = rc.load_sequence([], CLIP / "camera.json", width=64, max_frames=3)
+    assert rep.success, rep.message
+    assert seq.gray and seq.compass and seq.images.shape == (3, 48, 64, 3)
+    sea = np.asarray(cam.intersect_sea(view).mask)
+    assert seq.usable[:, sea].mean() > 0.9
+
+
+@pytest.mark.skipif(not CLIP.exists(), reason="the real clip is not in this checkout")
+def test_unlisted_frame_is_refused(tmp_path):
+    stray = tmp_path / "frame_9999.png"
+    stray.write_bytes((CLIP / "frames" / "frame_0000.png").read_bytes())
+    with pytest.raises(InvalidValueError, match="not listed"):
+        rc.load_sequence([stray], CLIP / "camera.json")
+
+
+def test_reconstruct_command_end_to_end(tmp_path):
+    from jaxocean import cli
+
+    files, scene_json, _, _ = _scene(tmp_path / "in")
+    out = tmp_path / "out"
+    code = cli.main(["reconstruct", *map(str, files), "--camera", str(scene_json), "--out", str(out),
+                     "--width", "32", "--response", "bruneton", "--max-waves", "4", "--wave-frames", "2"])
+    assert code in (0, 1)
+    data = json.loads((out / "result.json").read_text())
+    for key in ("hs_m", "tp_s", "direction_deg", "peak_observed"):
+        assert key in data["spectrum"]
+    assert set(data["stages"]) == set(rc.STAGES)
+    for stage in data["stages"].values():
+        assert isinstance(stage["success"], bool) and stage["seconds"] >= 0
+    assert code == (0 if all(s["success"] for s in data["stages"].values()) else 1)
+    assert data["waves"] and all(w["omega_rad_s"] > 0 for w in data["waves"])
+    page = (out / "report.html").read_text()
+    for figure in ("frames.png", "sea.png", "forecast.png"):
+        assert (out / figure).stat().st_size > 0 and figure in page
