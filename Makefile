@@ -15,7 +15,7 @@ $(STAMP): pyproject.toml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/jaxocean demo --out out/demo
+	$(VENV)/bin/jaxocean demo --out out/demo --real experiments/data/ship_pacific_2014_clip
 
 # the notebooks run too (nbmake), shrunk by JAXOCEAN_SMALL
 test: $(STAMP)

@@ -216,9 +216,14 @@ def build_parser():
                                    "a small swell from its geometry and forecast it (wave_fit.png, "
                                    "forecast_strip.png). Summary in summary.json.")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
-    p.add_argument("--stages", default="render,lighting,waves",
-                   help="comma-separated stages: render (always), lighting (fit -> re-render -> error map -> "
-                        "re-edited views), waves (wave fit of a small swell -> recovered waves -> forecast strip)")
+    p.add_argument("--stages", default="render,reconstruct,real",
+                   help="comma-separated stages: render (always), reconstruct (the rendered frames as 8-bit PNG, "
+                        "everything but the frames and the camera forgotten, reconstructed, forecast and re-edited "
+                        "beside the truth), real (reconstruct on the clip of real footage given by --real), "
+                        "lighting (lighting fit from the true geometry -> re-render -> error map -> re-edited "
+                        "views), waves (wave fit of a small swell from its true geometry -> forecast strip); "
+                        "default render,reconstruct,real")
+    p.add_argument("--real", help="directory with a camera.json and its frames (real footage) for the real stage")
     _add_scene_options(p)
 
     p = sub.add_parser("fit-lighting", help="fit sun direction and colours to one EXR frame",
@@ -597,9 +602,12 @@ def cmd_demo(args):
     from jaxocean.io.dataset import render_scene
 
     stages = {s.strip() for s in args.stages.split(",") if s.strip()}
-    unknown = stages - {"render", "lighting", "waves"}
+    unknown = stages - {"render", "lighting", "waves", "reconstruct", "real"}
     if unknown:
-        raise ValueError(f"unknown demo stages {sorted(unknown)}; choose from render, lighting, waves")
+        raise ValueError(f"unknown demo stages {sorted(unknown)}; choose from render, reconstruct, real, lighting, "
+                         f"waves")
+    if "real" in stages and args.real is not None and not (Path(args.real) / "camera.json").is_file():
+        raise ValueError(f"--real {args.real}: no camera.json there")
     out = _check_out_dir(args.out)
     _check_memory(args.res, args.frames, "demo")
     scene = _scene_from_args(args)
@@ -648,6 +656,21 @@ def cmd_demo(args):
                                                                       r["forecast_normal_error_deg"]))
               + "\n  figures:       " + ", ".join(r["figures"]))
         write_json(out / "summary.json", summary)
+    if "reconstruct" in stages:
+        print("reconstruct: the frames as 8-bit PNG, only the frames and the camera kept, reconstructed ...",
+              flush=True)
+        summary["reconstruct"] = r = demo.reconstruct_stage(out, scene, images)
+        print(f"  Hs {r['hs_m']:.2f} m (true {r['truth']['hs']:.2f}), Tp {r['tp_s']:.1f} s (true "
+              f"{r['truth']['tp']:.1f})\n  report:        {r['report']}\n  figure:        {r['figure']}")
+        write_json(out / "summary.json", summary)
+    if "real" in stages:
+        if args.real is None:
+            print("real: skipped (no --real clip given)")
+        else:
+            print(f"real: reconstruct on the real footage in {args.real} ...", flush=True)
+            summary["real"] = r = demo.real_stage(out, Path(args.real))
+            print(f"  report:        {r['report']}")
+            write_json(out / "summary.json", summary)
     return EXIT_OK
 
 

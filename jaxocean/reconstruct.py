@@ -154,13 +154,20 @@ def sea_view(camera_file, *, width: int = DEFAULT_WIDTH, horizon_margin: float =
         raise InvalidValueError(f"the frames see too little sea below the horizon (lowest view "
                                 f"{math.degrees(min(lows)):.1f} deg below it) for a sea view")
     fov, pitch = bottom - top, (bottom + top) / 2
-    aspect = W_src / H_src
-    # the horizontal half-angle kept: tan(hfov/2) = tan(fov/2) * aspect
-    H = max(16, int(round(width / aspect / 16)) * 16)
+    H = _working_height(width, W_src, H_src)
     heading = math.atan2(float(np.mean(np.sin(poses.heading))), float(np.mean(np.cos(poses.heading))))
     return cam.make_camera(height=float(np.mean(poses.height)), pitch=pitch,
                            yaw=float(lens.yaw_from_heading(heading)), fov=fov, resolution=(H, int(width)),
                            x=float(np.mean(poses.east)), y=float(np.mean(poses.north)))
+
+
+def _working_height(width: int, W_src: int, H_src: int) -> int:
+    """The source's aspect at ``width`` pixels, rounded to a multiple of 16 (the geometry
+    network halves the image four times)."""
+    if width % 16:
+        raise ValueError(f"the working width must be a multiple of 16 (the geometry network halves the image "
+                         f"four times); got {width}")
+    return max(16, int(round(width * H_src / W_src / 16)) * 16)
 
 
 def _is_scene_file(path: Path) -> bool:
@@ -276,13 +283,13 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                                                                np.asarray(roll), np.zeros(n), np.zeros(n),
                                                                np.zeros(n)), headings=False)
             details["pose_from_horizon"] = True
+        H = _working_height(width, W_src, H_src)
         if full_view:
-            H = int(round(width * H_src / W_src))
             camera = rectify.virtual_camera(camera_file, resolution=(H, int(width)))
         elif scene_camera is not None:
             # the scene's own view, at the working width
-            camera = scene_camera if scene_camera.resolution[1] == width else dataclasses.replace(
-                scene_camera, resolution=(int(round(width * H_src / W_src)), int(width)))
+            camera = scene_camera if scene_camera.resolution == (H, width) else dataclasses.replace(
+                scene_camera, resolution=(H, int(width)))
         else:
             camera = sea_view(camera_file, width=width)
         linear = loaded.linear if loaded.linear.ndim == 4 else loaded.linear[..., None]

@@ -284,7 +284,8 @@ def test_demo_render_stage_and_bad_stage(tmp_path, capsys):
 @pytest.mark.slow  # fits compile for minutes on a CPU; `make demo` runs the same code
 def test_demo_fit_stages(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert cli.main(["demo", "--out", str(out), "--frames", "2", "--res", "48x64", "--waves", "12"]) == 0
+    assert cli.main(["demo", "--out", str(out), "--frames", "2", "--res", "48x64", "--waves", "12",
+                     "--stages", "render,lighting,waves"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["lighting_fit"]["success"] and summary["lighting_fit"]["sun_error_deg"] < 0.01
     assert summary["wave_fit"]["matched"] == 4
