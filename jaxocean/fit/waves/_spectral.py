@@ -14,8 +14,8 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
-from jaxocean import camera as cam
 from jaxocean import hierarchy
+from jaxocean._ground_grid import grid_frames, hann, resample
 from jaxocean._math import safe_sqrt, sincos, smoothstep
 from jaxocean.errors import check_values
 from jaxocean.fit.waves._inputs import check_inputs, clean_inputs, plane_hits, slope_field, valid_weights
@@ -99,91 +99,10 @@ def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
 # =============================================================================== spectral estimate
 
 
-def _hann(n, dtype):
-    i = jnp.arange(n, dtype=dtype)
-    return 0.5 - 0.5 * jnp.cos(2 * jnp.pi * (i + 0.5) / n)
-
-
-def grid_frames(camera, scales, grid):
-    """Anchors ``(S, 2)``, unit axes ``e_u, e_v (2,)``, spacings ``(S,)`` and a flag ``(S,)``
-    telling whether a grid sits where the pixels are finer than it (then the slopes are
-    box-filtered before sampling, against aliasing).
-
-    Perspective: grid ``s`` is spaced ``0.75 f_s`` with ``f_s = 2^s`` x the nearest sea
-    footprint and starts at the nearest image row whose footprint reaches ``f_s``, looking
-    along the camera's yaw: a pyramid that walks from the near field to the far field, so
-    that long waves are seen over many wavelengths. Orthographic: one grid over the image.
-    """
-    H, W = camera.resolution
-    dtype = jnp.result_type(camera.height, float)
-    yaw = jnp.asarray(camera.yaw, dtype)
-    e_u = jnp.stack([jnp.cos(yaw), jnp.sin(yaw)])
-    e_v = jnp.stack([jnp.sin(yaw), -jnp.cos(yaw)])
-    levels = 2.0 ** jnp.arange(scales, dtype=dtype)
-    if camera.projection == "orthographic":
-        cell = jnp.asarray(camera.ortho_width, dtype) / W
-        d0 = cell * max(1.0, min(H, W) / grid)
-        centre = jnp.stack([jnp.asarray(camera.x, dtype), jnp.asarray(camera.y, dtype)])
-        spacing = d0 * levels
-        anchors = centre[None] - 0.5 * grid * spacing[:, None] * e_u[None]
-        return anchors, e_u, e_v, spacing, levels > 1
-    hit = cam.intersect_sea(camera)
-    row_sea = jnp.any(hit.mask, axis=1)
-    fp_row = jnp.where(row_sea, hit.footprint[:, W // 2], 0.0)
-    near = H - 1 - jnp.argmax(row_sea[::-1])
-    f0 = hit.footprint[near, W // 2]
-    target = f0 * levels  # (S,)
-    rows = jnp.arange(H)
-    reach = row_sea[None, :] & (fp_row[None, :] >= target[:, None] * 0.999)  # (S, H)
-    # the nearest (largest index) row that reaches the target footprint, else the near row
-    row = jnp.where(jnp.any(reach, axis=1), jnp.max(jnp.where(reach, rows[None, :], -1), axis=1), near)
-    fallback = ~jnp.any(reach, axis=1) & (levels > 1)
-    anchors = hit.xy[row, W // 2]
-    spacing = 0.75 * target
-    return anchors, e_u, e_v, spacing, fallback
-
-
-def _box(img, size):
-    if size == 1:
-        return img
-    window = (size, size) + (1,) * (img.ndim - 2)
-    return jax.lax.reduce_window(img, 0.0, jax.lax.add, window, (1,) * img.ndim, "SAME") / float(size * size)
-
-
-def _resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid):
-    """Slopes ``(T, G, G, 2)`` and validity ``(T, G, G)`` on one ground grid. Where
-    ``use_box``, the image is first box-filtered over ``2^level`` pixels (against aliasing of
-    a coarse grid in the near field)."""
-    dtype = slopes.dtype
-    size = 2 ** level
-    T = weight.shape[0]
-    sw = jnp.moveaxis(slopes * weight[..., None], 0, -1)  # (H, W, 2, T)
-    sw = sw.reshape(sw.shape[0], sw.shape[1], -1)  # (H, W, 2T)
-    wt = jnp.moveaxis(weight, 0, -1)  # (H, W, T)
-    if size > 1:
-        sw = jnp.where(use_box, _box(sw, size), sw)
-        wt = jnp.where(use_box, _box(wt, size), wt)
-    iu = (jnp.arange(grid, dtype=dtype) + 0.5)
-    iv = (jnp.arange(grid, dtype=dtype) - grid / 2 + 0.5)
-    X = anchor + d * (iu[:, None, None] * e_u + iv[None, :, None] * e_v)  # (G, G, 2)
-    P3 = jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1)
-    ij = cam.project(camera, P3)  # (G, G, 2)
-    coords = [ij[..., 0], ij[..., 1]]
-
-    def sample(img2d):
-        return jax.scipy.ndimage.map_coordinates(img2d, coords, order=1, mode="constant", cval=0.0)
-
-    s_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(sw).reshape(grid, grid, 2, T)
-    w_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(wt)  # (G, G, T)
-    valid = w_g > 0.999
-    s_g = jnp.where(valid[:, :, None, :], s_g / jnp.where(valid, w_g, 1.0)[:, :, None, :], 0.0)
-    return jnp.moveaxis(s_g, -1, 0), jnp.moveaxis(valid.astype(dtype), -1, 0), X
-
-
 def _power_one_scale(slopes, weight, times, camera, anchor, e_u, e_v, d, level, use_box, grid):
-    s_g, v_g, X = _resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid)
+    s_g, v_g, X = resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid)
     dtype = slopes.dtype
-    win = _hann(grid, dtype)
+    win = hann(grid, dtype)
     wmap = win[:, None] * win[None, :] * jnp.min(v_g, axis=0)  # (G, G): the same support in every frame
     f = s_g * wmap[None, :, :, None]
     mean = jnp.sum(f, axis=(1, 2), keepdims=True) / jnp.maximum(jnp.sum(wmap), 1e-30)

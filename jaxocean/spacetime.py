@@ -1,0 +1,417 @@
+"""Evidence that an image sequence shows linear ocean waves: its space-time spectrum.
+
+Linear deep-water waves put the energy of any quantity that follows the surface (slope,
+hence image brightness to first order) on the *dispersion shell* ``sigma^2 = g k`` of the
+wavenumber-frequency space, where ``sigma = omega - k . U`` is the frequency in the frame of
+the water and ``U`` [m/s] the water's velocity relative to the observer (a current, or the
+ship's drift when the camera is not held fixed in the ground frame). Whitecaps, spray, noise,
+flicker and camera jitter put energy elsewhere. :func:`dispersion_check` measures the
+fraction of the sequence's energy on the shell against the fraction a spectrum without
+dispersion would put there.
+
+Protocol
+--------
+:func:`dispersion_check(images, camera, times, ...)` -> :class:`DispersionCheck`:
+
+1. ``images (T, H, W)`` gray intensity (linear or display values; ``(T, H, W, 3)`` RGB is
+   reduced to its luminance) seen by one perspective :class:`jaxocean.camera.Camera` (the
+   rectified sequence, :mod:`jaxocean.rectify`), at uniformly spaced ``times (T,)``.
+2. A square ground grid of ``grid x grid`` points spaced ``spacing`` metres on the mean sea
+   plane (:mod:`jaxocean._ground_grid`), facing the camera's yaw. By default it is the
+   largest one that lies wholly inside the view, whose far pixels are no coarser than
+   ``max_footprint`` grid cells (pixel footprint = square root of the pixel's area on the
+   sea), nearest to the camera among equals. Each frame is box-filtered over ``2^level``
+   pixels (``2^level`` at most the spacing over the near footprint) and sampled bilinearly.
+3. Values above the ``clip_percentile`` of the samples are clipped (whitecaps, glints); each
+   point's temporal mean is removed; a Hann window in x, y and t; 3-D FFT; power ``P``.
+4. Bins with ``omega >= 0`` and ``k`` in the band ``[2 dk, k_max]`` count (``dk = 2 pi /
+   (grid spacing)``; ``k_max`` the smaller of 0.8 x the grid's Nyquist wavenumber and the
+   wavenumber whose frequency reaches the temporal Nyquist limit less the tolerance). On
+   the ``omega >= 0`` half the wave vector of travel is ``kappa = -k`` (NumPy's FFT sign), so
+   the direction a wave travels toward is unambiguous.
+5. The shell: ``|omega - kappa . U - sqrt(g |kappa|)| <= tolerance hypot(d_omega, c_g(k) dk)``,
+   ``d_omega = 2 pi / (T dt)`` the frequency resolution, ``c_g = sqrt(g / k) / 2`` the group
+   velocity (``c_g dk`` is the shell's frequency change across one wavenumber bin): with the
+   default ``tolerance = 1`` the shell is one bin wide on either side, which holds most of a
+   Hann-windowed sinusoid's energy. With ``current="fit"`` the two components of ``U`` are
+   fitted (``|U| <= max_current``) to maximise the shell's energy; a given ``U`` is used as
+   it is.
+6. ``shell_fraction`` = shell energy / band energy. ``null_fraction``: the same under the null
+   of no dispersion -- the band's energy at each wave vector spread evenly over frequency,
+   so the shell receives its share of frequency bins there (the frames in random time order
+   give this on average). ``ratio = shell / null``; ``success`` when ``ratio > min_ratio``
+   (default 2).
+
+Results (:class:`DispersionCheck`): the peak is the maximum of the shell energy over wave
+vectors (3 x 3 smoothed): ``peak_wavelength_m = 2 pi / k``, ``peak_period_s = 2 pi /
+sqrt(g k)`` (the intrinsic period, in the water's frame), ``peak_direction`` [rad] the
+library azimuth (from +x = east, counter-clockwise) the waves travel toward; compass bearing
+= ``pi/2 - peak_direction``. The peak is only the peak *within the band*: ``peak_at_band_edge``
+says when it sits at the band's long-wave end (the sea's true peak may be longer).
+
+Host NumPy results; the resampling is jitted. Metres, seconds, radians.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean._ground_grid import hann, resample
+from jaxocean.waves import GRAVITY
+
+__all__ = ["DispersionCheck", "dispersion_check", "plot_dispersion"]
+
+
+class DispersionCheck(NamedTuple):
+    """Result of :func:`dispersion_check` (module docstring).
+
+    * ``shell_fraction``, ``null_fraction``, ``ratio``: energy on the shell, its null share,
+      their ratio.
+    * ``peak_period_s``, ``peak_direction`` [rad, library azimuth of travel],
+      ``peak_wavelength_m``, ``peak_at_band_edge``.
+    * ``current`` ``(2,)`` [m/s]: the ``U`` used (world x, y; fitted or given).
+    * ``spectrum``: dict of arrays for plotting: ``k`` ``(nk,)`` and ``sigma`` ``(ns,)`` bin
+      centres [rad/m, rad/s], ``power`` ``(ns, nk)`` the band's power over wavenumber and
+      intrinsic frequency ``sigma = omega - kappa . U`` (summed over direction),
+      ``tolerance`` ``(nk,)`` the shell's half-width at each ``k``.
+    * ``grid``: dict of the ground grid and resolution (anchor, axes, spacing, extent,
+      distance of its near edge, box level, support fraction, dt, frames, frequency and
+      wavenumber resolution, band).
+    * ``success``, ``message``.
+    """
+
+    shell_fraction: float
+    null_fraction: float
+    ratio: float
+    peak_period_s: float
+    peak_direction: float
+    peak_wavelength_m: float
+    peak_at_band_edge: bool
+    current: np.ndarray
+    spectrum: dict
+    grid: dict
+    success: bool
+    message: str
+
+
+def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | None = None,
+                     max_footprint: float = 2.0, mask=None, clip_percentile: float = 99.0,
+                     tolerance: float = 1.0, current="fit", max_current: float = 1.0,
+                     min_ratio: float = 2.0) -> DispersionCheck:
+    """Energy of the sequence's space-time spectrum on the dispersion shell against off it.
+
+    Args:
+        images: ``(T, H, W)`` gray or ``(T, H, W, 3)`` RGB intensities, ``T >= 8``.
+        camera: a perspective :class:`jaxocean.camera.Camera` of resolution ``(H, W)``.
+        times: ``(T,)`` increasing, uniformly spaced frame times [s] (steps equal to 0.1 %).
+        grid: ground grid points a side.
+        spacing: grid spacing [m]; default: chosen (module docstring, step 2).
+        max_footprint: the far edge's pixel footprint limit, in grid spacings.
+        mask: optional ``(H, W)`` or ``(T, H, W)`` bool, pixels to use (e.g. where a
+            rectified frame has data); grid points that any frame lacks are left out.
+        clip_percentile: intensity clip (None: no clip).
+        tolerance: shell half-width in units of the spectral resolution.
+        current: the Doppler velocity ``U`` [m/s]: ``"fit"`` (default) fits it; a pair
+            ``(U_x, U_y)`` fixes it (``(0, 0)``: no Doppler shift; the ship's drift, when the
+            rectified frames follow the ship, is minus its velocity).
+        max_current: the largest ``|U|`` the fit searches [m/s].
+        min_ratio: ``success`` threshold on ``ratio``.
+
+    Raises:
+        ValueError: bad shapes, non-uniform or non-increasing times, an orthographic
+            camera, or no ground grid that fits in the view.
+    """
+    images = np.asarray(images, np.float32)
+    if images.ndim == 4 and images.shape[-1] == 3:
+        from jaxocean.radiometry import luminance
+
+        images = np.asarray(luminance(images), np.float32)
+    H, W = camera.resolution
+    if images.ndim != 3 or images.shape[1:] != (H, W):
+        raise ValueError(f"images must be (T, {H}, {W}) gray or (T, {H}, {W}, 3) for this camera; "
+                         f"got {np.shape(images)}")
+    if not np.all(np.isfinite(images)):
+        raise ValueError("images hold non-finite values")
+    if camera.projection != "perspective":
+        raise ValueError("dispersion_check needs a perspective camera (a rectified sequence)")
+    T = images.shape[0]
+    times = np.asarray(times, np.float64)
+    if times.shape != (T,):
+        raise ValueError(f"times must be ({T},) for {T} images; got {times.shape}")
+    if T < 8:
+        raise ValueError(f"dispersion_check needs at least 8 frames; got {T}")
+    steps = np.diff(times)
+    dt = float(np.mean(steps))
+    if not (dt > 0 and np.all(np.abs(steps - dt) <= 1e-3 * dt)):
+        raise ValueError(f"times must be increasing and uniformly spaced (steps equal to 0.1%); got steps "
+                         f"from {steps.min():.6g} to {steps.max():.6g} s")
+    if isinstance(current, str) and current != "fit":
+        raise ValueError(f"current must be 'fit' or a velocity (U_x, U_y) in m/s; got {current!r}")
+    if not isinstance(current, str) and np.shape(current) != (2,):
+        raise ValueError(f"current must be 'fit' or a velocity (U_x, U_y) in m/s; got shape {np.shape(current)}")
+    if mask is None:
+        weight = np.ones((T, H, W), np.float32)
+    else:
+        weight = np.broadcast_to(np.asarray(mask, bool), (T, H, W)).astype(np.float32)
+
+    anchor, e_u, e_v, d, level, near = _choose_grid(camera, grid, spacing, max_footprint)
+    values, valid, _ = _resample_jit(jnp.asarray(images[..., None]), jnp.asarray(weight), camera,
+                                     jnp.asarray(anchor, jnp.float32), jnp.asarray(e_u, jnp.float32),
+                                     jnp.asarray(e_v, jnp.float32), jnp.float32(d), level, grid)
+    values = np.asarray(values[..., 0], np.float64)
+    support = np.asarray(valid).min(axis=0) > 0  # (G, G)
+    support_fraction = float(support.mean())
+
+    dk = 2 * math.pi / (grid * d)
+    d_omega = 2 * math.pi / (T * dt)
+    omega_nyquist = math.pi / dt
+    k_lo = 2 * dk
+    # the highest k whose shell (with its tolerance) stays below the temporal Nyquist frequency
+    k_time = _k_below(omega_nyquist, d_omega, dk, tolerance)
+    k_hi = min(0.8 * math.pi / d, k_time)
+    grid_info = dict(anchor=[float(a) for a in anchor], e_u=[float(a) for a in e_u], e_v=[float(a) for a in e_v],
+                     spacing_m=float(d), points=int(grid), extent_m=float(grid * d), near_m=float(near),
+                     box_level=int(level), support=support_fraction, dt_s=dt, frames=int(T),
+                     omega_resolution=d_omega, k_resolution=dk, k_band=[k_lo, k_hi], tolerance=float(tolerance))
+    if support_fraction < 0.5 or not k_hi > 1.5 * k_lo:
+        reason = (f"only {support_fraction:.0%} of the ground grid is seen in every frame" if support_fraction < 0.5
+                  else f"no usable wavenumber band (k from {k_lo:.3g} to {k_hi:.3g} rad/m)")
+        return _failed(grid_info, reason)
+
+    f = np.where(support[None], values, 0.0)
+    if clip_percentile is not None:
+        top = np.percentile(f[:, support], clip_percentile)
+        bottom = np.percentile(f[:, support], 100 - clip_percentile)
+        f = np.clip(f, bottom, top)
+    f = f - f.mean(axis=0, keepdims=True)
+    window = (np.asarray(hann(T, jnp.float32), np.float64)[:, None, None]
+              * np.asarray(hann(grid, jnp.float32), np.float64)[None, :, None]
+              * np.asarray(hann(grid, jnp.float32), np.float64)[None, None, :] * support[None])
+    power = np.abs(np.fft.fftn(f * window)) ** 2  # (T, G, G)
+
+    omega = 2 * math.pi * np.fft.fftfreq(T, dt)
+    kap = 2 * math.pi * np.fft.fftfreq(grid, d)
+    ku, kv = kap[:, None], kap[None, :]
+    # travel wave vector on the omega >= 0 half: kappa = -(ku e_u + kv e_v)
+    kx = -(ku * e_u[0] + kv * e_v[0])
+    ky = -(ku * e_u[1] + kv * e_v[1])
+    kk = np.hypot(kx, ky)
+    band = (kk >= k_lo) & (kk <= k_hi)  # (G, G)
+    half = omega >= 0
+    P = power[half][:, band]  # (n_omega, n_band)
+    om = omega[half]
+    kxb, kyb, kb = kx[band], ky[band], kk[band]
+    total = P.sum()
+    if not total > 0:
+        return _failed(grid_info, "the sequence does not change in time on the ground grid")
+    tol = _tolerance(kb, d_omega, dk, tolerance)  # (n_band,)
+    shell_om = np.sqrt(GRAVITY * kb)
+
+    if isinstance(current, str):
+        U = _fit_current(P, om, kxb, kyb, shell_om, tol, max_current)
+    else:
+        U = np.asarray(current, np.float64)
+    on = np.abs(om[:, None] - (kxb * U[0] + kyb * U[1])[None, :] - shell_om[None, :]) <= tol[None, :]
+    shell_fraction = float((P * on).sum() / total)
+    energy_k = P.sum(axis=0)
+    null_fraction = float((energy_k * on.mean(axis=0)).sum() / total)
+    ratio = shell_fraction / null_fraction if null_fraction > 0 else math.inf
+
+    # peak: the shell energy per wave vector, 3 x 3 smoothed on the (u, v) FFT grid
+    shell_k = np.zeros((grid, grid))
+    shell_k[band] = (P * on).sum(axis=0)
+    smooth = sum(np.roll(np.roll(shell_k, i, 0), j, 1) for i in (-1, 0, 1) for j in (-1, 0, 1))
+    smooth = np.where(band, smooth, -1.0)
+    iu, iv = np.unravel_index(int(np.argmax(smooth)), smooth.shape)
+    k_peak = float(kk[iu, iv])
+    peak_dir = float(math.atan2(ky[iu, iv], kx[iu, iv]))
+    at_edge = bool(k_peak <= 1.5 * k_lo)
+
+    spectrum = _k_sigma_marginal(P, om, kxb, kyb, kb, U, dk, d_omega, k_hi, tolerance)
+    grid_info["current"] = [float(U[0]), float(U[1])]
+    success = bool(ratio > min_ratio)
+    summary = (f"shell fraction {shell_fraction:.3f} against {null_fraction:.3f} without dispersion: ratio "
+               f"{ratio:.2f} (success needs > {min_ratio:g}); peak within the band: wavelength "
+               f"{2 * math.pi / k_peak:.1f} m, period {2 * math.pi / math.sqrt(GRAVITY * k_peak):.2f} s"
+               + (" (at the band's long-wave edge: the sea's peak may be longer)" if at_edge else ""))
+    message = ("the sequence shows dispersive waves: " if success else "no clear dispersion: ") + summary
+    return DispersionCheck(shell_fraction, null_fraction, float(ratio), 2 * math.pi / math.sqrt(GRAVITY * k_peak),
+                           peak_dir, 2 * math.pi / k_peak, at_edge, U, spectrum, grid_info, success, message)
+
+
+def plot_dispersion(check: DispersionCheck, path, *, title: str | None = None):
+    """Save the wavenumber-frequency marginal of ``check`` (log power over ``k`` and the
+    intrinsic frequency ``sigma``) with the shell ``sigma = sqrt(g k)`` and its tolerance band
+    as a PNG (:func:`jaxocean.plots.save_figure`); returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from jaxocean.plots import save_figure
+
+    spec = check.spectrum
+    fig, ax = plt.subplots(figsize=(6.0, 4.4))
+    if spec:
+        k, sigma, power = spec["k"], spec["sigma"], spec["power"]
+        floor = power[power > 0].min() if np.any(power > 0) else 1.0
+        img = np.log10(np.maximum(power, floor) / power.max())
+        dkk, ds = k[1] - k[0], sigma[1] - sigma[0]
+        im = ax.imshow(img, origin="lower", aspect="auto", cmap="magma", vmin=max(img.min(), -4), vmax=0,
+                       extent=(k[0] - dkk / 2, k[-1] + dkk / 2, sigma[0] - ds / 2, sigma[-1] + ds / 2))
+        fig.colorbar(im, ax=ax, label="log10 power (relative)")
+        shell = np.sqrt(GRAVITY * k)
+        ax.plot(k, shell, color="cyan", lw=1.2, label=r"$\sigma=\sqrt{gk}$")
+        ax.plot(k, shell + spec["tolerance"], color="cyan", lw=0.7, ls="--")
+        ax.plot(k, shell - spec["tolerance"], color="cyan", lw=0.7, ls="--", label="shell tolerance")
+        ax.set_ylim(sigma[0], sigma[-1])
+        ax.legend(loc="upper left", fontsize=8)
+    ax.set_xlabel("wavenumber k [rad/m]")
+    ax.set_ylabel(r"intrinsic frequency $\sigma=\omega-\kappa\cdot U$ [rad/s]")
+    U = check.current
+    ax.set_title(title or (f"shell/null = {check.ratio:.2f} ({'success' if check.success else 'fail'}); "
+                           f"U = ({U[0]:.2f}, {U[1]:.2f}) m/s"), fontsize=9)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+# --------------------------------------------------------------------------- helpers
+
+
+def _failed(grid_info, reason) -> DispersionCheck:
+    nan = math.nan
+    return DispersionCheck(nan, nan, nan, nan, nan, nan, False, np.zeros(2), {}, grid_info, False,
+                           "no dispersion check: " + reason)
+
+
+def _tolerance(k, d_omega, dk, tolerance):
+    """Shell half-width [rad/s] at wavenumber ``k``: ``tolerance`` x the frequency resolution
+    and the shell's frequency change across one wavenumber bin, in quadrature."""
+    c_g = 0.5 * np.sqrt(GRAVITY / np.maximum(k, 1e-12))
+    return tolerance * np.hypot(d_omega, c_g * dk)
+
+
+def _k_below(omega_max, d_omega, dk, tolerance):
+    """The largest k with sqrt(g k) + its shell tolerance below ``omega_max`` (bisection)."""
+    lo, hi = 0.0, omega_max ** 2 / GRAVITY
+    for _ in range(60):
+        k = 0.5 * (lo + hi)
+        if math.sqrt(GRAVITY * k) + float(_tolerance(k, d_omega, dk, tolerance)) <= omega_max:
+            lo = k
+        else:
+            hi = k
+    return lo
+
+
+def _fit_current(P, om, kx, ky, shell_om, tol, max_current):
+    """``U`` maximising the shell energy: a 0.1 m/s grid over the disc ``|U| <= max_current``,
+    then a 0.02 m/s grid around the best point."""
+    Pj, omj = jnp.asarray(P, jnp.float32), jnp.asarray(om, jnp.float32)
+    kxj, kyj = jnp.asarray(kx, jnp.float32), jnp.asarray(ky, jnp.float32)
+    sj, tj = jnp.asarray(shell_om, jnp.float32), jnp.asarray(tol, jnp.float32)
+
+    def energies(us):  # in chunks of 128 candidates (padded), so that one compilation serves all
+        n = len(us)
+        padded = np.zeros((-(-n // 128) * 128, 2))
+        padded[:n] = us
+        out = [np.asarray(_shell_energies(Pj, omj, kxj, kyj, sj, tj, jnp.asarray(padded[i:i + 128], jnp.float32)))
+               for i in range(0, len(padded), 128)]
+        return np.concatenate(out)[:n]
+
+    best = np.zeros(2)
+    for step, radius in ((0.1, max_current), (0.02, 0.1)):
+        n = int(round(radius / step))
+        offsets = np.arange(-n, n + 1) * step
+        cand = best + np.stack(np.meshgrid(offsets, offsets, indexing="ij"), -1).reshape(-1, 2)
+        cand = cand[np.hypot(cand[:, 0], cand[:, 1]) <= max_current + 1e-9]
+        e = energies(cand)
+        # ties (flat energy): the smallest |U|
+        top = e >= e.max() * (1 - 1e-6)
+        best = cand[top][np.argmin(np.hypot(cand[top, 0], cand[top, 1]))]
+    return best
+
+
+@jax.jit
+def _shell_energies(P, om, kx, ky, shell_om, tol, us):
+    def one(u):
+        on = jnp.abs(om[:, None] - (kx * u[0] + ky * u[1])[None, :] - shell_om[None, :]) <= tol[None, :]
+        return jnp.sum(jnp.where(on, P, 0.0))
+
+    return jax.lax.map(one, us)
+
+
+def _k_sigma_marginal(P, om, kx, ky, kb, U, dk, d_omega, k_hi, tolerance):
+    """Power over (|kappa|, sigma = omega - kappa . U) bins for plotting."""
+    sigma = om[:, None] - (kx * U[0] + ky * U[1])[None, :]
+    k_edges = np.arange(0.0, k_hi + dk, dk)
+    s_max = max(float(sigma.max()), math.sqrt(GRAVITY * k_hi) * 1.3)
+    s_min = min(float(sigma.min()), 0.0)
+    s_edges = np.arange(s_min, s_max + d_omega, d_omega)
+    kk = np.broadcast_to(kb[None, :], P.shape)
+    power, _, _ = np.histogram2d(sigma.ravel(), kk.ravel(), bins=(s_edges, k_edges), weights=P.ravel())
+    k_centres = 0.5 * (k_edges[1:] + k_edges[:-1])
+    tol = _tolerance(k_centres, d_omega, dk, tolerance)
+    return dict(k=k_centres, sigma=0.5 * (s_edges[1:] + s_edges[:-1]), power=power, tolerance=tol)
+
+
+def _choose_grid(camera, grid, spacing, max_footprint):
+    """Anchor ``(2,)``, axes, spacing, box level and near distance of the ground grid."""
+    H, W = camera.resolution
+    hit = cam.intersect_sea(camera)
+    mask = np.asarray(hit.mask)
+    fp = np.asarray(hit.footprint, np.float64)
+    xy = np.asarray(hit.xy, np.float64)
+    yaw = float(camera.yaw)
+    e_u = np.array([math.cos(yaw), math.sin(yaw)])
+    e_v = np.array([math.sin(yaw), -math.cos(yaw)])
+    origin = np.array([float(camera.x), float(camera.y)])
+    centre_rows = np.nonzero(mask[:, W // 2])[0]
+    if len(centre_rows) == 0:
+        raise ValueError("the camera sees no sea along its centre column")
+    r_rows = (xy[centre_rows, W // 2] - origin) @ e_u  # forward distance of each sea row's centre
+    fp_near = float(fp[centre_rows[-1], W // 2])
+    if spacing is not None:
+        if not spacing > 0:
+            raise ValueError(f"spacing must be > 0 m; got {spacing}")
+        spacings = np.array([float(spacing)])
+    else:
+        spacings = fp_near * 1.1 ** np.arange(0, 80)
+    r0 = np.unique(r_rows)
+    # corners and far centre of every (r0, d) candidate grid
+    a = np.array([0.0, grid - 1.0, 0.0, grid - 1.0, grid - 1.0]) + 0.5
+    b = np.array([0.0, 0.0, grid - 1.0, grid - 1.0, grid / 2 - 0.5]) - grid / 2 + 0.5
+    D, R = np.meshgrid(spacings, r0, indexing="ij")  # (nd, nr)
+    anchors = origin[None, None, :] + R[..., None] * e_u  # (nd, nr, 2)
+    pts = anchors[:, :, None, :] + D[..., None, None] * (a[:, None] * e_u + b[:, None] * e_v)  # (nd, nr, 5, 2)
+    p3 = np.concatenate([pts, np.zeros(pts.shape[:-1] + (1,))], -1)
+    ij = np.asarray(cam.project(camera, jnp.asarray(p3, jnp.float32)), np.float64)
+    inside = np.all((ij[..., 0] >= 1) & (ij[..., 0] <= H - 2) & (ij[..., 1] >= 1) & (ij[..., 1] <= W - 2), axis=-1)
+    fi = np.clip(np.round(ij[..., 4, 0]).astype(int), 0, H - 1)
+    fj = np.clip(np.round(ij[..., 4, 1]).astype(int), 0, W - 1)
+    far_fp = np.where(mask[fi, fj], fp[fi, fj], np.inf)
+    ok = inside & (far_fp <= max_footprint * D)
+    if not ok.any():
+        raise ValueError(f"no {grid} x {grid} ground grid fits in the view with far pixels within "
+                         f"{max_footprint} grid spacings" + (f" at spacing {spacing} m" if spacing else "")
+                         + "; use a smaller grid or a larger max_footprint")
+    # the largest spacing, then the nearest anchor
+    di = int(np.max(np.nonzero(ok.any(axis=1))[0]))
+    ri = int(np.min(np.nonzero(ok[di])[0]))
+    d, r = float(spacings[di]), float(r0[ri])
+    anchor = origin + r * e_u
+    # box filter over 2^level pixels, 2^level <= spacing / footprint at the near edge
+    near_fp = float(fp[centre_rows[np.argmin(np.abs(r_rows - r))], W // 2])
+    level = int(np.clip(np.floor(np.log2(max(d / near_fp, 1.0))), 0, 5))
+    return anchor, e_u, e_v, d, level, r
+
+
+@functools.partial(jax.jit, static_argnums=(7, 8))
+def _resample_jit(values, weight, camera, anchor, e_u, e_v, d, level, grid):
+    return resample(values, weight, camera, anchor, e_u, e_v, d, level, level > 0, grid)

@@ -1,0 +1,80 @@
+"""Dispersion check: a rendered wave sequence puts its energy on omega^2 = g k; frames in random
+order and a frozen pattern drifting with the water do not."""
+
+import math
+
+import numpy as np
+import pytest
+
+from jaxocean import camera as cam
+from jaxocean import render, shading, spacetime
+from jaxocean.waves import GRAVITY, make_waves
+
+CAMERA = dict(height=10.0, pitch=0.52, yaw=0.3, fov=0.9, resolution=(64, 96))
+TIMES = np.arange(32) * 0.25
+# a dominant wave travelling toward azimuth 1.0 rad (T = 2.86 s, wavelength 12.7 m) and three smaller
+WAVES = make_waves([0.12, 0.04, 0.03, 0.02], [2.2, 3.0, 2.6, 3.6], [1.0, 0.4, 1.6, 0.9], [0.0, 1.0, 2.0, 3.0])
+LIGHT = shading.make_lighting(sun_azimuth=0.3 + math.pi, sun_elevation=0.6)  # sun behind the camera
+
+
+def _sequence(times, camera_at):
+    plan = render.full_plan(4)
+    return np.stack([np.asarray(render.render(WAVES, camera_at(t), LIGHT, t_wave, plan=plan)).mean(-1)
+                     for t, t_wave in times])
+
+
+@pytest.fixture(scope="module")
+def waves_sequence():
+    camera = cam.make_camera(**CAMERA)
+    return _sequence([(t, t) for t in TIMES], lambda t: camera)
+
+
+def test_rendered_waves_lie_on_the_dispersion_shell(waves_sequence, tmp_path):
+    camera = cam.make_camera(**CAMERA)
+    check = spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32)
+    assert check.success, check.message
+    assert check.ratio > 4.0 and check.shell_fraction > 0.6
+    assert check.peak_period_s == pytest.approx(2 * math.pi / 2.2, rel=0.1)
+    assert check.peak_wavelength_m == pytest.approx(2 * math.pi * GRAVITY / 2.2 ** 2, rel=0.15)
+    assert abs(math.remainder(check.peak_direction - 1.0, 2 * math.pi)) < 0.15
+    assert np.hypot(*check.current) <= 1.0 + 1e-9
+    g = check.grid
+    assert g["points"] == 32 and g["support"] == 1.0 and g["frames"] == 32
+    assert g["omega_resolution"] == pytest.approx(2 * math.pi / 8.0)
+    # without the Doppler fit the waves (no current) still pass
+    fixed = spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, current=(0.0, 0.0))
+    assert fixed.success and fixed.ratio > 4.0 and list(fixed.current) == [0.0, 0.0]
+    path = spacetime.plot_dispersion(check, tmp_path / "dispersion.png")
+    assert path.stat().st_size > 10_000
+
+
+def test_frames_in_random_order_fail(waves_sequence):
+    camera = cam.make_camera(**CAMERA)
+    shuffled = waves_sequence[np.random.default_rng(0).permutation(len(TIMES))]
+    check = spacetime.dispersion_check(shuffled, camera, TIMES, grid=32)
+    assert not check.success and check.ratio < 2.0
+    assert check.message.startswith("no clear dispersion")
+
+
+def test_a_frozen_pattern_drifting_with_the_water_fails():
+    # the sea at t = 0, frozen, carried at 0.5 m/s (a foam pattern moving with a current):
+    # rendered by moving the camera the other way
+    speed, heading = 0.5, 0.3
+    frozen = _sequence([(t, 0.0) for t in TIMES], lambda t: cam.make_camera(
+        **CAMERA, x=-speed * t * math.cos(heading), y=-speed * t * math.sin(heading)))
+    check = spacetime.dispersion_check(frozen, cam.make_camera(**CAMERA), TIMES, grid=32)
+    assert not check.success and check.ratio < 2.0
+
+
+def test_inputs_are_checked(waves_sequence):
+    camera = cam.make_camera(**CAMERA)
+    uneven = TIMES.copy()
+    uneven[5] += 0.05
+    with pytest.raises(ValueError, match="uniformly spaced"):
+        spacetime.dispersion_check(waves_sequence, camera, uneven, grid=32)
+    with pytest.raises(ValueError, match=r"\(T, 64, 96\)"):
+        spacetime.dispersion_check(waves_sequence[:, :10], camera, TIMES, grid=32)
+    with pytest.raises(ValueError, match="current"):
+        spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, current="guess")
+    with pytest.raises(ValueError, match="at least 8 frames"):
+        spacetime.dispersion_check(waves_sequence[:4], camera, TIMES[:4], grid=32)
