@@ -33,6 +33,14 @@ below ``3 inlier_px``), an rms residual of those below ``max_rms_px`` (1.5 px by
 and their span to cover ``min_span`` of the image width; otherwise ``message`` says what
 failed and the numbers are those of the best attempt (NaN when there was none).
 
+Accuracy (measured): on the 320 x 240 synthetic images of ``tests/test_horizon.py`` (k1 =
+-0.21, noise, whitecaps, vignetted corners) pitch and roll come out within 4e-4 rad, rms
+residual 0.2 px. On a real 640 x 480 ship-borne sequence (150 frames, overcast clipped sky,
+``experiments/real_evidence.py``) every frame succeeds; against the camera file's pitch and
+roll (INS fitted to its own horizon detection, stated 1-sigma 0.002 / 0.003 rad): pitch
+-0.065 deg bias, 0.037 deg scatter; roll +0.043 deg bias, 0.120 deg scatter; 30 ms a frame
+on the 2-core development machine under the load of other jobs.
+
 Angles in radians with :class:`jaxocean.lens.Pose`'s conventions: ``pitch`` of the optical
 axis below the geometric horizontal (positive looks down; the dip is accounted for),
 ``roll`` positive when the image-right axis tilts up. Pixel coordinates are OpenCV's
@@ -126,8 +134,8 @@ def horizon_points(image, *, stride: int | None = None, step: int | None = None,
     return np.stack([u[keep], v[keep]], axis=-1)
 
 
-def estimate_horizon(image, intrinsics: lens.Intrinsics, distortion: lens.Distortion = lens.Distortion(),
-                     height: float = 10.0, *, stride: int | None = None, step: int | None = None,
+def estimate_horizon(image, intrinsics: lens.Intrinsics, distortion: lens.Distortion, height: float, *,
+                     stride: int | None = None, step: int | None = None,
                      min_contrast: float = 0.2, inlier_px: float = 1.5, max_rms_px: float = 1.5,
                      min_fraction: float = 0.25, min_span: float = 0.5, ransac_trials: int = 300,
                      seed: int = 0) -> Horizon:
@@ -143,7 +151,7 @@ def estimate_horizon(image, intrinsics: lens.Intrinsics, distortion: lens.Distor
         return Horizon(math.nan, math.nan, math.nan, 0, False,
                        f"no horizon: {len(points)} of {n_scanned} columns have a clear bright-above/dark-below "
                        f"edge", points, empty)
-    fx, fy, cx, cy = (float(v) for v in intrinsics)
+    fy = float(intrinsics.fy)
     xy, scale = _undistorted(points, intrinsics, distortion)
     line = _ransac_line(xy, inlier_px / fy, ransac_trials, seed)
     if line is None:

@@ -10,8 +10,7 @@ Protocol
   :data:`RESPONSE_KINDS`:
 
   - ``"srgb"``: the sRGB transfer curve (photographs, most video);
-  - ``"gamma"``: ``display = L^(1/gamma)``, so ``L = display^gamma`` (``gamma > 0``; machine
-    vision cameras such as the Point Grey Flea2 default to a plain power law or none);
+  - ``"gamma"``: ``display = L^(1/gamma)``, so ``L = display^gamma`` (``gamma > 0``);
   - ``"linear"``: ``display = L`` (raw sensor values);
   - ``"bruneton"``: the tone curve of the library's renderer (:func:`jaxocean.shading.tonemap`).
 

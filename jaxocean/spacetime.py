@@ -49,6 +49,23 @@ library azimuth (from +x = east, counter-clockwise) the waves travel toward; com
 = ``pi/2 - peak_direction``. The peak is only the peak *within the band*: ``peak_at_band_edge``
 says when it sits at the band's long-wave end (the sea's true peak may be longer).
 
+The ratio cannot exceed ``1 / null_fraction``: the shell's share of the frequency axis, set
+by the record length (``d_omega``) and the grid (``dk``).
+
+Measured (``tests/test_spacetime.py``, ``experiments/real_evidence.py``): a rendered 64 x 96
+sequence of four waves, 32 frames 0.25 s apart, 32^2 grid: ratio 5.7 (5.2 with ``U = 0``),
+peak period within 4 % and direction within 5 deg of the dominant wave's; the same frames
+in random order: 1.4; the sea frozen and carried at 0.5 m/s: 1.2-1.7. A real ship-borne
+sequence (150 frames at 5 Hz rectified to 240 x 320): 5.1 on the default 64^2 grid (1.7 m
+spacing, 65-176 m from the camera), 1.0 with its frames shuffled.
+
+Limits: with a short record the shell is wide. In the 8 s synthetic record a frozen pattern
+carried at 1.5 m/s, within reach of the fitted ``U`` of the waves' phase speeds, reaches a
+ratio of 3.3 (2.0 with ``U = 0``): a pattern that moves rigidly near the phase speed of a
+narrow band of waves is not told apart from them. Slow variations of the whole image (a
+ship's motion left after rectification) put energy at low frequencies, on the shell of the
+longest waves of the grid.
+
 Host NumPy results; the resampling is jitted. Metres, seconds, radians.
 """
 
