@@ -78,3 +78,23 @@ def test_inputs_are_checked(waves_sequence):
         spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, current="guess")
     with pytest.raises(ValueError, match="at least 8 frames"):
         spacetime.dispersion_check(waves_sequence[:4], camera, TIMES[:4], grid=32)
+
+
+def test_ground_grid_resampling_is_exact_for_a_linear_image():
+    # bilinear sampling reproduces an image that is linear in the pixel coordinates: the
+    # resampled values are the grid points' projected (row, column), channel by channel
+    import jax.numpy as jnp
+
+    from jaxocean._ground_grid import grid_points, resample
+
+    camera = cam.make_camera(**CAMERA)
+    H, W = CAMERA["resolution"]
+    i, j = np.mgrid[0:H, 0:W].astype(np.float32)
+    values = jnp.asarray(np.stack([i, j], -1)[None].repeat(2, 0))  # (T=2, H, W, C=2)
+    anchor = jnp.array([20.0, 6.0])
+    e_u, e_v = jnp.array([np.cos(0.3), np.sin(0.3)]), jnp.array([np.sin(0.3), -np.cos(0.3)])
+    out, valid, X = resample(values, jnp.ones((2, H, W)), camera, anchor, e_u, e_v, 0.5, 0, False, 8)
+    np.testing.assert_allclose(X, grid_points(anchor, e_u, e_v, 0.5, 8), rtol=1e-6)
+    ij = np.asarray(cam.project(camera, jnp.concatenate([X, jnp.zeros((8, 8, 1))], -1)))
+    assert out.shape == (2, 8, 8, 2) and bool(np.all(np.asarray(valid) == 1))
+    np.testing.assert_allclose(np.asarray(out[1]), ij, atol=2e-3)
