@@ -9,12 +9,15 @@
   transfer
 * :mod:`jaxocean.fit.waves`    component waves from a geometry sequence (spectral start,
   greedy detection with order selection, structured Levenberg-Marquardt)
+* :mod:`jaxocean.fit.photometric` waves, lighting and exposure refined jointly against the
+  image sequence through the renderer (robust IRLS loss, outlier mask)
 * :mod:`jaxocean.fit.spectrum` sea state (Hs, Tp, gamma, direction, spreading) behind fitted
   waves and the roughness; the spectrum correction of unresolved amplitudes
 
-The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera`` and ``fit.lighting`` shadow
-their modules' names on this package; the modules are re-exported as ``waves_fit``,
-``spectrum_fit``, ``camera_fit`` and ``lighting_fit``.
+The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera``, ``fit.lighting`` and
+``fit.photometric`` shadow their modules' names on this package; the modules are
+re-exported as ``waves_fit``, ``spectrum_fit``, ``camera_fit``, ``lighting_fit`` and
+``photometric_fit``.
 
 Usage::
 
@@ -27,6 +30,7 @@ Usage::
 
 from jaxocean.fit import camera as camera_fit
 from jaxocean.fit import lighting as lighting_fit
+from jaxocean.fit import photometric as photometric_fit
 from jaxocean.fit import reedit as reedit_module
 from jaxocean.fit import solvers
 from jaxocean.fit import spectrum as spectrum_fit
@@ -50,6 +54,7 @@ from jaxocean.fit.lighting import (
     sun_to_pq,
     tonemap_weights,
 )
+from jaxocean.fit.photometric import PhotometricFit, photometric
 from jaxocean.fit.reedit import StyleTransfer, edit_camera, edit_lighting, reedit, reedit_scene, style_transfer
 from jaxocean.fit.spectrum import SeaState, SpectrumFit, correct_amplitudes, sea_state, spectrum, tail_waves
 from jaxocean.fit.waves import (
@@ -72,6 +77,7 @@ __all__ = [
     "solvers",
     "lighting_fit",
     "camera_fit",
+    "photometric_fit",
     "reedit_module",
     "waves_fit",
     "spectrum_fit",
@@ -103,6 +109,9 @@ __all__ = [
     "CAMERA_FIELDS",
     "CameraFit",
     "camera",
+    # photometric refinement
+    "PhotometricFit",
+    "photometric",
     # re-editing
     "StyleTransfer",
     "edit_camera",

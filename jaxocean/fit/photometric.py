@@ -1,0 +1,783 @@
+"""Photometric refinement: waves, lighting and exposure fitted jointly to an image sequence.
+
+Protocol
+--------
+``photometric(images, camera, times, waves, lighting, *, fit=("waves", "lighting", "exposure"),
+...) -> PhotometricFit``
+
+* ``images``  ``(T, H, W, 3)`` linear RGB radiance, or ``(T, H, W)`` gray, taken as the
+  luminance ``LUMINANCE . RGB`` of the RGB model (:data:`jaxocean.nn.geometry.LUMINANCE`,
+  Rec. 709), with an unknown overall exposure.
+* ``camera``  the :class:`jaxocean.camera.Camera` the frames are rectified to
+  (``camera.resolution == (H, W)``); ``times`` ``(T,)`` frame times [s], strictly increasing.
+* ``waves``   the start :class:`jaxocean.waves.Waves` ``(N,)`` (e.g. from ``fit.waves``);
+  ``lighting`` the start :class:`jaxocean.shading.Lighting` (e.g. from ``fit.lighting``).
+* ``mask``    ``(T, H, W)`` bool, the usable pixels (unsaturated, inside the frame); default all.
+
+Model: frame ``i`` is ``exposure * render(waves, camera, lighting, times[i])``
+(:func:`jaxocean.render.render` with the explicit static plan ``RenderPlan(all N waves,
+refine=0)``: the rows path, the plane-hit model ``fit.waves`` also fits; ``refine=`` picks the
+hits path instead), its luminance for gray images. The render gradients are exact JAX
+gradients (forward mode). Only sea pixels enter the loss: sky pixels carry no information
+about the waves, and the model's uniform (or horizon-gradient) sky rarely matches a real
+sky's brightness, while the sky radiance the sea reflects -- what constrains the sky colour
+here -- is measured by the sea pixels themselves (``sky=True`` adds the sky pixels).
+
+Comparison space: ``c(I) = log1p(I / s)`` (:func:`jaxocean._sea_scale.compress`), ``s`` the
+per-channel median of the observed images over the used sea pixels. The residual is
+``c(model) - c(image)``. Chosen over tone-mapped display values because it does not depend
+on the unknown exposure (image and model are compared on the image's own scale; a tone map
+acts after the exposure, so its loss would change with the fitted exposure), it is a
+relative error near the sea's level (``dI / (s + I)``), and it compresses glints and
+saturated whitecaps logarithmically, so an outlier's residual is O(1), not O(1e3).
+
+Parameters (one vector, solved jointly):
+
+* waves: ``(a, b, log omega, theta)`` per wave, ``(a, b) = h (cos phi, sin phi)`` (as
+  :mod:`jaxocean.fit.waves`);
+* sun direction: the azimuthal-equidistant ``(p, q)`` of :mod:`jaxocean.fit.lighting`
+  (not with ``overcast=True``: then the sun colour is fixed at 0 and the sun is not fitted);
+* colours: log factors on the start colours, one per channel (RGB) or one per colour (gray
+  images see only each colour's luminance); the sun, sky and sea colours (sky and sea when
+  overcast). A start channel at 0 is started at 1e-4 of the brightest start colour;
+* exposure: ``log exposure``.
+
+Exposure gauge: the image is linear in the colours, so a common factor of all colours is
+the exposure. With both ``"lighting"`` and ``"exposure"`` fitted the colour factors are
+constrained to a zero mean of their logs (an orthonormal basis of that subspace is the
+parameter): the colours keep the start's geometric-mean brightness and the exposure
+carries the common scale. With ``"lighting"`` alone the exposure stays at ``exposure``
+(kwarg, default 1) and the colours carry the scale; with ``"exposure"`` alone the colours
+stay at the start. Before solving, the fitted scale (exposure, else the colours) is set
+so that the model's sea median matches the images' (one closed-form step).
+
+Robust loss (``robust="cauchy"``, ``"huber"``, ``"tukey"``; ``None``: plain least squares):
+iteratively reweighted least squares. Each of ``rounds`` rounds fixes the scale ``sigma =
+1.4826 median |r|`` (the MAD of the residuals over used pixels and channels, floored at
+``SCALE_FLOOR``) and per-pixel weights ``w(u)`` of ``u = rms_channels(r) / (c sigma)``
+(Cauchy ``1 / (1 + u^2)``, ``c = 2.385``; Huber ``min(1, 1 / u)``, ``c = 1.345``; Tukey
+``(1 - u^2)^2`` for ``u < 1`` else 0, ``c = 4.685``), then minimises ``sum w r^2`` by
+Levenberg-Marquardt (Nielsen damping, Marquardt scaling) on normal equations accumulated
+frame by frame from forward-mode Jacobians (in blocks of 8 columns: see
+:func:`jaxocean.fit.solvers.value_and_jacobian`). The ``outliers`` are the used pixels whose
+final weight is below ``OUTLIER_WEIGHT`` (for Cauchy ``|r| > 4.8 sigma``); with
+``robust=None`` they are marked by the Cauchy rule at the final scale, the weights are 1.
+
+``loss`` and ``loss_init``: the mean over used pixels of the robust function ``(c sigma)^2
+rho(u)`` (``rho`` ~ ``u^2 / 2`` for small ``u``; plain ``r^2 / 2`` for ``robust=None``), both
+at the final scale ``sigma``, so they compare like with like.
+
+Noise (the level the success test holds the residual to), in the comparison space (about
+the relative radiance noise near the sea's level): ``noise=`` as given, or estimated from
+the images by Immerkaer's operator (the 3x3 kernel ``[[1,-2,1],[-2,4,-2],[1,-2,1]]``, which
+cancels planes and ramps): ``median |K * c(image)| / (0.6745 * 6)`` over pixels whose 3x3
+neighbourhood is used sea, all frames and channels. Wave texture near the pixel scale adds
+to it, so the estimate is an upper bound of the noise: a lenient residual test, which is why
+the success test also asks the waves to explain the images' structure.
+
+Success: ``success`` is True only when every one of these holds (``message`` names each
+that fails):
+
+* the loss is finite and no worse than at the start (``loss <= loss_init``);
+* ``robust_scale <= SCALE_FACTOR (1.5) * max(noise, NOISE_FLOOR)``: the residual of what the
+  model keeps is at the noise level (``NOISE_FLOOR = 1e-3``: the model's own consistency);
+* ``outlier_fraction <= MAX_OUTLIER_FRACTION (0.2)``: the model produces most of the image;
+* ``robust_scale <= EXPLAINED_RATIO (0.5) * signal_scale``, ``signal_scale`` the MAD of
+  ``c(image)`` about its per-row median (the view-dependent mean): the fitted waves explain
+  the images' structure, not only their mean (pure noise, or frames no wave field
+  produces, fail here even when their residual is at the noise level).
+
+Everything after validation runs in two jitted functions (one IRLS round; the final
+statistics) with static configuration, compiled once per shape and configuration; the fit
+itself is eager (host loop over rounds, ``progress=True`` prints them). :func:`residual` is
+the comparison-space residual as a jittable function of the inputs, :func:`rerender` the
+fitted model's frames, :func:`fit_to_dict` a JSON-safe summary.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import render, shading
+from jaxocean._sea_scale import compress, sea_median
+from jaxocean.errors import InvalidValueError, is_concrete
+from jaxocean.fit._photometry import pq_to_sun, sun_to_pq
+from jaxocean.fit.lighting import lighting_to_dict
+from jaxocean.fit.solvers import FitError
+from jaxocean.fit.waves._model import pack, to_waves
+from jaxocean.nn.geometry import LUMINANCE
+from jaxocean.shading import Lighting
+from jaxocean.waves import Waves, validate
+
+__all__ = [
+    "PHOTOMETRIC_FIELDS",
+    "ROBUST_LOSSES",
+    "OUTLIER_WEIGHT",
+    "SCALE_FACTOR",
+    "NOISE_FLOOR",
+    "MAX_OUTLIER_FRACTION",
+    "EXPLAINED_RATIO",
+    "SCALE_FLOOR",
+    "PhotometricFit",
+    "photometric",
+    "residual",
+    "rerender",
+    "estimate_noise",
+    "fit_to_dict",
+]
+
+PHOTOMETRIC_FIELDS = ("waves", "lighting", "exposure")
+#: robust loss -> tuning constant c (95% efficiency at Gaussian noise)
+ROBUST_LOSSES = {"cauchy": 2.385, "huber": 1.345, "tukey": 4.685}
+#: a used pixel is an outlier when its final IRLS weight is below this
+OUTLIER_WEIGHT = 0.2
+#: success needs robust_scale <= SCALE_FACTOR * max(noise, NOISE_FLOOR)
+SCALE_FACTOR = 1.5
+NOISE_FLOOR = 1e-3
+#: success needs outlier_fraction <= MAX_OUTLIER_FRACTION
+MAX_OUTLIER_FRACTION = 0.2
+#: success needs robust_scale <= EXPLAINED_RATIO * signal_scale
+EXPLAINED_RATIO = 0.5
+#: the IRLS scale never goes below this (comparison-space units)
+SCALE_FLOOR = 1e-6
+_MAD = 1.4826
+_BLOCK = 8  # forward-mode Jacobian columns per vmapped block (see solvers.value_and_jacobian)
+_COLOR_NAMES = ("sun_color", "sky_color", "sea_color")
+
+
+class PhotometricFit(NamedTuple):
+    """Result of :func:`photometric`.
+
+    * ``waves``      fitted :class:`~jaxocean.waves.Waves` ``(N,)`` (start order).
+    * ``lighting``   fitted :class:`~jaxocean.shading.Lighting` (sun colour 0 when overcast).
+    * ``exposure``   ``()`` the exposure: images ~ ``exposure * render(waves, lighting)``.
+    * ``outliers``   ``(T, H, W)`` bool: used pixels the model cannot produce (final weight
+      below :data:`OUTLIER_WEIGHT`).
+    * ``weights``    ``(T, H, W)`` final IRLS weights (0 on unused pixels).
+    * ``loss_init``, ``loss`` ``()`` the robust loss at the start and at the answer, both at
+      the final scale (module docstring).
+    * ``robust_scale`` ``()`` final MAD scale of the residual (comparison space).
+    * ``noise``      ``()`` the noise level of the success test (given or estimated).
+    * ``outlier_fraction`` ``()`` outliers over used pixels.
+    * ``steps``      total Levenberg-Marquardt steps over the rounds.
+    * ``seconds``    wall time of the call [s], compilation included on a first call.
+    * ``success``    bool: the fit explains the data (module docstring, *Success*).
+    * ``message``    empty on success, else which criteria failed and by how much.
+    * ``signal_scale`` ``()`` the images' own spread about the per-row median (comparison space).
+    * ``sea_scale``  ``(C,)`` the per-channel sea median ``s`` of the comparison space.
+    * ``noise_estimated`` bool: ``noise`` was estimated from the images.
+    """
+
+    waves: Waves
+    lighting: Lighting
+    exposure: jax.Array
+    outliers: jax.Array
+    weights: jax.Array
+    loss_init: jax.Array
+    loss: jax.Array
+    robust_scale: jax.Array
+    noise: jax.Array
+    outlier_fraction: jax.Array
+    steps: int
+    seconds: float
+    success: bool
+    message: str
+    signal_scale: jax.Array = None
+    sea_scale: jax.Array = None
+    noise_estimated: bool = True
+
+
+class _Static(NamedTuple):
+    """Hashable configuration of the jitted pieces."""
+
+    n_waves: int
+    fit_waves: bool
+    fit_sun: bool
+    colors: tuple  # fitted colour names
+    gray: bool
+    fit_exposure: bool
+    gauge: bool
+    plan: render.RenderPlan
+
+
+class _Data(NamedTuple):
+    """Arrays of one fit (a pytree)."""
+
+    target: jax.Array  # (T, H, W, C) c(image)
+    used: jax.Array  # (T, H, W) float 0/1
+    times: jax.Array  # (T,)
+    camera: cam.Camera
+    scale: jax.Array  # (C,) sea median
+    hg: jax.Array  # () horizon gradient
+    waves0: jax.Array  # (4N,) packed start waves
+    pq0: jax.Array  # (2,)
+    colors0: jax.Array  # (3, 3) start colours (floored), rows sun / sky / sea
+    log_exposure0: jax.Array  # ()
+    basis: jax.Array  # (k, k - 1) zero-mean basis (gauge) or (k, k) identity
+
+
+# --------------------------------------------------------------------------- model
+
+
+def _model_frames(waves_, light, exposure, camera, times, hg, gray, plan):
+    """``exposure * render`` of every frame, ``(T, H, W, C)`` (``C = 1`` gray)."""
+    def one(t):
+        img = exposure * render.render(waves_, camera, light, t, horizon_gradient=hg, plan=plan)
+        return img @ jnp.asarray(LUMINANCE, img.dtype)[:, None] if gray else img
+
+    return jax.lax.map(one, times)
+
+
+def _n_color_params(st: _Static) -> int:
+    return len(st.colors) * (1 if st.gray else 3)
+
+
+def _layout(st: _Static):
+    """Slices of the parameter vector: waves, sun (p, q), colour coordinates, log exposure."""
+    sizes = [("waves", 4 * st.n_waves if st.fit_waves else 0), ("sun", 2 if st.fit_sun else 0),
+             ("colors", (_n_color_params(st) - (1 if st.gauge else 0)) if st.colors else 0),
+             ("exposure", 1 if st.fit_exposure else 0)]
+    out, i = {}, 0
+    for name, n in sizes:
+        out[name] = slice(i, i + n)
+        i += n
+    return out, i
+
+
+def _unpack(y, d: _Data, st: _Static):
+    """``(waves, lighting, exposure)`` of parameters ``y``."""
+    lay, _ = _layout(st)
+    yw = y[lay["waves"]] if st.fit_waves else d.waves0
+    waves_ = to_waves(yw, st.n_waves)
+    pq = y[lay["sun"]] if st.fit_sun else d.pq0
+    az, el = pq_to_sun(pq)
+    colors = [d.colors0[i] for i in range(3)]
+    if st.colors:
+        s = d.basis @ y[lay["colors"]]
+        per = 1 if st.gray else 3
+        for j, name in enumerate(st.colors):
+            i = _COLOR_NAMES.index(name)
+            colors[i] = colors[i] * jnp.exp(s[j * per:(j + 1) * per])
+    exposure = jnp.exp(y[lay["exposure"]][0] if st.fit_exposure else d.log_exposure0)
+    return waves_, Lighting(az, el, *colors), exposure
+
+
+def _pack(d: _Data, st: _Static):
+    lay, n = _layout(st)
+    parts = []
+    if st.fit_waves:
+        parts.append(d.waves0)
+    if st.fit_sun:
+        parts.append(d.pq0)
+    if st.colors:
+        parts.append(jnp.zeros(lay["colors"].stop - lay["colors"].start, d.target.dtype))
+    if st.fit_exposure:
+        parts.append(d.log_exposure0[None])
+    return jnp.concatenate(parts).astype(d.target.dtype)
+
+
+def _frame_residual(y, i, d: _Data, st: _Static):
+    """Comparison-space residual of frame ``i``, ``(H, W, C)`` (unweighted)."""
+    waves_, light, exposure = _unpack(y, d, st)
+    img = exposure * render.render(waves_, d.camera, light, d.times[i], horizon_gradient=d.hg, plan=st.plan)
+    if st.gray:
+        img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
+    return compress(img, d.scale) - d.target[i]
+
+
+def _all_residuals(y, d: _Data, st: _Static):
+    return jax.lax.map(lambda i: _frame_residual(y, i, d, st), jnp.arange(d.target.shape[0]))
+
+
+def _frame_jacobian(y, i, d: _Data, st: _Static):
+    """``(r (M,), J (M, P))`` of frame ``i``: forward mode, ``_BLOCK`` columns per vmapped
+    block, the blocks in a ``lax.map`` (one compiled copy of the render JVP)."""
+    fn = lambda z: _frame_residual(z, i, d, st).reshape(-1)  # noqa: E731
+    P = y.shape[0]
+    nb = -(-P // _BLOCK)
+    basis = jnp.eye(nb * _BLOCK, P, dtype=y.dtype).reshape(nb, _BLOCK, P)
+    r, cols = jax.lax.map(lambda V: jax.vmap(lambda v: jax.jvp(fn, (y,), (v,)), out_axes=(None, 0))(V), basis)
+    return r[0], cols.reshape(nb * _BLOCK, -1)[:P].T
+
+
+# --------------------------------------------------------------------------- robust weights
+
+# robust loss codes (a runtime argument: one compiled program serves every loss)
+_CODES = (None, "cauchy", "huber", "tukey")
+_C = (ROBUST_LOSSES["cauchy"], ROBUST_LOSSES["cauchy"], ROBUST_LOSSES["huber"], ROBUST_LOSSES["tukey"])
+
+
+def _pixel_u(r, scale, code):
+    """``u = rms_channels(r) / (c sigma)`` per pixel ``(T, H, W)``; ``c`` of ``code``
+    (Cauchy's for least squares)."""
+    c = jnp.asarray(_C, r.dtype)[code]
+    return jnp.sqrt(jnp.mean(r * r, axis=-1)) / (c * scale)
+
+
+def _weight(u, code):
+    return jnp.select([code == 0, code == 1, code == 2],
+                      [jnp.ones_like(u), 1.0 / (1.0 + u * u), jnp.minimum(1.0, 1.0 / jnp.maximum(u, 1e-30))],
+                      jnp.where(u < 1.0, (1.0 - u * u) ** 2, 0.0))
+
+
+def _rho(u, code):
+    """Robust function per unit ``(c sigma)^2``."""
+    return jnp.select([code == 0, code == 1, code == 2],
+                      [0.5 * u * u, 0.5 * jnp.log1p(u * u), jnp.where(u <= 1.0, 0.5 * u * u, u - 0.5)],
+                      jnp.where(u < 1.0, (1.0 - (1.0 - u * u) ** 3) / 6.0, 1.0 / 6.0))
+
+
+def _mad(r, used):
+    """``1.4826 median |r|`` over used pixels and channels."""
+    a = jnp.where(used[..., None] > 0, jnp.abs(r), jnp.nan)
+    return _MAD * jnp.nanmedian(a)
+
+
+def _robust_loss(r, used, scale, code):
+    c = jnp.asarray(_C, r.dtype)[code]
+    u = _pixel_u(r, scale, code)
+    return jnp.sum(used * _rho(u, code)) * (c * scale) ** 2 / jnp.maximum(jnp.sum(used), 1.0)
+
+
+@jax.jit
+def _irls_weights(r, used, code):
+    """``(scale, weights (T, H, W))`` of residuals ``r``: one IRLS round's."""
+    scale = jnp.maximum(_mad(r, used), SCALE_FLOOR)
+    return scale, used * _weight(_pixel_u(r, scale, code), code)
+
+
+@jax.jit
+def _statistics(r, r_init, used, code):
+    """Scale, weights, outliers, the two losses and the outlier fraction at the answer."""
+    scale, w = _irls_weights(r, used, code)
+    rule = used * _weight(_pixel_u(r, scale, jnp.maximum(code, 1)), jnp.maximum(code, 1))
+    outliers = (used > 0) & (rule < OUTLIER_WEIGHT)
+    loss = _robust_loss(r, used, scale, code)
+    loss_init = _robust_loss(r_init, used, scale, code)
+    frac = jnp.sum(outliers) / jnp.maximum(jnp.sum(used), 1.0)
+    return w, outliers, loss, loss_init, scale, frac
+
+
+# --------------------------------------------------------------------------- solver
+
+
+def _normal_equations(y, w, d: _Data, st: _Static):
+    """``(0.5 sum w r^2, J^T W J, J^T W r)`` over frames, ``w (T, H, W)`` pixel weights,
+    normalised by the number of used pixel-channels."""
+    P = y.shape[0]
+    C = d.target.shape[-1]
+    norm = 1.0 / jnp.maximum(C * jnp.sum(d.used), 1.0)
+
+    def body(carry, i):
+        f, jtj, jtr = carry
+        r, J = _frame_jacobian(y, i, d, st)
+        wv = jnp.repeat(w[i].reshape(-1), C) * norm
+        return (f + 0.5 * jnp.sum(wv * r * r), jtj + (J * wv[:, None]).T @ J, jtr + J.T @ (wv * r)), None
+
+    zero = (jnp.zeros((), y.dtype), jnp.zeros((P, P), y.dtype), jnp.zeros(P, y.dtype))
+    out, _ = jax.lax.scan(body, zero, jnp.arange(d.target.shape[0]))
+    return out
+
+
+def _weighted_loss(y, w, d: _Data, st: _Static):
+    r = _all_residuals(y, d, st)
+    C = d.target.shape[-1]
+    return 0.5 * jnp.sum(w[..., None] * r * r) / jnp.maximum(C * jnp.sum(d.used), 1.0)
+
+
+def _lm(y0, w, d: _Data, st: _Static, max_steps: int, rtol: float):
+    """Levenberg-Marquardt on ``0.5 sum w r^2`` (weights fixed): Nielsen damping, Marquardt
+    scaling; the normal equations are recomputed only after an accepted step (at the top of
+    the next step: one compiled copy of the Jacobian). Returns ``(y, f, steps)``."""
+    dtype = y0.dtype
+    P = y0.shape[0]
+
+    def cond(s):
+        return (~s[7]) & (s[6] < max_steps)
+
+    def body(s):
+        y, f, jtj, jtr, lam, nu, k, _, stale = s
+        f, jtj, jtr = jax.lax.cond(stale, lambda: _normal_equations(y, w, d, st), lambda: (f, jtj, jtr))
+        diag = jnp.diag(jtj)
+        dsc = jnp.maximum(diag, 1e-9 * jnp.max(diag) + 1e-30)
+        step = -jnp.linalg.solve(jtj + lam * jnp.diag(dsc), jtr)
+        ok = jnp.all(jnp.isfinite(step))
+        step = jnp.where(ok, step, 0.0)
+        y_try = y + step
+        f_try = _weighted_loss(y_try, w, d, st)
+        pred = -(step @ jtr) - 0.5 * step @ (jtj @ step)
+        actual = f - f_try
+        rho = actual / jnp.where(pred > 0, pred, 1.0)
+        accept = ok & jnp.isfinite(f_try) & (actual > 0) & (pred > 0) & (rho > 1e-4)
+        y2 = jnp.where(accept, y_try, y)
+        f2 = jnp.where(accept, f_try, f)
+        lam2 = jnp.where(accept, lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3), lam * nu)
+        nu2 = jnp.where(accept, 2.0, 2.0 * nu).astype(dtype)
+        rel = accept & (actual <= rtol * jnp.maximum(f, jnp.finfo(dtype).tiny))
+        small = jnp.max(jnp.abs(step) / (jnp.abs(y) + 1.0)) < 1e-9
+        done = rel | small | (lam2 > 1e12) | (f2 <= 0)
+        return y2, f2, jtj, jtr, lam2, nu2, k + 1, done, accept
+
+    s0 = (y0, jnp.asarray(jnp.inf, dtype), jnp.zeros((P, P), dtype), jnp.zeros(P, dtype), jnp.asarray(1e-3, dtype),
+          jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(True))
+    s = jax.lax.while_loop(cond, body, s0)
+    return s[0], s[1], s[6]
+
+
+_solve = jax.jit(_lm, static_argnames=("st", "max_steps", "rtol"))
+_residuals = jax.jit(_all_residuals, static_argnames=("st",))
+
+
+def _align_scale(y, d: _Data, st: _Static):
+    """``y`` with the fitted common scale (exposure, else the colours) set so that the
+    model's sea median matches the images' (mean over channels of the log ratio); the
+    model is read back from its residual, ``s expm1(r + c(image))``."""
+    lay, _ = _layout(st)
+    if not st.fit_exposure and not (st.colors and not st.gauge):
+        return y
+    r = _residuals(y, d, st)
+    model = d.scale * jnp.expm1(r + d.target)
+    log_ratio = float(jnp.mean(jnp.log(d.scale) - jnp.log(_sea_median(model, d.used))))
+    if not math.isfinite(log_ratio):
+        return y
+    return y.at[lay["exposure"] if st.fit_exposure else lay["colors"]].add(log_ratio)
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+@jax.jit
+def _noise_estimate(target, used):
+    """Immerkaer's noise estimate of ``target (T, H, W, C)`` over used 3x3 neighbourhoods."""
+    k = ((1.0, -2.0, 1.0), (-2.0, 4.0, -2.0), (1.0, -2.0, 1.0))
+    T, H, W, C = target.shape
+    conv = sum(k[i][j] * target[:, i:H - 2 + i, j:W - 2 + j] for i in range(3) for j in range(3))
+    ok = functools.reduce(jnp.logical_and, [used[:, i:H - 2 + i, j:W - 2 + j] > 0 for i in range(3) for j in range(3)])
+    a = jnp.where(ok[..., None], jnp.abs(conv), jnp.nan)
+    return jnp.nanmedian(a) / (0.6745 * 6.0)
+
+
+@jax.jit
+def _signal_scale(target, used):
+    """MAD of ``target`` about its per-row median over used pixels (all frames, columns)."""
+    T, H, W, C = target.shape
+    t = jnp.where(used[..., None] > 0, target, jnp.nan)
+    rows = jnp.nanmedian(jnp.moveaxis(t, 1, 0).reshape(H, T * W, C), axis=1)  # (H, C)
+    dev = jnp.abs(t - rows[None, :, None, :])
+    return _MAD * jnp.nanmedian(dev)
+
+
+def estimate_noise(images, mask=None, sea_scale=None):
+    """Noise standard deviation of ``images`` ``(T, H, W[, 3])`` in the comparison space
+    ``log1p(I / s)`` (module docstring, *Noise*): Immerkaer's operator over the pixels
+    whose 3x3 neighbourhood is in ``mask`` (default all). ``sea_scale`` ``(C,)``: ``s``
+    (default the per-channel median over ``mask``). NaN when no neighbourhood is usable."""
+    images = jnp.asarray(images)
+    if images.ndim == 3:
+        images = images[..., None]
+    if images.ndim != 4:
+        raise ValueError(f"images must be (T, H, W) or (T, H, W, 3); got {images.shape}")
+    used = jnp.ones(images.shape[:3], images.dtype) if mask is None else jnp.asarray(mask).astype(images.dtype)
+    if used.shape != images.shape[:3]:
+        raise ValueError(f"mask must be {images.shape[:3]}; got {used.shape}")
+    if sea_scale is None:
+        sea_scale = _sea_median(images, used)
+    return _noise_estimate(compress(images, jnp.asarray(sea_scale, images.dtype)), used)
+
+
+def _sea_median(images, used):
+    T, H, W, C = images.shape
+    return sea_median(images.reshape(T * H, W, C), used.reshape(T * H, W) > 0)
+
+
+# --------------------------------------------------------------------------- validation
+
+
+def _check_fit(fit) -> tuple:
+    if isinstance(fit, str):
+        fit = (fit,)
+    fit = tuple(fit)
+    unknown = [f for f in fit if f not in PHOTOMETRIC_FIELDS]
+    if unknown or not fit:
+        raise ValueError(f"fit= must be a non-empty subset of {PHOTOMETRIC_FIELDS}; got {fit!r}")
+    return tuple(f for f in PHOTOMETRIC_FIELDS if f in fit)
+
+
+def _check_images(images, camera, times, mask):
+    """``(images (T, H, W, C), gray, times (T,), mask (T, H, W) bool or None)``, checked."""
+    cam.validate_camera(camera)
+    images = jnp.asarray(images)
+    if not jnp.issubdtype(images.dtype, jnp.floating):
+        images = images.astype(jnp.zeros(()).dtype)
+    H, W = camera.resolution
+    if images.ndim == 4 and images.shape[-1] == 3:
+        gray = False
+    elif images.ndim == 3:
+        gray = True
+        images = images[..., None]
+    else:
+        raise ValueError(f"images must be (T, H, W, 3) linear RGB or (T, H, W) gray; got shape {images.shape}")
+    T = images.shape[0]
+    if images.shape[1:3] != (H, W):
+        raise ValueError(f"images are {images.shape[1:3]} (H, W) but the camera's resolution is {(H, W)}")
+    times = jnp.asarray(times, images.dtype)
+    if times.shape != (T,):
+        raise ValueError(f"times must be (T,) = ({T},), one per frame; got shape {times.shape}")
+    if T < 1:
+        raise ValueError("images hold no frame")
+    if is_concrete(times):
+        tt = np.asarray(times)
+        if not np.all(np.isfinite(tt)):
+            raise ValueError("times must be finite")
+        if T > 1 and not np.all(np.diff(tt) > 0):
+            raise ValueError(f"times must be strictly increasing; got {tt.tolist()}")
+    if mask is not None:
+        mask = jnp.asarray(mask)
+        if mask.shape != (T, H, W):
+            raise ValueError(f"mask must be (T, H, W) = {(T, H, W)}; got {mask.shape}")
+        if mask.dtype != jnp.bool_:
+            raise ValueError(f"mask must be bool; got {mask.dtype}")
+    return images, gray, times, mask
+
+
+def _used_pixels(images, camera, mask, sky: bool):
+    """``(T, H, W)`` float: mask and finite and (sea unless ``sky``)."""
+    T = images.shape[0]
+    used = jnp.all(jnp.isfinite(images), axis=-1)
+    if mask is not None:
+        used = used & mask
+    if not sky:
+        used = used & cam.intersect_sea(camera).mask[None]
+    return used.astype(images.dtype)
+
+
+# --------------------------------------------------------------------------- public API
+
+
+def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=PHOTOMETRIC_FIELDS, mask=None,
+                robust: str | None = "cauchy", horizon_gradient=0.0, overcast: bool = False, noise: float | None = None,
+                max_steps: int = 20, rounds: int = 4, rtol: float | None = None, exposure: float = 1.0,
+                sky: bool = False, refine: int = 0, progress: bool = False, throw: bool = False) -> PhotometricFit:
+    """Refine ``waves``, ``lighting`` and the exposure against an image sequence.
+
+    Args:
+        images: ``(T, H, W, 3)`` linear RGB or ``(T, H, W)`` gray (luminance of the RGB
+            model); its dtype (float32 / float64) is the fit's.
+        camera: the frames' :class:`~jaxocean.camera.Camera` (resolution ``(H, W)``).
+        times: ``(T,)`` frame times [s], strictly increasing.
+        waves: start :class:`~jaxocean.waves.Waves` ``(N,)``; lighting: start :class:`Lighting`.
+        fit: the parts fitted, a subset of :data:`PHOTOMETRIC_FIELDS` (the exposure gauge:
+            module docstring).
+        mask: ``(T, H, W)`` bool usable pixels (default all); only sea pixels are used
+            unless ``sky=True``.
+        robust: ``"cauchy"`` (default), ``"huber"``, ``"tukey"`` or None (least squares).
+        horizon_gradient: the sky model's, as in :func:`jaxocean.render.render`.
+        overcast: no sun term: the sun colour is fixed at 0 and the sun is not fitted.
+        noise: the noise standard deviation in the comparison space ``log1p(I / s)`` (about
+            the relative radiance noise near the sea's level), for the success test; None:
+            estimated from the images (module docstring, *Noise*).
+        max_steps: Levenberg-Marquardt steps per IRLS round; rounds: IRLS rounds (1 with
+            ``robust=None``). rtol: relative loss decrease that ends a round (default 1e-6
+            in float32, 1e-9 in float64).
+        exposure: the start exposure (and the exposure used when it is not fitted).
+        refine: 0 (default) the render's rows path; > 0 the hits path with at most that
+            many hit iterations (slower; for waves tall enough to move a hit by a footprint).
+        progress: print each round (scale, loss, steps, seconds).
+        throw: raise :class:`jaxocean.fit.solvers.FitError` (carrying the result) when the
+            fit does not explain the data.
+
+    Returns:
+        :class:`PhotometricFit`.
+    """
+    t_start = time.perf_counter()
+    fit = _check_fit(fit)
+    if robust is not None and robust not in ROBUST_LOSSES:
+        raise ValueError(f"robust must be one of {tuple(ROBUST_LOSSES)} or None; got {robust!r}")
+    images, gray, times, mask = _check_images(images, camera, times, mask)
+    dtype = images.dtype
+    validate(waves, max_steepness=None)
+    if waves.omega.ndim != 1:
+        raise ValueError(f"waves must have leaves (N,); got {waves.omega.shape}")
+    shading.validate_lighting(lighting)
+    shading._check_horizon_gradient(horizon_gradient)
+    if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer)) and math.isfinite(noise)
+                                  and noise >= 0):
+        raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
+    if not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1 and isinstance(rounds, (int, np.integer))
+            and rounds >= 1):
+        raise ValueError(f"max_steps and rounds must be positive ints; got {max_steps!r}, {rounds!r}")
+    if not (math.isfinite(exposure) and exposure > 0):
+        raise ValueError(f"exposure must be a finite number > 0; got {exposure!r}")
+    if not (isinstance(refine, (int, np.integer)) and refine >= 0):
+        raise ValueError(f"refine must be an int >= 0; got {refine!r}")
+    if not is_concrete(images, times, waves, lighting, camera):
+        raise ValueError("fit.photometric runs eagerly (a host loop over IRLS rounds); call it outside jit/vmap")
+
+    used = _used_pixels(images, camera, mask, sky)
+    img = np.asarray(images)
+    if np.any(np.asarray(used)[..., None] * (img < 0) > 0):
+        raise InvalidValueError("images hold negative radiance on used pixels (linear radiance is >= 0)")
+    if float(jnp.sum(used)) == 0:
+        raise InvalidValueError("no usable sea pixel: the mask excludes every pixel the camera sees of the sea")
+    images = jnp.where(used[..., None] > 0, images, 0.0)
+
+    waves = Waves(*[jnp.asarray(x, dtype) for x in waves])
+    lighting = Lighting(*[jnp.asarray(x, dtype) for x in lighting])
+    colors0 = jnp.stack([lighting.sun_color, lighting.sky_color, lighting.sea_color])
+    if overcast:
+        colors0 = colors0.at[0].set(0.0)
+    fit_lighting = "lighting" in fit
+    colors = (("sky_color", "sea_color") if overcast else _COLOR_NAMES) if fit_lighting else ()
+    if colors:
+        floor = 1e-4 * jnp.max(colors0)
+        if not float(floor) > 0:
+            raise InvalidValueError("the start lighting has every colour at 0: nothing to scale from")
+        rows = [_COLOR_NAMES.index(n) for n in colors]
+        colors0 = colors0.at[jnp.asarray(rows)].set(jnp.maximum(colors0[jnp.asarray(rows)], floor))
+    fit_exposure = "exposure" in fit
+    gauge = bool(colors) and fit_exposure
+    k = len(colors) * (1 if gray else 3)
+    if gauge:
+        u, _, _ = np.linalg.svd(np.eye(k) - 1.0 / k)
+        basis = jnp.asarray(u[:, :k - 1], dtype)
+    else:
+        basis = jnp.eye(max(k, 1), dtype=dtype)
+    n = int(waves.omega.shape[0])
+    if rtol is None:
+        rtol = 1e-9 if dtype == jnp.float64 else 1e-6
+    st = _Static(n_waves=n, fit_waves="waves" in fit, fit_sun=fit_lighting and not overcast, colors=colors,
+                 gray=gray, fit_exposure=fit_exposure, gauge=gauge, plan=render.full_plan(n, int(refine)))
+
+    scale = _sea_median(images, used)
+    target = compress(images, scale)
+    d = _Data(target=target, used=used, times=times, camera=camera, scale=scale,
+              hg=jnp.asarray(horizon_gradient, dtype), waves0=pack(waves).astype(dtype),
+              pq0=sun_to_pq(lighting.sun_azimuth, lighting.sun_elevation).astype(dtype), colors0=colors0,
+              log_exposure0=jnp.asarray(math.log(exposure), dtype), basis=basis)
+
+    code = jnp.asarray(_CODES.index(robust), jnp.int32)
+    y_init = _pack(d, st)
+    y = _align_scale(y_init, d, st)
+    steps, prev = 0, math.inf
+    for rnd in range(1 if robust is None else int(rounds)):
+        t0 = time.perf_counter()
+        sc, w = _irls_weights(_residuals(y, d, st), used, code)
+        y, f, n_steps = _solve(y, w, d, st, int(max_steps), float(rtol))
+        steps += int(n_steps)
+        sc = float(sc)
+        if progress:
+            print(f"photometric round {rnd + 1}: scale {sc:.4g}, weighted loss {float(f):.4g}, "
+                  f"{int(n_steps)} steps, {time.perf_counter() - t0:.2f} s", flush=True)
+        if int(n_steps) <= 1 and abs(sc - prev) <= 0.01 * sc:
+            break
+        prev = sc
+    w, outliers, loss, loss_init, rscale, frac = _statistics(_residuals(y, d, st), _residuals(y_init, d, st), used,
+                                                             code)
+    waves_fit, light_fit, exp_fit = _unpack(y, d, st)
+    estimated = noise is None
+    noise_val = _noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
+    signal = _signal_scale(target, used)
+    message = _verdict(float(loss), float(loss_init), float(rscale), float(noise_val), float(frac), float(signal),
+                       estimated)
+    result = PhotometricFit(waves=waves_fit, lighting=light_fit, exposure=exp_fit, outliers=outliers, weights=w,
+                            loss_init=loss_init, loss=loss, robust_scale=rscale, noise=noise_val,
+                            outlier_fraction=frac, steps=steps, seconds=time.perf_counter() - t_start,
+                            success=not message, message=message, signal_scale=signal, sea_scale=scale,
+                            noise_estimated=estimated)
+    if throw and not result.success:
+        raise FitError(f"photometric refinement does not explain the images: {message}", result)
+    return result
+
+
+def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated) -> str:
+    """Empty when every success criterion holds, else why not (module docstring)."""
+    reasons = []
+    if not math.isfinite(loss):
+        reasons.append(f"the loss is not finite ({loss})")
+    elif not loss <= loss_init:
+        reasons.append(f"the loss rose from the start ({loss_init:.4g} -> {loss:.4g})")
+    source = "estimated from the images" if estimated else "given"
+    if not math.isfinite(noise):
+        reasons.append("the noise could not be estimated (no used 3x3 sea neighbourhood): pass noise=")
+    elif not rscale <= SCALE_FACTOR * max(noise, NOISE_FLOOR):
+        reasons.append(f"residual scale {rscale:.3g} exceeds {SCALE_FACTOR} x the noise {max(noise, NOISE_FLOOR):.3g} "
+                       f"({source})")
+    if not frac <= MAX_OUTLIER_FRACTION:
+        reasons.append(f"outliers are {frac:.1%} of the used pixels, above {MAX_OUTLIER_FRACTION:.0%}: the model "
+                       "cannot produce much of the image (whitecaps, spray, objects, a wrong start?)")
+    if not rscale <= EXPLAINED_RATIO * signal:
+        reasons.append(f"the waves explain too little of the images: residual scale {rscale:.3g} is above "
+                       f"{EXPLAINED_RATIO} x the images' own spread {signal:.3g}")
+    return "; ".join(reasons)
+
+
+def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1.0, *, mask=None,
+             horizon_gradient=0.0, sea_scale=None, sky: bool = False, refine: int = 0):
+    """The comparison-space residual ``c(exposure * render) - c(image)`` ``(T, H, W, C)``
+    of :func:`photometric` (``C = 3``, or 1 for gray images), 0 on unused pixels.
+
+    ``sea_scale`` ``(C,)``: the ``s`` of ``c(I) = log1p(I / s)`` (default the images'
+    per-channel sea median over the used pixels). Jittable and differentiable in every
+    array argument (validation of values only when concrete)."""
+    images, gray, times, mask = _check_images(images, camera, times, mask)
+    validate(waves, max_steepness=None)
+    shading.validate_lighting(lighting)
+    dtype = images.dtype
+    used = _used_pixels(images, camera, mask, sky)
+    images = jnp.where(used[..., None] > 0, images, 0.0)
+    scale = _sea_median(images, used) if sea_scale is None else jnp.asarray(sea_scale, dtype)
+    model = _model_frames(waves, lighting, jnp.asarray(exposure, dtype), camera, times,
+                          jnp.asarray(horizon_gradient, dtype), gray, render.full_plan(waves.omega.shape[0], refine))
+    return used[..., None] * (compress(model, scale) - compress(images, scale))
+
+
+def rerender(result: PhotometricFit, camera, times, *, horizon_gradient=0.0, gray: bool = False, refine: int = 0):
+    """The fitted model's frames ``exposure * render(waves, camera, lighting, t)``: ``(T, H,
+    W, 3)`` linear RGB, or ``(T, H, W)`` luminance with ``gray=True``. Any camera and times
+    (new views, forecasts); with the fit's own they are what the fit compared."""
+    times = jnp.atleast_1d(jnp.asarray(times, result.waves.omega.dtype))
+    cam.validate_camera(camera)
+    out = _model_frames(result.waves, result.lighting, jnp.asarray(result.exposure), camera, times,
+                        jnp.asarray(horizon_gradient, times.dtype), gray,
+                        render.full_plan(result.waves.omega.shape[0], refine))
+    return out[..., 0] if gray else out
+
+
+def fit_to_dict(result: PhotometricFit) -> dict:
+    """A JSON-safe summary of a :class:`PhotometricFit` (no per-pixel arrays): waves as
+    lists, the lighting (:func:`jaxocean.fit.lighting.lighting_to_dict`), exposure, losses,
+    scales, noise (and whether it was estimated), outlier fraction, steps, seconds,
+    success and message, and the success thresholds."""
+    def f(x):
+        x = float(x)
+        return x if math.isfinite(x) else None
+
+    w = result.waves
+    return {
+        "waves": {name: [float(v) for v in np.asarray(getattr(w, name))] for name in Waves._fields},
+        "n_waves": int(np.asarray(w.omega).shape[0]),
+        "lighting": lighting_to_dict(result.lighting),
+        "exposure": f(result.exposure),
+        "loss_init": f(result.loss_init),
+        "loss": f(result.loss),
+        "robust_scale": f(result.robust_scale),
+        "noise": f(result.noise),
+        "noise_estimated": bool(result.noise_estimated),
+        "signal_scale": None if result.signal_scale is None else f(result.signal_scale),
+        "outlier_fraction": f(result.outlier_fraction),
+        "steps": int(result.steps),
+        "seconds": float(result.seconds),
+        "success": bool(result.success),
+        "message": str(result.message),
+        "criteria": {"scale_factor": SCALE_FACTOR, "noise_floor": NOISE_FLOOR,
+                     "max_outlier_fraction": MAX_OUTLIER_FRACTION, "explained_ratio": EXPLAINED_RATIO,
+                     "outlier_weight": OUTLIER_WEIGHT},
+    }

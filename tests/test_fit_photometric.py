@@ -1,0 +1,220 @@
+"""Photometric refinement (jaxocean.fit.photometric).
+
+One tiny float64 scene (32 x 32 pixels, 3 frames, 3 waves, the sun's glitter in view),
+rendered on the rows path the fit uses; every fit shares its shapes and configuration, so
+the solver compiles once for the module.
+"""
+
+import json
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxocean import camera as cam
+from jaxocean import render, shading
+from jaxocean.errors import InvalidValueError
+from jaxocean.fit import photometric_fit as ph
+from jaxocean.fit.lighting import lighting_error
+from jaxocean.fit.waves import match
+from jaxocean.waves import Waves, make_waves
+
+RES = (32, 32)
+N_FRAMES = 3
+
+
+def _camera():
+    return cam.make_camera(height=6.0, pitch=0.9, fov=0.8, yaw=0.4, resolution=RES, dtype=jnp.float64)
+
+
+@pytest.fixture(autouse=True)
+def _x64():
+    with jax.enable_x64(True):
+        yield
+
+
+@pytest.fixture(scope="module")
+def scene():
+    with jax.enable_x64(True):
+        camera = _camera()
+        truth = make_waves([0.03, 0.02, 0.012], [2.8, 3.6, 4.9], [0.4, 2.1, -1.2], [0.5, 4.0, 2.0], dtype=jnp.float64)
+        light = shading.make_lighting(sun_azimuth=0.4, sun_elevation=0.45, dtype=jnp.float64)
+        times = np.arange(N_FRAMES) * 0.15
+        plan = render.full_plan(3)
+        images = np.stack([np.asarray(render.render(truth, camera, light, t, plan=plan)) for t in times])
+        # the start: phases 0.4-0.5 rad off, omega 2-3%, amplitudes 20%, directions 0.03-0.05 rad;
+        # sun 0.03 rad in azimuth, colours 10-30% (not a common factor)
+        start = Waves(truth.amplitude * jnp.array([1.2, 0.8, 1.2]), truth.omega * jnp.array([1.03, 0.97, 1.02]),
+                      truth.theta + jnp.array([0.05, -0.05, 0.03]), truth.phase + jnp.array([0.5, -0.5, 0.4]))
+        light0 = light._replace(sun_azimuth=light.sun_azimuth + 0.03, sun_color=light.sun_color * 0.8,
+                                sky_color=light.sky_color * jnp.array([1.2, 0.9, 1.1]), sea_color=light.sea_color * 1.3)
+    return dict(camera=camera, truth=truth, light=light, times=times, images=images, start=start, light0=light0)
+
+
+def _fit(s, images=None, **kw):
+    with jax.enable_x64(True):
+        return ph.photometric(s["images"] if images is None else images, s["camera"], s["times"], s["start"],
+                              s["light0"], **kw)
+
+
+def _seen_lighting(result):
+    """The lighting times the exposure: what the images determine."""
+    e = result.exposure
+    return result.lighting._replace(sun_color=result.lighting.sun_color * e, sky_color=result.lighting.sky_color * e,
+                                    sea_color=result.lighting.sea_color * e)
+
+
+@pytest.fixture(scope="module")
+def clean_fit(scene):
+    return _fit(scene)
+
+
+def test_recovers_waves_and_lighting_from_a_perturbed_start(scene, clean_fit):
+    r = clean_fit
+    assert r.success, r.message
+    assert r.message == ""
+    start = match(scene["start"], scene["truth"]).abs_error
+    assert np.min(start.phase) > 0.39 and np.min(start.amplitude) > 2e-3  # the start is far off
+    m = match(r.waves, scene["truth"])
+    assert m.missed.size == 0 and m.spurious.size == 0
+    err = m.abs_error
+    assert np.max(err.amplitude) < 1e-6 and np.max(err.omega) < 1e-6
+    assert np.max(err.theta) < 1e-6 and np.max(err.phase) < 1e-5
+    le = lighting_error(_seen_lighting(r), scene["light"])
+    assert float(le["sun_angle_deg"]) < 1e-3
+    for name in ("sun_color", "sky_color", "sea_color"):
+        assert float(le[name]) < 1e-5, (name, float(le[name]))
+    assert float(r.loss) < 1e-6 * float(r.loss_init)
+    assert float(r.outlier_fraction) == 0.0 and not np.any(r.outliers)
+    # the re-rendered frames are the images; the summary is JSON
+    np.testing.assert_allclose(np.asarray(ph.rerender(r, scene["camera"], scene["times"])), scene["images"],
+                               rtol=1e-6, atol=1e-9)
+    d = json.loads(json.dumps(ph.fit_to_dict(r)))
+    assert d["success"] is True and d["n_waves"] == 3 and d["noise_estimated"] is True
+
+
+def _whitecaps(images, camera, fraction, seed):
+    """Images with saturated white discs over ``fraction`` of the sea pixels; and their mask."""
+    rng = np.random.default_rng(seed)
+    T, H, W, _ = images.shape
+    sea = np.asarray(cam.intersect_sea(camera).mask)
+    yy, xx = np.mgrid[:H, :W]
+    blobs = np.zeros((T, H, W), bool)
+    while blobs[:, sea].mean() < fraction:
+        t, cy, cx = rng.integers(T), rng.uniform(0, H), rng.uniform(0, W)
+        blobs[t] |= (yy - cy) ** 2 + (xx - cx) ** 2 <= rng.uniform(1.0, 2.5) ** 2
+    blobs &= sea[None]
+    out = images.copy()
+    out[blobs] = 2.0  # white, far above the sea (~0.05) and the sky (~0.6)
+    return out, blobs
+
+
+def test_robust_fit_ignores_whitecaps_and_reports_them(scene):
+    images, blobs = _whitecaps(scene["images"], scene["camera"], 0.05, seed=1)
+    robust = _fit(scene, images)
+    plain = _fit(scene, images, robust=None)
+    m = match(robust.waves, scene["truth"]).abs_error
+    assert np.max(m.amplitude) < 1e-5 and np.max(m.omega) < 1e-5 and np.max(m.phase) < 1e-4
+    assert float(lighting_error(_seen_lighting(robust), scene["light"])["sun_angle_deg"]) < 0.01
+    recall = np.sum(robust.outliers & blobs) / np.sum(blobs)
+    false_alarms = np.sum(robust.outliers & ~blobs) / np.sum(~blobs)
+    assert recall > 0.8 and false_alarms < 0.01, (recall, false_alarms)
+    assert robust.success, robust.message
+    assert np.all(np.asarray(robust.weights)[blobs] < ph.OUTLIER_WEIGHT)
+    # least squares is pulled by the blobs: its waves are visibly worse
+    pm = match(plain.waves, scene["truth"])
+    assert pm.missed.size > 0 or np.max(pm.abs_error.phase) > 100 * np.max(m.phase)
+    assert not plain.success and "exceeds" in plain.message
+    assert np.all(np.asarray(plain.weights)[np.asarray(plain.weights) > 0] == 1.0)
+
+
+def test_a_sequence_the_model_cannot_explain_fails(scene):
+    shuffled = _fit(scene, scene["images"][[2, 0, 1]])
+    assert not shuffled.success and shuffled.message
+    rng = np.random.default_rng(3)
+    noise = 0.05 * np.exp(0.3 * rng.standard_normal(scene["images"].shape))
+    pure = _fit(scene, noise)
+    assert not pure.success
+    assert "explain too little" in pure.message
+
+
+def test_residual_is_jit_consistent_and_its_loss_has_exact_gradients(scene):
+    with jax.enable_x64(True):
+        camera, times, images, light = scene["camera"], scene["times"], scene["images"], scene["light0"]
+        waves = scene["start"]
+
+        def res(w, li, e):
+            return ph.residual(images, camera, times, w, li, e)
+
+        eager = res(waves, light, 1.1)
+        jitted = jax.jit(res)(waves, light, 1.1)
+        np.testing.assert_allclose(np.asarray(jitted), np.asarray(eager), rtol=1e-12, atol=1e-13)
+        assert eager.shape == (N_FRAMES,) + RES + (3,)
+
+        def loss(x):
+            w = waves._replace(amplitude=waves.amplitude.at[0].set(x[0]), omega=waves.omega.at[1].set(x[1]),
+                               phase=waves.phase.at[2].set(x[2]))
+            li = light._replace(sun_elevation=x[3])
+            return jnp.sum(res(w, li, jnp.exp(x[4])) ** 2)
+
+        x = jnp.array([0.033, 3.55, 2.3, 0.46, 0.1])
+        # forward mode: the derivatives the solver uses
+        check_grads(loss, (x,), order=1, modes=("fwd",), eps=1e-6, atol=1e-6, rtol=1e-6)
+
+
+def test_bad_inputs_raise_clear_errors(scene):
+    s = scene
+    with jax.enable_x64(True):
+        args = (s["images"], s["camera"], s["times"], s["start"], s["light0"])
+        with pytest.raises(ValueError, match="resolution"):
+            ph.photometric(s["images"][:, :16], *args[1:])
+        with pytest.raises(ValueError, match="times must be"):
+            ph.photometric(s["images"], s["camera"], s["times"][:2], *args[3:])
+        with pytest.raises(ValueError, match="strictly increasing"):
+            ph.photometric(s["images"], s["camera"], np.array([0.0, 0.3, 0.2]), *args[3:])
+        with pytest.raises(ValueError, match="mask must be"):
+            ph.photometric(*args, mask=np.ones((N_FRAMES,) + RES, bool)[:, :8])
+        with pytest.raises(ValueError, match="mask must be bool"):
+            ph.photometric(*args, mask=np.ones((N_FRAMES,) + RES))
+        with pytest.raises(ValueError, match="fit= must be"):
+            ph.photometric(*args, fit=("waves", "camera"))
+        with pytest.raises(ValueError, match="robust must be"):
+            ph.photometric(*args, robust="l1")
+        with pytest.raises(ValueError, match="images must be"):
+            ph.photometric(s["images"][..., :2], *args[1:])
+        with pytest.raises(InvalidValueError, match="negative radiance"):
+            ph.photometric(-s["images"], *args[1:])
+        with pytest.raises(InvalidValueError, match="no usable sea pixel"):
+            ph.photometric(*args, mask=np.zeros((N_FRAMES,) + RES, bool))
+        with pytest.raises(ValueError, match="noise must be"):
+            ph.photometric(*args, noise=-1.0)
+
+
+def test_package_exports():
+    import jaxocean.fit as fit
+
+    assert fit.photometric is ph.photometric and fit.PhotometricFit is ph.PhotometricFit
+    assert fit.photometric_fit is ph
+
+
+@pytest.mark.slow
+def test_gray_overcast_sequence(scene):
+    """Gray frames (the luminance), no sun: the waves and the two colours' luminances."""
+    with jax.enable_x64(True):
+        light = scene["light"]._replace(sun_color=jnp.zeros(3))
+        plan = render.full_plan(3)
+        lum = jnp.asarray((0.2126, 0.7152, 0.0722))
+        images = np.stack([np.asarray(render.render(scene["truth"], scene["camera"], light, t, plan=plan) @ lum)
+                           for t in scene["times"]])
+        r = ph.photometric(images, scene["camera"], scene["times"], scene["start"], scene["light0"], overcast=True)
+    assert r.success, r.message
+    assert float(r.lighting.sun_color.max()) == 0.0
+    err = match(r.waves, scene["truth"]).abs_error
+    assert np.max(err.phase) < 1e-4 and np.max(err.amplitude) < 1e-6
+    seen = _seen_lighting(r)
+    for name in ("sky_color", "sea_color"):
+        assert abs(float(getattr(seen, name) @ lum) / float(getattr(light, name) @ lum) - 1) < 1e-5
+    assert r.outliers.shape == images.shape
