@@ -192,8 +192,9 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
         high, low: clipping thresholds passed to :func:`saturation_mask`.
 
     Raises:
-        ValueError: no files; files of mixed kinds (display-referred and OpenEXR); frames of
-            different sizes or channel counts (naming the first file that differs).
+        ValueError: no files; a video among other files; files of mixed kinds
+            (display-referred and OpenEXR) or bit depths; frames of different sizes or
+            channel counts (naming the first file that differs).
         MissingFileError / FileFormatError: a missing or undecodable file, naming it.
     """
     _check_response(response)
@@ -204,6 +205,10 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
     if not paths:
         raise ValueError("load_frames needs at least one file")
     suffixes = {p.suffix.lower() for p in paths}
+    videos = [p for p in paths if p.suffix.lower() in VIDEO_SUFFIXES]
+    if videos and len(paths) > 1:
+        raise ValueError(f"load_frames reads one video file or a list of image files; got the video "
+                         f"{str(videos[0])!r} among {len(paths)} files")
     if len(paths) == 1 and (paths[0].suffix.lower() in VIDEO_SUFFIXES or paths[0].suffix.lower() == ".gif"):
         decoded = load_display_video(paths[0])
         display, gray = _gray_video(decoded.values)
@@ -219,11 +224,10 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
         return Frames(None, linear, usable, False, None, tuple(paths))
     decoded = [load_display(p) for p in paths]
     _check_same_shape([d.values for d in decoded], paths)
-    depths = {d.bits for d in decoded}
-    if len(depths) != 1:
-        first = next(p for p, d in zip(paths, decoded) if d.bits != decoded[0].bits)
-        raise ValueError(f"frame {str(first)!r} has {decoded[paths.index(first)].bits}-bit pixels, "
-                         f"{str(paths[0])!r} {decoded[0].bits}-bit: one sequence must have one bit depth")
+    for path, d in zip(paths, decoded):
+        if d.bits != decoded[0].bits:
+            raise FileFormatError(path, f"{d.bits}-bit pixels, while {str(paths[0])!r} has {decoded[0].bits}-bit "
+                                        "pixels: one sequence must have one bit depth")
     display = np.stack([d.values for d in decoded])
     return _display_frames(display, display.ndim == 3, decoded[0].bits, response, high, low, tuple(paths))
 

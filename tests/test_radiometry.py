@@ -130,8 +130,13 @@ def test_a_frame_of_another_size_is_named(tmp_path):
     iio.imwrite(tmp_path / "rgb.png", np.zeros((4, 5, 3), np.uint8))
     with pytest.raises(FileFormatError, match=r"rgb\.png"):
         radiometry.load_frames([tmp_path / "f0.png", tmp_path / "rgb.png"])
+    iio.imwrite(tmp_path / "deep.png", np.zeros((4, 5), np.uint16))
+    with pytest.raises(FileFormatError, match=r"deep\.png: 16-bit pixels"):
+        radiometry.load_frames([tmp_path / "f0.png", tmp_path / "deep.png"])
     with pytest.raises(ValueError, match="at least one"):
         radiometry.load_frames([])
+    with pytest.raises(ValueError, match=r"one video file.*clip\.mp4"):
+        radiometry.load_frames([tmp_path / "clip.mp4", tmp_path / "f0.png"])
 
 
 def test_luminance_uses_the_library_weights():
