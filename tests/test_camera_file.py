@@ -240,3 +240,30 @@ def test_to_dict_is_readable_again(tmp_path):
     with pytest.raises(CameraFileError, match=r"frames\[0\]\.pitch_rad"):
         read_camera_file(_write(tmp_path / "m", mutated | {"frames": [
             {**fr, "file": "../" + fr["file"]} for fr in mutated["frames"]]}, make_frames=False))
+
+
+def test_make_real_clip_script(tmp_path):
+    import importlib.util
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "experiments" / "make_real_clip.py"
+    spec = importlib.util.spec_from_file_location("make_real_clip", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    src = tmp_path / "src"
+    _write(src, _camera_dict())
+    (src / "LICENSE.md").write_text("licence text")
+    (src / "frames" / "frame_0003.png").write_bytes(b"frame three")
+    path = module.make_clip(src, tmp_path / "clip", start=1, every=2, frames=2)
+    clip = read_camera_file(path)
+    assert [f.name for f in clip.files] == ["frame_0001.png", "frame_0003.png"]
+    assert all(f.parent == (tmp_path / "clip" / "frames").resolve() for f in clip.files)
+    assert clip.files[1].read_bytes() == b"frame three"  # copied unchanged
+    np.testing.assert_array_equal(clip.times, [0.2 * 1, 0.2 * 3])  # as the source wrote them
+    assert clip.frame_extra == ({"index": 11}, {"index": 13})
+    assert (tmp_path / "clip" / "LICENSE.md").read_text() == "licence text"
+    assert json.loads(path.read_text())["frame_rate_hz"] == pytest.approx(2.5)
+    with pytest.raises(SystemExit, match="exists"):
+        module.make_clip(src, tmp_path / "clip", start=1, every=2, frames=2)
+    with pytest.raises(SystemExit, match="the sequence has 5"):
+        module.make_clip(src, tmp_path / "other", start=1, every=2, frames=3)
