@@ -16,8 +16,9 @@ Protocol
 1. ``images (T, H, W)`` gray intensity (linear or display values; ``(T, H, W, 3)`` RGB is
    reduced to its luminance) seen by one perspective :class:`jaxocean.camera.Camera` (the
    rectified sequence, :mod:`jaxocean.rectify`), at uniformly spaced ``times (T,)``.
-2. A square ground grid of ``grid x grid`` points spaced ``spacing`` metres on the mean sea
-   plane (:mod:`jaxocean._ground_grid`), facing the camera's yaw. By default it is the
+2. A square ground grid of ``grid x grid`` points (default: the first of :data:`GRID_SIZES`
+   that fits) spaced ``spacing`` metres on the mean sea plane (:mod:`jaxocean._ground_grid`),
+   facing the camera's yaw. By default it is the
    largest one that lies wholly inside the view, whose far pixels are no coarser than
    ``max_footprint`` grid cells (pixel footprint = square root of the pixel's area on the
    sea), nearest to the camera among equals. Each frame is box-filtered over ``2^level``
@@ -83,7 +84,13 @@ from jaxocean import camera as cam
 from jaxocean._ground_grid import hann, resample
 from jaxocean.waves import GRAVITY
 
-__all__ = ["DispersionCheck", "dispersion_check", "plot_dispersion"]
+__all__ = ["MIN_FRAMES", "GRID_SIZES", "DispersionCheck", "dispersion_check", "plot_dispersion"]
+
+MIN_FRAMES = 8
+"""The fewest frames :func:`dispersion_check` accepts."""
+
+GRID_SIZES = (64, 32, 16)
+"""Ground grid sizes tried in turn by default (the first that fits in the view is used)."""
 
 
 class DispersionCheck(NamedTuple):
@@ -118,7 +125,7 @@ class DispersionCheck(NamedTuple):
     message: str
 
 
-def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | None = None,
+def dispersion_check(images, camera, times, *, grid: int | None = None, spacing: float | None = None,
                      max_footprint: float = 2.0, mask=None, clip_percentile: float = 99.0,
                      tolerance: float = 1.0, current="fit", max_current: float = 1.0,
                      min_ratio: float = 2.0) -> DispersionCheck:
@@ -128,7 +135,7 @@ def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | 
         images: ``(T, H, W)`` gray or ``(T, H, W, 3)`` RGB intensities, ``T >= 8``.
         camera: a perspective :class:`jaxocean.camera.Camera` of resolution ``(H, W)``.
         times: ``(T,)`` increasing, uniformly spaced frame times [s] (steps equal to 0.1 %).
-        grid: ground grid points a side.
+        grid: ground grid points a side; default: the first of :data:`GRID_SIZES` that fits.
         spacing: grid spacing [m]; default: chosen (module docstring, step 2).
         max_footprint: the far edge's pixel footprint limit, in grid spacings.
         mask: optional ``(H, W)`` or ``(T, H, W)`` bool, pixels to use (e.g. where a
@@ -141,9 +148,12 @@ def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | 
         max_current: the largest ``|U|`` the fit searches [m/s].
         min_ratio: ``success`` threshold on ``ratio``.
 
+    A view in which no ground grid fits (too few pixels on the sea) gives a result with
+    ``success`` False, NaN numbers and the reason in ``message``.
+
     Raises:
-        ValueError: bad shapes, non-uniform or non-increasing times, an orthographic
-            camera, or no ground grid that fits in the view.
+        ValueError: bad shapes, fewer than :data:`MIN_FRAMES` frames, non-uniform or
+            non-increasing times, an orthographic camera, a bad ``current``.
     """
     images = np.asarray(images, np.float32)
     if images.ndim == 4 and images.shape[-1] == 3:
@@ -162,8 +172,8 @@ def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | 
     times = np.asarray(times, np.float64)
     if times.shape != (T,):
         raise ValueError(f"times must be ({T},) for {T} images; got {times.shape}")
-    if T < 8:
-        raise ValueError(f"dispersion_check needs at least 8 frames; got {T}")
+    if T < MIN_FRAMES:
+        raise ValueError(f"dispersion_check needs at least {MIN_FRAMES} frames; got {T}")
     steps = np.diff(times)
     dt = float(np.mean(steps))
     if not (dt > 0 and np.all(np.abs(steps - dt) <= 1e-3 * dt)):
@@ -178,7 +188,18 @@ def dispersion_check(images, camera, times, *, grid: int = 64, spacing: float | 
     else:
         weight = np.broadcast_to(np.asarray(mask, bool), (T, H, W)).astype(np.float32)
 
-    anchor, e_u, e_v, d, level, near = _choose_grid(camera, grid, spacing, max_footprint)
+    chosen = None
+    for size in (GRID_SIZES if grid is None else (int(grid),)):
+        chosen = _choose_grid(camera, size, spacing, max_footprint)
+        if chosen is not None:
+            grid = size
+            break
+    if chosen is None:
+        return _failed(dict(points=grid, spacing_m=spacing, frames=int(T), dt_s=dt),
+                       f"no {' / '.join(str(g) for g in (GRID_SIZES if grid is None else (grid,)))}-point square "
+                       f"ground grid fits in the view with its far pixels within {max_footprint} grid spacings"
+                       + (f" at spacing {spacing} m" if spacing else ""))
+    anchor, e_u, e_v, d, level, near = chosen
     values, valid, _ = _resample_jit(jnp.asarray(images[..., None]), jnp.asarray(weight), camera,
                                      jnp.asarray(anchor, jnp.float32), jnp.asarray(e_u, jnp.float32),
                                      jnp.asarray(e_v, jnp.float32), jnp.float32(d), level, grid)
@@ -379,7 +400,8 @@ def _k_sigma_marginal(P, om, kx, ky, kb, U, dk, d_omega, k_hi, tolerance):
 
 
 def _choose_grid(camera, grid, spacing, max_footprint):
-    """Anchor ``(2,)``, axes, spacing, box level and near distance of the ground grid."""
+    """Anchor ``(2,)``, axes, spacing, box level and near distance of the ground grid; None
+    when no grid of this size fits."""
     H, W = camera.resolution
     hit = cam.intersect_sea(camera)
     mask = np.asarray(hit.mask)
@@ -391,7 +413,7 @@ def _choose_grid(camera, grid, spacing, max_footprint):
     origin = np.array([float(camera.x), float(camera.y)])
     centre_rows = np.nonzero(mask[:, W // 2])[0]
     if len(centre_rows) == 0:
-        raise ValueError("the camera sees no sea along its centre column")
+        return None
     r_rows = (xy[centre_rows, W // 2] - origin) @ e_u  # forward distance of each sea row's centre
     fp_near = float(fp[centre_rows[-1], W // 2])
     if spacing is not None:
@@ -415,9 +437,7 @@ def _choose_grid(camera, grid, spacing, max_footprint):
     far_fp = np.where(mask[fi, fj], fp[fi, fj], np.inf)
     ok = inside & (far_fp <= max_footprint * D)
     if not ok.any():
-        raise ValueError(f"no {grid} x {grid} ground grid fits in the view with far pixels within "
-                         f"{max_footprint} grid spacings" + (f" at spacing {spacing} m" if spacing else "")
-                         + "; use a smaller grid or a larger max_footprint")
+        return None
     # the largest spacing, then the nearest anchor
     di = int(np.max(np.nonzero(ok.any(axis=1))[0]))
     ri = int(np.min(np.nonzero(ok[di])[0]))

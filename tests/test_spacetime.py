@@ -31,7 +31,7 @@ def waves_sequence():
 
 def test_rendered_waves_lie_on_the_dispersion_shell(waves_sequence, tmp_path):
     camera = cam.make_camera(**CAMERA)
-    check = spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32)
+    check = spacetime.dispersion_check(waves_sequence, camera, TIMES)  # 64 points do not fit: 32
     assert check.success, check.message
     assert check.ratio > 4.0 and check.shell_fraction > 0.6
     assert check.peak_period_s == pytest.approx(2 * math.pi / 2.2, rel=0.1)
@@ -78,6 +78,10 @@ def test_inputs_are_checked(waves_sequence):
         spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, current="guess")
     with pytest.raises(ValueError, match="at least 8 frames"):
         spacetime.dispersion_check(waves_sequence[:4], camera, TIMES[:4], grid=32)
+    # a view too small for any ground grid: a failed check that says why, not an exception
+    tiny = cam.make_camera(**{**CAMERA, "resolution": (8, 12)})
+    check = spacetime.dispersion_check(np.zeros((8, 8, 12)), tiny, TIMES[:8])
+    assert not check.success and "no 64 / 32 / 16-point square ground grid fits" in check.message
 
 
 def test_ground_grid_resampling_is_exact_for_a_linear_image():
