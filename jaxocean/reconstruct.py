@@ -69,6 +69,8 @@ DEFAULT_WIDTH = 128
 HORIZON_MARGIN = 0.05
 #: and its bottom edge this far [rad] inside the lowest view of every frame
 BOTTOM_MARGIN = 0.03
+#: width [px] of the view the space-time evidence is computed in (at most the source's)
+EVIDENCE_WIDTH = 320
 #: display values at or below this are black (the bottom code of an 8-bit file): masked
 BLACK_LEVEL = 0.5 / 255
 #: the shipped geometry network's error per normal component (x, y), the noise the wave fit
@@ -98,6 +100,9 @@ class Sequence(NamedTuple):
     * ``compass``  the camera file gave compass headings (directions reported from north).
     * ``files``    the frame files used.
     * ``response`` the :class:`jaxocean.radiometry.Response` that made display values linear.
+    * ``fine``     ``(images (T, H2, W2), usable (T, H2, W2), camera)``: the same frames'
+      luminance rectified at ``evidence_width`` (the space-time evidence needs the
+      footage's own resolution, which the working view gives up), or None.
     """
 
     images: np.ndarray
@@ -109,6 +114,7 @@ class Sequence(NamedTuple):
     compass: bool
     files: tuple
     response: Any = None
+    fine: Any = None
 
 
 class Reconstruction(NamedTuple):
@@ -198,13 +204,14 @@ def _frame_files(frames, listed: Seq[Path], where) -> list:
 
 def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: str = "srgb", gamma: float = 2.2,
                   step: int = 1, max_frames: int | None = None, height: float | None = None,
-                  full_view: bool = False):
+                  full_view: bool = False, evidence_width: int | None = EVIDENCE_WIDTH):
     """Stage 1 (module docstring). ``frames``: paths (or one video path, or empty to take
     the camera file's list); ``camera_path``: a camera file or a ``scene.json`` (then the
     frames must be the scene's, one per time). ``step`` / ``max_frames`` thin the sequence.
     ``height``: the camera height [m] when the camera file gives no pose (pitch and roll
     then come from the horizon). ``full_view``: keep the camera's own view (sky and all)
-    instead of :func:`sea_view`. Returns ``(Sequence, StageReport)``."""
+    instead of :func:`sea_view`. ``evidence_width``: the width of ``Sequence.fine`` (None:
+    no fine sequence). Returns ``(Sequence, StageReport)``."""
     from jaxocean import lens, radiometry, rectify
     from jaxocean.io import camera_file as cf_io
 
@@ -301,9 +308,19 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
         usable = rect.valid & (rect.images[..., -1] > 0.999)
         if c == 1:
             images, disp = (np.repeat(a, 3, -1) for a in (images, disp))
+        fine = None
+        if evidence_width is not None:
+            fine_width = min(16 * (int(evidence_width) // 16), 16 * (W_src // 16))
+            fine_camera = dataclasses.replace(camera, resolution=(_working_height(fine_width, W_src, H_src),
+                                                                  fine_width))
+            gray = linear[..., 0] if c == 1 else np.asarray(radiometry.luminance(linear))
+            fr = rectify.rectify(np.stack([gray, loaded.usable.astype(gray.dtype)], -1), camera_file.poses,
+                                 camera_file.intrinsics, camera_file.distortion, fine_camera)
+            fine = (np.asarray(fr.images[..., 0], np.float32), np.asarray(fr.valid & (fr.images[..., 1] > 0.999)),
+                    fine_camera)
         seq = Sequence(np.asarray(images, np.float32), np.asarray(usable), np.clip(np.asarray(disp, np.float32), 0, 1),
                        camera, np.asarray(camera_file.times, np.float64), bool(loaded.gray),
-                       bool(camera_file.headings), tuple(str(f) for f in camera_file.files), resp)
+                       bool(camera_file.headings), tuple(str(f) for f in camera_file.files), resp, fine)
         sea = np.asarray(cam.intersect_sea(camera).mask)
         frac = float(usable[:, sea].mean()) if sea.any() else 0.0
         details.update(frames=len(idx), resolution=list(camera.resolution), source_size=[W_src, H_src],
@@ -412,7 +429,7 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
                       max_steps: int | None = None):
     """Stage 5: waves, lighting and exposure refined jointly against the images through the
     renderer with a robust loss (:func:`jaxocean.fit.photometric`)."""
-    from jaxocean.fit import photometric as ph
+    from jaxocean.fit import photometric_fit as ph
 
     idx = _spread(len(seq.times), frames)
 
@@ -422,7 +439,7 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
         result = ph.photometric(images, seq.camera, seq.times[idx], waves, lighting, mask=seq.usable[idx],
                                 overcast=overcast, **kw)
         details = ph.fit_to_dict(result)
-        details["frames"] = len(idx)
+        details.update(frames=len(idx), times=[float(t) for t in seq.times[idx]])
         return result, bool(result.success), str(result.message), details
 
     return _timed("photometric", run)
@@ -460,37 +477,50 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     images show dispersive waves (when the check could run)."""
     from jaxocean import fit, spacetime
 
-    min_frames = getattr(spacetime, "MIN_FRAMES", 8)
+    min_frames = spacetime.MIN_FRAMES
 
     def run():
         check = None
         if len(seq.times) >= min_frames:
-            check = spacetime.dispersion_check(seq.images.mean(-1), seq.camera, seq.times)
-        sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
-        s = sf.spectrum
+            images, usable, camera = seq.fine or (seq.images.mean(-1), seq.usable, seq.camera)
+            check = spacetime.dispersion_check(images, camera, seq.times, mask=usable)
         state = fit.sea_state(waves)
-        hs, tp, theta, spread = float(s.hs), float(s.tp), float(s.theta_mean), float(s.s_max)
+        n_reliable = int(np.sum(fit.resolvable(waves, seq.camera)))
+        sf = None
+        if n_reliable >= fit.spectrum_fit.MIN_WAVES:
+            sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
+            s = sf.spectrum
+            hs, tp, theta, spread, gam = (float(x) for x in (s.hs, s.tp, s.theta_mean, s.s_max, s.gamma))
+            observed = bool(sf.peak_observed)
+        else:  # too few resolved waves for a spectrum: the waves' own bulk numbers, marked as bounds
+            hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), math.nan, math.nan
+            observed = False
         sea = dict(
             hs_m=hs, hs_std_m=_hs_uncertainty(waves, std), tp_s=tp,
             direction_deg=direction_deg(theta, seq.compass),
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
-            spreading_s_max=spread, gamma=float(s.gamma), peak_observed=bool(sf.peak_observed),
-            bound=None if sf.peak_observed else "Hs and Tp are bounds: the spectral peak lies outside the observed band",
-            omega_band=[float(x) for x in sf.omega_band],
-            waves_hs_m=float(state.hs), waves_tp_s=float(state.tp),
+            spreading_s_max=spread, gamma=gam, peak_observed=observed,
+            bound=None if observed else ("Hs and Tp are bounds: the spectral peak lies outside the observed band"
+                                         if sf is not None else "Hs and Tp are those of the fitted waves alone "
+                                         "(too few resolved waves for a spectrum)"),
+            omega_band=None if sf is None else [float(x) for x in sf.omega_band],
+            waves_hs_m=float(state.hs), waves_tp_s=float(state.tp), resolved_waves=n_reliable,
             mean_square_slope=float(geometry_mss(geometry)),
-            spectrum_success=bool(sf.success), spectrum_misfit=float(sf.misfit),
+            spectrum_success=sf is not None and bool(sf.success),
+            spectrum_misfit=None if sf is None else float(sf.misfit),
             dispersion=None if check is None else _check_dict(check),
             dispersion_peak_period_s=None if check is None else float(check.peak_period_s),
             dispersion_direction_deg=None if check is None else direction_deg(float(check.peak_direction),
                                                                              seq.compass),
         )
         # too short a sequence for the space-time check: the evidence is missing, not negative
-        ok = bool(sf.success) and (check is None or bool(check.success)) and waves_ok
+        ok = sea["spectrum_success"] and (check is None or bool(check.success)) and waves_ok
         why = []
         if not waves_ok:
             why.append("the wave fit failed, so the spectrum describes waves that do not explain the data")
-        if not sf.success:
+        if sf is None:
+            why.append(f"{n_reliable} resolved waves: a spectrum needs {fit.spectrum_fit.MIN_WAVES}")
+        elif not sf.success:
             why.append("no single JONSWAP spectrum explains the fitted waves")
         if check is None:
             why.append(f"no space-time evidence: it needs {min_frames} frames, {len(seq.times)} given")
@@ -603,7 +633,7 @@ def result_dict(result: Reconstruction) -> dict:
     listed = [dict(amplitude_m=float(h), omega_rad_s=float(w), period_s=2 * math.pi / float(w),
                    direction_deg=direction_deg(float(t), seq.compass), phase_rad=float(p))
               for h, w, t, p in zip(*(np.asarray(x, np.float64) for x in waves))]
-    stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, **_json_safe(r.details))
+    stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, details=_json_safe(r.details))
               for name, r in result.stages.items()}
     return dict(spectrum=_json_safe(sea), waves=listed, stages=stages, success=all(r.success for r in
                                                                                      result.stages.values()),

@@ -68,18 +68,22 @@ def _frames_figure(path, result):
     residual = np.abs(model_display - observed).mean(-1)
     rows = []
     photo = result.photometric
+    outliers = None
+    if photo is not None and result.stages["photometric"].success is not None:
+        # stage 5 saw a subset of the frames: its outlier mask at the nearest fitted time
+        fitted_times = np.asarray(result.stages["photometric"].details.get("times", []), np.float64)
+        if fitted_times.size == len(photo.outliers):
+            outliers = [np.asarray(photo.outliers[int(np.argmin(np.abs(fitted_times - seq.times[i])))], np.float32)
+                        for i in idx]
     for r, i in enumerate(idx):
-        outliers = None
-        if photo is not None and getattr(photo, "outliers", None) is not None and len(photo.outliers) == T:
-            outliers = np.asarray(photo.outliers[i], np.float32)
         mask = np.asarray(geo.mask[i])
         row = [observed[r], plots.normal_to_rgb(geo.normal[i], mask), plots.roughness_to_rgb(geo.roughness[i], mask),
-               model_display[r], plots.log_to_rgb(residual[r] + 1e-6, vmin=1e-3, vmax=0.3),
-               None if outliers is None else np.repeat(outliers[..., None], 3, -1)]
+               model_display[r], plots.log_to_rgb(residual[r] + 1e-6, vmin=1e-3, vmax=0.3)]
+        if outliers is not None:
+            row.append(np.repeat(outliers[r][..., None], 3, -1))
         rows.append(row)
-    return plots.contact_sheet(path, rows, col_titles=["input (rectified)", "normal (net)", "roughness (net)",
-                                                       "re-rendered", "|display residual| 1e-3..0.3",
-                                                       "outliers (stage 5)"],
+    titles = ["input (rectified)", "normal (net)", "roughness (net)", "re-rendered", "|display residual| 1e-3..0.3"]
+    return plots.contact_sheet(path, rows, col_titles=titles + (["outliers (stage 5)"] if outliers else []),
                                row_titles=[f"t = {seq.times[i]:.1f} s" for i in idx])
 
 

@@ -129,6 +129,9 @@ class SeaState(NamedTuple):
 
 _GL = np.polynomial.legendre.leggauss(8)
 
+#: the fewest reliable waves a spectrum is fitted to (peak, width and level need three)
+MIN_WAVES = 3
+
 #: success needs ``misfit <= sqrt(NOISE_FACTOR noise^2 + ENERGY_FLOOR^2)``. Measured (float32,
 #: waves drawn by spectrum.sample_waves from random JONSWAP spectra and fitted back): 10-60
 #: waves leave a cumulative-energy RMS of 0.004-0.019, their high-frequency tails alone
@@ -228,8 +231,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     reliable = np.asarray(reliable, bool)
     if reliable.shape != (n,):
         raise ValueError(f"reliable must be a bool mask (N,) = ({n},); got {reliable.shape}")
-    if reliable.sum() < 3:
-        raise InvalidValueError(f"fit.spectrum needs at least 3 reliable waves; got {int(reliable.sum())}")
+    if reliable.sum() < MIN_WAVES:
+        raise InvalidValueError(f"fit.spectrum needs at least {MIN_WAVES} reliable waves; got {int(reliable.sum())}")
     if gamma is not None:
         check_values(np.asarray(gamma) >= 1, "gamma must be >= 1", gamma)
     for name, value in (("noise", noise), ("roughness_noise", roughness_noise)):
