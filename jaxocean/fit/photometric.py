@@ -58,8 +58,13 @@ iteratively reweighted least squares. Each of ``rounds`` rounds fixes the scale 
 (Cauchy ``1 / (1 + u^2)``, ``c = 2.385``; Huber ``min(1, 1 / u)``, ``c = 1.345``; Tukey
 ``(1 - u^2)^2`` for ``u < 1`` else 0, ``c = 4.685``), then minimises ``sum w r^2`` by
 Levenberg-Marquardt (Nielsen damping, Marquardt scaling) on normal equations accumulated
-frame by frame from forward-mode Jacobians (in blocks of 8 columns: see
-:func:`jaxocean.fit.solvers.value_and_jacobian`). The ``outliers`` are the used pixels whose
+frame by frame. On the rows path the Jacobian is exact and structured: the derivative of
+each pixel's residual with respect to its normal and slope variance (forward mode through
+:func:`jaxocean.render.shade`) times the wave fit's hand-written Jacobian of the normal
+(:func:`jaxocean.fit.waves._model.jacobian`: each wave touches only its own sines) and the
+row roughness' Jacobian; the lighting and exposure columns by forward mode through the
+shading. On the hits path (``refine > 0``) forward mode runs through the whole renderer.
+Trial steps are accepted on the exact loss. The ``outliers`` are the used pixels whose
 final weight is below ``OUTLIER_WEIGHT`` (for Cauchy ``|r| > 4.8 sigma``); with
 ``robust=None`` they are marked by the Cauchy rule at the final scale, the weights are 1.
 
@@ -82,10 +87,21 @@ that fails):
 * ``robust_scale <= SCALE_FACTOR (1.5) * max(noise, NOISE_FLOOR)``: the residual of what the
   model keeps is at the noise level (``NOISE_FLOOR = 1e-3``: the model's own consistency);
 * ``outlier_fraction <= MAX_OUTLIER_FRACTION (0.2)``: the model produces most of the image;
-* ``robust_scale <= EXPLAINED_RATIO (0.5) * signal_scale``, ``signal_scale`` the MAD of
-  ``c(image)`` about its per-row median (the view-dependent mean): the fitted waves explain
-  the images' structure, not only their mean (pure noise, or frames no wave field
-  produces, fail here even when their residual is at the noise level).
+* the images hold structure above the noise: ``signal_scale >= STRUCTURE_RATIO (1.05) *
+  max(noise, NOISE_FLOOR)``, ``signal_scale`` the MAD of ``c(image)`` about its per-row
+  median (the view-dependent mean); pure noise fails here;
+* the fitted waves explain that structure: the residual's spread above the noise,
+  ``sqrt(max(robust_scale^2 - noise^2, 0))``, is at most ``EXPLAINED_RATIO (0.5)`` of the
+  images', ``sqrt(signal_scale^2 - noise^2)``;
+* the images determine the waves: the waves whose Gauss-Newton standard deviations (from
+  ``J^T W J`` at the answer, the noise per residual element ``max(noise, robust_scale,
+  NOISE_FLOOR)``) are below ``DETERMINED_STD`` (relative amplitude 0.2, ``log omega`` 0.02,
+  ``theta`` 0.05 rad) hold at least ``DETERMINED_ENERGY (0.9)`` of the fitted slope energy
+  ``sum (k h)^2``. At low signal to noise a fit can reach the noise level with waves the
+  images do not pin down; this is what reports it.
+
+Not checked: the rows path's own error for waves tall enough to move a pixel's hit by a
+footprint (render's ``needs_refinement``), beyond what it adds to the residual.
 
 Everything after validation runs in two jitted functions (one IRLS round; the final
 statistics) with static configuration, compiled once per shape and configuration; the fit
@@ -106,12 +122,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import camera as cam
-from jaxocean import render, shading
+from jaxocean import hierarchy, render, shading, surface
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.errors import InvalidValueError, is_concrete
 from jaxocean.fit._photometry import pq_to_sun, sun_to_pq
+from jaxocean.fit._plausibility import parameter_std
 from jaxocean.fit.lighting import lighting_to_dict
 from jaxocean.fit.solvers import FitError
+from jaxocean.fit.waves._inputs import Samples
+from jaxocean.fit.waves._model import jacobian as wave_jacobian
 from jaxocean.fit.waves._model import pack, to_waves
 from jaxocean.nn.geometry import LUMINANCE
 from jaxocean.shading import Lighting
@@ -125,6 +144,9 @@ __all__ = [
     "NOISE_FLOOR",
     "MAX_OUTLIER_FRACTION",
     "EXPLAINED_RATIO",
+    "STRUCTURE_RATIO",
+    "DETERMINED_STD",
+    "DETERMINED_ENERGY",
     "SCALE_FLOOR",
     "PhotometricFit",
     "photometric",
@@ -146,6 +168,13 @@ NOISE_FLOOR = 1e-3
 MAX_OUTLIER_FRACTION = 0.2
 #: success needs robust_scale <= EXPLAINED_RATIO * signal_scale
 EXPLAINED_RATIO = 0.5
+#: success needs signal_scale >= STRUCTURE_RATIO * max(noise, NOISE_FLOOR)
+STRUCTURE_RATIO = 1.05
+#: a wave is determined when its standard deviations are below these (relative amplitude,
+#: log omega, theta [rad]); success needs the determined waves to hold DETERMINED_ENERGY of
+#: the fitted slope energy
+DETERMINED_STD = {"amplitude": 0.2, "log_omega": 0.02, "theta": 0.05}
+DETERMINED_ENERGY = 0.9
 #: the IRLS scale never goes below this (comparison-space units)
 SCALE_FLOOR = 1e-6
 _MAD = 1.4826
@@ -174,6 +203,9 @@ class PhotometricFit(NamedTuple):
     * ``signal_scale`` ``()`` the images' own spread about the per-row median (comparison space).
     * ``sea_scale``  ``(C,)`` the per-channel sea median ``s`` of the comparison space.
     * ``noise_estimated`` bool: ``noise`` was estimated from the images.
+    * ``determined`` ``(N,)`` bool (None when the waves are not fitted): the wave's
+      Gauss-Newton standard deviations are below :data:`DETERMINED_STD`;
+      ``determined_energy`` the determined waves' share of the slope energy.
     """
 
     waves: Waves
@@ -193,6 +225,8 @@ class PhotometricFit(NamedTuple):
     signal_scale: jax.Array = None
     sea_scale: jax.Array = None
     noise_estimated: bool = True
+    determined: np.ndarray | None = None
+    determined_energy: float = 1.0
 
 
 class _Static(NamedTuple):
@@ -297,15 +331,98 @@ def _all_residuals(y, d: _Data, st: _Static):
     return jax.lax.map(lambda i: _frame_residual(y, i, d, st), jnp.arange(d.target.shape[0]))
 
 
-def _frame_jacobian(y, i, d: _Data, st: _Static):
-    """``(r (M,), J (M, P))`` of frame ``i``: forward mode, ``_BLOCK`` columns per vmapped
-    block, the blocks in a ``lax.map`` (one compiled copy of the render JVP)."""
+def _blocked_jvps(fn, primal, tangents):
+    """``(fn(primal), stack of jvp(fn, primal, tangent))`` for a pytree ``tangents`` with a
+    leading axis ``K``: ``_BLOCK`` tangents per vmapped block, the blocks in a ``lax.map``
+    (one compiled copy of the JVP; blocks of 8 also avoid the XLA:CPU float32 miscompile
+    of wide vmapped JVPs described in :mod:`jaxocean.fit.solvers`). Outputs ``(K, ...)``."""
+    K = jax.tree_util.tree_leaves(tangents)[0].shape[0]
+    nb = -(-K // _BLOCK)
+    pad = nb * _BLOCK - K
+    blocks = jax.tree.map(lambda a: jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)])
+                          .reshape((nb, _BLOCK) + a.shape[1:]), tangents)
+    out, cols = jax.lax.map(lambda V: jax.vmap(lambda v: jax.jvp(fn, (primal,), (v,)), out_axes=(None, 0))(V),
+                            blocks)
+    return out[0], cols.reshape((nb * _BLOCK,) + cols.shape[2:])[:K]
+
+
+def _frame_jacobian_dense(y, i, d: _Data, st: _Static):
+    """``(r (M,), J (M, P))`` of frame ``i`` by forward mode through the whole renderer
+    (every parameter's tangent through the wave sums: the hits path's Jacobian)."""
     fn = lambda z: _frame_residual(z, i, d, st).reshape(-1)  # noqa: E731
-    P = y.shape[0]
-    nb = -(-P // _BLOCK)
-    basis = jnp.eye(nb * _BLOCK, P, dtype=y.dtype).reshape(nb, _BLOCK, P)
-    r, cols = jax.lax.map(lambda V: jax.vmap(lambda v: jax.jvp(fn, (y,), (v,)), out_axes=(None, 0))(V), basis)
-    return r[0], cols.reshape(nb * _BLOCK, -1)[:P].T
+    r, cols = _blocked_jvps(fn, y, jnp.eye(y.shape[0], dtype=y.dtype))
+    return r, cols.T
+
+
+def _frame_jacobian(y, i, d: _Data, st: _Static):
+    """``(r (M,), J (M, P))`` of frame ``i``, exact, for the rows path by the chain rule
+    through the geometry (each wave touches only its own sines):
+
+    * ``d r / d normal`` (two tangents on the unit sphere) and ``d r / d slope_variance``
+      (two) per pixel, and the lighting and exposure columns: forward mode through
+      :func:`jaxocean.render.shade` alone, the geometry held;
+    * ``d normal_xy / d wave`` per pixel: the wave fit's hand-written Jacobian of the rows
+      path's normal (:func:`jaxocean.fit.waves._model.jacobian`);
+    * ``d slope_variance / d wave`` per row: forward mode through the row roughness.
+
+    The hits path (``refine > 0``) uses :func:`_frame_jacobian_dense`."""
+    if st.plan.refine != 0 or not st.fit_waves:
+        return _frame_jacobian_dense(y, i, d, st)
+    lay, P = _layout(st)
+    n = st.n_waves
+    dtype = y.dtype
+    waves_, _, _ = _unpack(y, d, st)
+    t = d.times[i]
+    geo = render.geometry(waves_, d.camera, t, plan=st.plan)
+    normal, sv = geo.normal, geo.slope_variance
+    H, W = d.camera.resolution
+
+    def shaded(args):
+        nrm, var, z = args
+        _, light, exposure = _unpack(z, d, st)
+        img = exposure * render.shade(nrm, None, d.camera, light, slope_variance=var, horizon_gradient=d.hg)
+        if st.gray:
+            img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
+        return compress(img, d.scale) - d.target[i]
+
+    # tangents: normal along x and y on the unit sphere, slope variance x and y, then the
+    # non-wave parameters
+    nz = jnp.maximum(normal[..., 2], 1e-6)
+    zero_n, zero_v = jnp.zeros_like(normal), jnp.zeros_like(sv)
+    ex = jnp.stack([jnp.ones_like(nz), jnp.zeros_like(nz), -normal[..., 0] / nz], -1)
+    ey = jnp.stack([jnp.zeros_like(nz), jnp.ones_like(nz), -normal[..., 1] / nz], -1)
+    one_x = jnp.zeros_like(sv).at[..., 0].set(1.0)
+    one_y = jnp.zeros_like(sv).at[..., 1].set(1.0)
+    n_other = P - 4 * n
+    other = jnp.eye(P, dtype=dtype)[4 * n:]  # (n_other, P)
+    t_n = jnp.concatenate([jnp.stack([ex, ey, zero_n, zero_n]), jnp.broadcast_to(zero_n, (n_other,) + normal.shape)])
+    t_v = jnp.concatenate([jnp.stack([zero_v, zero_v, one_x, one_y]), jnp.broadcast_to(zero_v, (n_other,) + sv.shape)])
+    t_y = jnp.concatenate([jnp.zeros((4, P), dtype), other])
+    r, cols = _blocked_jvps(shaded, (normal, sv, y), (t_n, t_v, t_y))  # r (H, W, C), cols (4 + n_other, H, W, C)
+
+    # d normal_xy / d wave per pixel (the wave fit's rows-path model)
+    hit = cam.intersect_sea(d.camera)
+    S = H * W
+    samples = Samples(t=jnp.full((S,), t, dtype), xy=hit.xy.reshape(S, 2),
+                      fp=jnp.broadcast_to(hit.footprint[:, W // 2][:, None], (H, W)).reshape(S),
+                      target=jnp.zeros((S, 2), dtype), sw=jnp.ones((S,), dtype))
+    _, jn = wave_jacobian(y[:4 * n].reshape(4, n), jnp.ones(n, dtype), samples, hierarchy.DEFAULT_N_MIN,
+                          hierarchy.DEFAULT_N_MAX)
+    jn = jn.reshape(H, W, 2, 4 * n) * hit.mask[..., None, None]
+    # d slope_variance / d wave per row
+    fp_row = hit.footprint[:, W // 2]
+
+    def row_sv(yw):
+        w = to_waves(yw, n)
+        return jnp.stack(surface.slope_variance(w, hierarchy.weights(w, fp_row)), -1)  # (H, 2)
+
+    _, jsv = _blocked_jvps(row_sv, y[:4 * n], jnp.eye(4 * n, dtype=dtype))  # (4N, H, 2)
+    jsv = jnp.moveaxis(jsv, 0, -1) * jnp.any(hit.mask, axis=1)[:, None, None]  # (H, 2, 4N)
+    jw = (cols[0][..., None] * jn[:, :, None, 0] + cols[1][..., None] * jn[:, :, None, 1]
+          + cols[2][..., None] * jsv[:, None, None, 0] + cols[3][..., None] * jsv[:, None, None, 1])  # (H, W, C, 4N)
+    C = r.shape[-1]
+    J = jnp.concatenate([jw.reshape(S * C, 4 * n), jnp.moveaxis(cols[4:], 0, -1).reshape(S * C, n_other)], axis=1)
+    return r.reshape(-1), J
 
 
 # --------------------------------------------------------------------------- robust weights
@@ -396,7 +513,8 @@ def _weighted_loss(y, w, d: _Data, st: _Static):
 def _lm(y0, w, d: _Data, st: _Static, max_steps: int, rtol: float):
     """Levenberg-Marquardt on ``0.5 sum w r^2`` (weights fixed): Nielsen damping, Marquardt
     scaling; the normal equations are recomputed only after an accepted step (at the top of
-    the next step: one compiled copy of the Jacobian). Returns ``(y, f, steps)``."""
+    the next step: one compiled copy of the Jacobian). Returns ``(y, f, steps, J^T W J)``,
+    the last at the last point where it was computed (the answer or the step before)."""
     dtype = y0.dtype
     P = y0.shape[0]
 
@@ -429,7 +547,7 @@ def _lm(y0, w, d: _Data, st: _Static, max_steps: int, rtol: float):
     s0 = (y0, jnp.asarray(jnp.inf, dtype), jnp.zeros((P, P), dtype), jnp.zeros(P, dtype), jnp.asarray(1e-3, dtype),
           jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(True))
     s = jax.lax.while_loop(cond, body, s0)
-    return s[0], s[1], s[6]
+    return s[0], s[1], s[6], s[2]
 
 
 _solve = jax.jit(_lm, static_argnames=("st", "max_steps", "rtol"))
@@ -670,7 +788,7 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     for rnd in range(1 if robust is None else int(rounds)):
         t0 = time.perf_counter()
         sc, w = _irls_weights(_residuals(y, d, st), used, code)
-        y, f, n_steps = _solve(y, w, d, st, int(max_steps), float(rtol))
+        y, f, n_steps, jtj = _solve(y, w, d, st, int(max_steps), float(rtol))
         steps += int(n_steps)
         sc = float(sc)
         if progress:
@@ -685,19 +803,25 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     estimated = noise is None
     noise_val = _noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
     signal = _signal_scale(target, used)
+    sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
+    if st.fit_waves:
+        determined, energy = _determined(y, jtj, jnp.asarray(sigma, dtype), used, target.shape[-1], n)
+        determined, energy = np.asarray(determined), float(energy)
+    else:
+        determined, energy = None, 1.0
     message = _verdict(float(loss), float(loss_init), float(rscale), float(noise_val), float(frac), float(signal),
-                       estimated)
+                       estimated, energy)
     result = PhotometricFit(waves=waves_fit, lighting=light_fit, exposure=exp_fit, outliers=outliers, weights=w,
                             loss_init=loss_init, loss=loss, robust_scale=rscale, noise=noise_val,
                             outlier_fraction=frac, steps=steps, seconds=time.perf_counter() - t_start,
                             success=not message, message=message, signal_scale=signal, sea_scale=scale,
-                            noise_estimated=estimated)
+                            noise_estimated=estimated, determined=determined, determined_energy=energy)
     if throw and not result.success:
         raise FitError(f"photometric refinement does not explain the images: {message}", result)
     return result
 
 
-def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated) -> str:
+def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) -> str:
     """Empty when every success criterion holds, else why not (module docstring)."""
     reasons = []
     if not math.isfinite(loss):
@@ -705,18 +829,45 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated) -> str:
     elif not loss <= loss_init:
         reasons.append(f"the loss rose from the start ({loss_init:.4g} -> {loss:.4g})")
     source = "estimated from the images" if estimated else "given"
+    level = max(noise, NOISE_FLOOR)
     if not math.isfinite(noise):
         reasons.append("the noise could not be estimated (no used 3x3 sea neighbourhood): pass noise=")
-    elif not rscale <= SCALE_FACTOR * max(noise, NOISE_FLOOR):
-        reasons.append(f"residual scale {rscale:.3g} exceeds {SCALE_FACTOR} x the noise {max(noise, NOISE_FLOOR):.3g} "
-                       f"({source})")
+    elif not rscale <= SCALE_FACTOR * level:
+        reasons.append(f"residual scale {rscale:.3g} exceeds {SCALE_FACTOR} x the noise {level:.3g} ({source})")
     if not frac <= MAX_OUTLIER_FRACTION:
         reasons.append(f"outliers are {frac:.1%} of the used pixels, above {MAX_OUTLIER_FRACTION:.0%}: the model "
                        "cannot produce much of the image (whitecaps, spray, objects, a wrong start?)")
-    if not rscale <= EXPLAINED_RATIO * signal:
-        reasons.append(f"the waves explain too little of the images: residual scale {rscale:.3g} is above "
-                       f"{EXPLAINED_RATIO} x the images' own spread {signal:.3g}")
+    if math.isfinite(noise):
+        if not signal >= STRUCTURE_RATIO * level:
+            reasons.append(f"the images hold no structure above the noise: their spread {signal:.3g} is below "
+                           f"{STRUCTURE_RATIO} x the noise {level:.3g} ({source})")
+        else:
+            excess_signal = math.sqrt(signal ** 2 - level ** 2)
+            excess_residual = math.sqrt(max(rscale ** 2 - level ** 2, 0.0))
+            if not excess_residual <= EXPLAINED_RATIO * excess_signal:
+                reasons.append(f"the waves explain too little of the images: the residual's spread above the noise "
+                               f"{excess_residual:.3g} is above {EXPLAINED_RATIO} x the images' {excess_signal:.3g}")
+    if not energy >= DETERMINED_ENERGY:
+        reasons.append(f"the images do not determine the waves: the determined waves hold {energy:.0%} of the fitted "
+                       f"slope energy, below {DETERMINED_ENERGY:.0%} (noise, too many waves, or waves the view "
+                       "cannot separate)")
     return "; ".join(reasons)
+
+
+@functools.partial(jax.jit, static_argnames=("channels", "n"))
+def _determined(y, jtj, sigma, used, channels, n):
+    """``(determined (N,), energy ())``: a wave is determined when its Gauss-Newton standard
+    deviations at noise ``sigma`` (per residual element) are below :data:`DETERMINED_STD`
+    (relative amplitude ``sqrt((var a + var b) / 2) / h``, ``log omega``, ``theta`` [rad]);
+    ``energy`` is the determined waves' share of the slope energy ``sum (k h)^2``."""
+    norm = 1.0 / jnp.maximum(channels * jnp.sum(used), 1.0)  # the normal equations' normalisation
+    sd = parameter_std(jtj, sigma * sigma * norm)[:4 * n].reshape(4, n)
+    w = to_waves(y[:4 * n], n)
+    rel_h = jnp.sqrt(0.5 * (sd[0] ** 2 + sd[1] ** 2)) / jnp.maximum(w.amplitude, 1e-30)
+    ok = (rel_h < DETERMINED_STD["amplitude"]) & (sd[2] < DETERMINED_STD["log_omega"]) & (
+        sd[3] < DETERMINED_STD["theta"])
+    e = (w.amplitude * w.omega ** 2) ** 2
+    return ok, jnp.sum(jnp.where(ok, e, 0.0)) / jnp.maximum(jnp.sum(e), 1e-30)
 
 
 def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1.0, *, mask=None,
@@ -771,6 +922,8 @@ def fit_to_dict(result: PhotometricFit) -> dict:
         "robust_scale": f(result.robust_scale),
         "noise": f(result.noise),
         "noise_estimated": bool(result.noise_estimated),
+        "determined": None if result.determined is None else [bool(v) for v in np.asarray(result.determined)],
+        "determined_energy": f(result.determined_energy),
         "signal_scale": None if result.signal_scale is None else f(result.signal_scale),
         "outlier_fraction": f(result.outlier_fraction),
         "steps": int(result.steps),
@@ -779,5 +932,7 @@ def fit_to_dict(result: PhotometricFit) -> dict:
         "message": str(result.message),
         "criteria": {"scale_factor": SCALE_FACTOR, "noise_floor": NOISE_FLOOR,
                      "max_outlier_fraction": MAX_OUTLIER_FRACTION, "explained_ratio": EXPLAINED_RATIO,
+                     "structure_ratio": STRUCTURE_RATIO, "determined_std": DETERMINED_STD,
+                     "determined_energy": DETERMINED_ENERGY,
                      "outlier_weight": OUTLIER_WEIGHT},
     }
