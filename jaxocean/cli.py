@@ -264,6 +264,10 @@ def build_parser():
                    "selection and the success test use it; default: noise-free up to storage precision, so a fit "
                    "leaving more than 1 mrad mean normal error is reported failed)")
     p.add_argument("--verbose", action="store_true", help="print the fit's order-selection steps")
+    p.add_argument("--init", choices=("spectral", "net"), default="spectral",
+                   help="start: spectral (default: greedy detection from the space-time spectrum) or net (the "
+                        "wave network's waves from the first frames, then the same selection and refinement)")
+    p.add_argument("--net-model", help="wave network file for --init net (default: the shipped model)")
 
     p = sub.add_parser("forecast", help="render waves at future frames",
                        description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "
@@ -809,8 +813,11 @@ def cmd_fit_waves(args):
     normals, roughness = _read_geometry_frames(scene_dir, frames, scene.camera.resolution)
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
+    if args.net_model and args.init != "net":
+        raise ValueError("--net-model is used with --init net only")
     result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
-                       noise=args.noise, throw=False, verbose=args.verbose)
+                       noise=args.noise, throw=False, verbose=args.verbose,
+                       init="net" if args.init == "net" else None, net=args.net_model)
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite

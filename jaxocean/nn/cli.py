@@ -1,5 +1,5 @@
-"""The network subcommands of the ``jaxocean`` CLI: ``train-geometry``, ``predict-geometry``
-and ``eval-geometry``. :func:`register` adds them to the main parser (``jaxocean.cli``),
+"""The network subcommands of the ``jaxocean`` CLI: ``train-geometry``, ``predict-geometry``,
+``eval-geometry`` and ``train-waves``. :func:`register` adds them to the main parser (``jaxocean.cli``),
 which owns error handling and exit codes; each command returns an exit code.
 
 * ``train-geometry DATASET --config {cpu,paper} --out RUN``: train (or resume: rerun the
@@ -11,6 +11,8 @@ which owns error handling and exit codes; each command returns an exit code.
   video; the camera comes from ``--scene`` or the ``--camera-*`` options.
 * ``eval-geometry DATASET``: the model's scores on a split next to the flat-normal
   baseline (:func:`jaxocean.nn.geometry_train.evaluate`), printed and written as JSON.
+* ``train-waves DATASET --config {cpu,paper} --out RUN``: train (or resume) a wave network
+  (:mod:`jaxocean.nn.waves_train`); same run directory layout as ``train-geometry``.
 """
 
 from __future__ import annotations
@@ -71,10 +73,29 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
     p.add_argument("--max-frames", type=int, help="score at most this many frames")
     p.add_argument("--out", help="JSON file for the scores (with per-scene rows)")
 
+    from jaxocean.nn.waves_train import CONFIGS as WAVE_CONFIGS
+    from jaxocean.nn.waves_train import LOSS_TERMS as WAVE_LOSS_TERMS
+
+    p = sub.add_parser("train-waves", help="train a wave-estimation network (geometry sequence -> waves)",
+                       description="Train a wave network on a `jaxocean simulate` dataset (self-supervised "
+                                   "through the differentiable geometry). Killing it and running the same command "
+                                   "again resumes where it stopped. RUN/model.npz is the model with the best "
+                                   "validation loss; fit-waves --init net --net-model RUN/model.npz uses it.")
+    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
+    p.add_argument("--config", choices=sorted(WAVE_CONFIGS), default="cpu",
+                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
+    p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
+    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
+    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
+    p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(WAVE_LOSS_TERMS)}")
+    p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
     def predict_cmd(args):
         return _predict(args, camera_from_args)
 
-    return {"train-geometry": _train, "predict-geometry": predict_cmd, "eval-geometry": _eval}
+    return {"train-geometry": _train, "predict-geometry": predict_cmd, "eval-geometry": _eval,
+            "train-waves": _train_waves}
 
 
 def _train(args) -> int:
@@ -90,6 +111,21 @@ def _train(args) -> int:
     summary.pop("state")
     print(f"stopped: {summary['stopped']} after {summary['steps']} steps; best validation loss "
           f"{summary['best_val_loss']:.4g}\n-> {summary['model']}")
+    return 0
+
+
+def _train_waves(args) -> int:
+    from jaxocean.nn import waves_train as wt
+
+    changes = {k: v for k, v in (("epochs", args.epochs), ("steps_per_epoch", args.steps_per_epoch),
+                                 ("losses", args.losses), ("time_budget_minutes", args.time_budget_min))
+               if v is not None}
+    config = wt.CONFIGS[args.config]._replace(**changes)
+    config.terms()
+    summary = wt.train(args.dataset, args.out, config, progress=not args.quiet)
+    summary.pop("state")
+    print(f"stopped: {summary['stopped']} after {summary['steps']} steps ({summary['train_s'] / 60:.1f} min); "
+          f"best validation loss {summary['best_val_loss']:.4g}\n-> {summary['model']}")
     return 0
 
 

@@ -111,7 +111,8 @@ def _plot_curves(path: Path, history: list) -> None:
         axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
     axes[1].set_xlabel("epoch")
     axes[1].set_ylabel("slope skill")
-    axes[1].legend(fontsize=7)
+    if skill_keys:
+        axes[1].legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path, dpi=90)
 

@@ -221,7 +221,8 @@ def _kvec(om, th):
     return np.stack([k * np.cos(th), k * np.sin(th)], -1)
 
 
-def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | None = None,
+def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | str | None = None,
+          net=None, net_threshold: float = 0.5,
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=0.0,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
@@ -240,7 +241,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       noise-free data stop adding waves once the model is explained to its floating-point
       precision.
     * ``init``: starting waves; then no spectral initialisation, and waves are added only
-      if ``n_waves`` asks for more.
+      if ``n_waves`` asks for more. ``init="net"``: start from the waves of the wave network
+      (:func:`jaxocean.nn.waves.predict` on the first ``config.frames`` frames: the slots
+      with presence above ``net_threshold``), then select and refine as from the default
+      start (waves are added while the criterion improves). ``net``: a
+      :class:`~jaxocean.nn.waves.WaveNetModel` or a model file; None is the shipped model.
     * ``prune``: after the greedy stage, drop waves whose Wald statistic is below the
       criterion's penalty, refit, and keep the smaller model only if the criterion improves
       (off by default: with correlated long waves a refit can land in a worse optimum).
@@ -310,8 +315,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     # ---- start
     empty = Waves(*(jnp.zeros(0, dtype),) * 4)
+    from_net = isinstance(init, str)
+    if from_net:
+        init = _net_start(init, net, net_threshold, normals, roughness, camera, times)
     current = empty if init is None else Waves(*[jnp.asarray(x, dtype) for x in validate(init, max_steepness=None)])
-    limit = n_waves if n_waves is not None else (current.omega.shape[0] if init is not None else max_waves)
+    selecting = init is None or from_net  # the count is chosen by the criterion
+    limit = n_waves if n_waves is not None else (max_waves if selecting else current.omega.shape[0])
 
     n_scales = scales if scales is not None else (1 if camera.projection == "orthographic" else 4)
     _, _, _, spacing, _ = grid_frames(camera, n_scales, grid)
@@ -520,7 +529,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
     # the loop ran into the cap, not into the criterion: the count was not selected
-    capped = n_waves is None and init is None and n_fit >= max_waves
+    capped = n_waves is None and selecting and n_fit >= max_waves
     # converged is not enough: the fit must explain the data to their noise (measured: one
     # wave 1.25-2 footprints long, aliased by the start, "converged" at 0.05-0.12 rad)
     bound = normal_error_bound(noise)
@@ -533,6 +542,21 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
         return result, sel
     return result
+
+
+def _net_start(init: str, net, threshold, normals, roughness, camera, times) -> Waves:
+    """The wave network's waves as the start (``init="net"``)."""
+    from jaxocean.nn import waves as wn
+
+    if init != "net":
+        raise ValueError(f"init must be Waves, None or 'net'; got {init!r}")
+    model = net if isinstance(net, wn.WaveNetModel) else wn.load(net)
+    T = model.config.frames
+    if normals.shape[0] < T:
+        raise ValueError(f"init='net': the wave network takes {T} frames; the sequence has {normals.shape[0]}")
+    w = wn.predict(model, normals[:T], None if roughness is None else roughness[:T], camera, times[:T],
+                   threshold=threshold)
+    return w if w.omega.shape[0] else None
 
 
 def _roughness_informative(roughness, camera):

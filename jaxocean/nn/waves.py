@@ -1,0 +1,370 @@
+"""Wave-estimation network: a sequence of geometry to the component waves (Xie et al. 2024, §4.4).
+
+Protocol
+--------
+A model is a :class:`WaveNetModel` ``(config, params)``: :class:`WaveNetConfig` (static,
+hashable) and a params pytree ``{"encoder": ..., "mlp": ...}``.
+
+Inputs (one scene; :func:`apply` takes a batch with a leading ``B`` axis):
+
+* ``normals`` ``(T, H, W, 3)`` unit normals, world frame, z up (what
+  :func:`jaxocean.render.geometry` and the geometry network return);
+* ``roughness`` ``(T, H, W)`` slope variance (or None: the renderer's floor);
+* ``camera`` the :class:`jaxocean.camera.Camera` of the geometry (``resolution == (H, W)``,
+  H and W multiples of ``config.size_multiple``);
+* ``times`` ``(T,)`` frame times [s], strictly increasing; ``T`` must equal
+  ``config.frames`` (the network was trained on that many frames; pass a window).
+
+Network input per pixel (:func:`features`), ``5 T + 7`` channels: per frame the normal
+(3) and ``log10`` of the roughness (1, offset by 3), per frame its time ``t_i - t_0`` [s]
+as a constant channel (the spacing is an input, not a constant of the model), and the
+camera channels of :func:`jaxocean.nn.geometry.camera_channels` (view across / along /
+up, log footprint, sea mask) plus the sea-plane point ``xy / 100 m``. Sky pixels and
+invalid normals (non-finite or facing down) are set to the flat normal.
+
+Network: a UNet (:func:`jaxocean.nn.backbones.UNet`) over the stacked frames, features
+pooled over the sea pixels (mean and max) into a global vector, joined with the frame
+times, and an MLP to ``slots`` wave slots, each ``(omega, theta, presence)``:
+
+* ``omega`` = ``exp(log omega_lo + (log omega_hi - log omega_lo) sigmoid(raw))``: the
+  band of waves this camera shows individually, ``omega_hi`` the shortest wave at normal
+  level (wavelength ``(n_min + 0.1 (n_max - n_min))`` x the smallest sea footprint,
+  :mod:`jaxocean.hierarchy`), ``omega_lo`` the wave one wavelength long across the sea's
+  extent (diagonal of its bounding box on the plane), at least ``config.omega_min`` and at
+  most ``omega_hi / 2``: positive, and never a wave the geometry cannot contain;
+* ``theta`` = ``atan2`` of two outputs (direction of travel, world frame);
+* ``presence`` = ``sigmoid(raw)`` in (0, 1).
+
+Amplitude and phase of the slots are not regressed: they are linear in the slope field
+given ``(omega, theta)`` (:func:`jaxocean.fit.waves.solve_amplitudes`, one least-squares
+solve of every slot jointly on the input normals and times, relative ridge
+``config.ridge``), a differentiable layer of the model. The amplitude is then made
+physical and weighted by the presence: ``h = presence (s / k) tanh(k h_ls / s)`` with
+``k = omega^2 / g`` and ``s = config.max_steepness < 1``, so ``k h < 1`` always. Phases
+are absolute (the wave model's time origin ``t = 0``, as every ``Waves``).
+
+* :func:`init(key, config)` -> :class:`WaveNetModel`;
+* :func:`apply(model, normals, roughness, camera, times)` on a batch -> :class:`WaveSlots`
+  (every slot, ``(B, slots)`` leaves);
+* :func:`predict(model, normals, roughness, camera, times, threshold=0.5)` for one scene
+  -> ``Waves`` of the slots whose presence exceeds ``threshold``, sorted by frequency;
+* :func:`save` / :func:`load` (``load(None)`` is the shipped pretrained model).
+
+Units: lengths metres, times seconds, angles radians. :func:`apply` is jittable and
+differentiable; params are float32.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib.resources
+from pathlib import Path
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean import hierarchy, shading
+from jaxocean._records import record_from_json, record_to_json
+from jaxocean.nn import backbones
+from jaxocean.nn import layers as nl
+from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
+from jaxocean.nn.geometry import camera_channels
+from jaxocean.waves import GRAVITY, Waves
+
+__all__ = [
+    "WaveNetConfig",
+    "WaveNetModel",
+    "WaveSlots",
+    "init",
+    "features",
+    "apply",
+    "predict",
+    "slots_to_waves",
+    "save",
+    "load",
+    "model_info",
+    "PRETRAINED_PATH",
+]
+
+PRETRAINED_PATH = Path(str(importlib.resources.files("jaxocean.nn") / "pretrained" / "waves_cpu.npz"))
+_FORMAT = "jaxocean.nn.waves/1"
+_MIN_NZ = 1e-3  # normals with n_z below this are invalid (facing down or grazing)
+_XY_SCALE = 100.0  # m: sea-plane coordinates enter the network divided by this
+
+
+class WaveNetConfig(NamedTuple):
+    """Architecture of a wave-estimation network (static and hashable)."""
+
+    frames: int = 6  # T: frames per input sequence
+    slots: int = 16  # N: wave slots
+    widths: tuple = (16, 32, 64)  # UNet levels
+    hidden: int = 128  # MLP width (two hidden layers)
+    omega_min: float = 0.3  # rad/s: lowest slot frequency
+    max_steepness: float = 0.8  # s: k h < s
+    ridge: float = 1e-3  # relative ridge of the amplitude solve
+
+    def validate(self) -> "WaveNetConfig":
+        if not isinstance(self.frames, int) or self.frames < 2:
+            raise ValueError(f"frames must be an int >= 2 (frequency comes from the motion); got {self.frames!r}")
+        if not isinstance(self.slots, int) or self.slots < 1:
+            raise ValueError(f"slots must be a positive int; got {self.slots!r}")
+        if not 0.0 < self.max_steepness < 1.0:
+            raise ValueError(f"max_steepness must be in (0, 1); got {self.max_steepness}")
+        if not self.omega_min > 0:
+            raise ValueError(f"omega_min must be > 0 rad/s; got {self.omega_min}")
+        return self
+
+    @property
+    def in_channels(self) -> int:
+        return 5 * self.frames + 7
+
+    @property
+    def size_multiple(self) -> int:
+        return 2 ** (len(self.widths) - 1)
+
+    def to_json(self) -> dict:
+        return record_to_json(self)
+
+    @classmethod
+    def from_json(cls, d: dict) -> "WaveNetConfig":
+        return record_from_json(cls, d, "wave network config").validate()
+
+
+class WaveNetModel(NamedTuple):
+    config: WaveNetConfig
+    params: dict
+
+
+class WaveSlots(NamedTuple):
+    """Every slot of a prediction: ``waves`` (``Waves`` with ``(..., N)`` leaves, amplitude
+    already weighted by the presence) and ``presence (..., N)`` in (0, 1)."""
+
+    waves: Waves
+    presence: jax.Array
+
+
+def _networks(config: WaveNetConfig):
+    encoder = backbones.UNet(config.widths)
+    mlp = nl.serial(nl.Dense(config.hidden), nl.Relu, nl.Dense(config.hidden), nl.Relu,
+                    nl.Dense(4 * config.slots, w_scale=0.1))
+    return encoder, mlp
+
+
+def _slot_bias(config: WaveNetConfig):
+    """Initial slot outputs spread over the band (log frequency) and the circle (direction,
+    golden-ratio steps), presence 0.88: an untrained model starts from distinct waves."""
+    n = config.slots
+    frac = (np.arange(n) + 0.5) / n
+    ang = 2 * np.pi * np.mod(np.arange(n) * 0.6180339887, 1.0)
+    raw = np.stack([np.log(frac / (1 - frac)), np.cos(ang), np.sin(ang), np.full(n, 2.0)], -1)
+    return jnp.asarray(raw.reshape(-1), jnp.float32)
+
+
+def init(key, config: WaveNetConfig = WaveNetConfig()) -> WaveNetModel:
+    config = config.validate()
+    encoder, mlp = _networks(config)
+    k1, k2 = jax.random.split(key)
+    (_, _, _, width), p_enc = encoder.init(k1, (-1, 32, 32, config.in_channels))
+    _, p_mlp = mlp.init(k2, (-1, 2 * width + config.frames))
+    last = dict(p_mlp[-1])
+    last["b"] = _slot_bias(config)
+    p_mlp = p_mlp[:-1] + (last,)
+    return WaveNetModel(config, {"encoder": p_enc, "mlp": p_mlp})
+
+
+# --------------------------------------------------------------------------- inputs
+
+
+def _check_scene(config: WaveNetConfig, normals, roughness, camera, times) -> None:
+    """Structure checks of one scene (shapes only: traceable)."""
+    if not isinstance(camera, cam.Camera):
+        raise ValueError(f"camera must be a jaxocean Camera; got {type(camera).__name__}")
+    H, W = camera.resolution
+    T = config.frames
+    if normals.ndim != 4 or normals.shape[1:] != (H, W, 3):
+        raise ValueError(f"normals must be (T, H, W, 3) with (H, W) = camera.resolution = {(H, W)}; "
+                         f"got {tuple(normals.shape)}")
+    if normals.shape[0] != T:
+        raise ValueError(f"this wave network takes sequences of exactly {T} frames (config.frames); got "
+                         f"{normals.shape[0]} -- pass a window of {T} frames")
+    if roughness is not None and tuple(roughness.shape) != (T, H, W):
+        raise ValueError(f"roughness must be (T, H, W) = {(T, H, W)}; got {tuple(roughness.shape)}")
+    if tuple(times.shape) != (T,):
+        raise ValueError(f"times must be (T,) = ({T},); got {tuple(times.shape)}")
+    m = config.size_multiple
+    if H % m or W % m:
+        raise ValueError(f"the network needs H and W divisible by {m} (its UNet has {len(config.widths)} "
+                         f"levels); got {(H, W)}")
+
+
+def _valid(normals, mask):
+    finite = jnp.all(jnp.isfinite(normals), -1)
+    return finite & (jnp.where(finite, normals[..., 2], 0.0) > _MIN_NZ) & mask[None]
+
+
+def features(normals, roughness, camera, times):
+    """Network input ``(H, W, 5 T + 7)`` of one scene and the sea mask ``(H, W)``."""
+    chans, mask = camera_channels(camera)
+    hit = cam.intersect_sea(camera)
+    normals = jnp.asarray(normals, jnp.float32)
+    T, H, W = normals.shape[:3]
+    ok = _valid(normals, mask)
+    up = jnp.asarray([0.0, 0.0, 1.0], jnp.float32)
+    n = jnp.where(ok[..., None], normals, up)
+    if roughness is None:
+        r = jnp.full((T, H, W), shading.MIN_SLOPE_VARIANCE, jnp.float32)
+    else:
+        r = jnp.asarray(roughness, jnp.float32)
+    r = jnp.where(ok & jnp.isfinite(r), r, shading.MIN_SLOPE_VARIANCE)
+    logr = (jnp.log10(jnp.maximum(r, 1e-6)) + 3.0) * ok
+    t = jnp.asarray(times, jnp.float32)
+    t = t - t[0]
+    per_frame = jnp.concatenate([n, logr[..., None]], -1)  # (T, H, W, 4)
+    per_frame = jnp.moveaxis(per_frame, 0, 2).reshape(H, W, 4 * T)
+    tmaps = jnp.broadcast_to(t, (H, W, T))
+    xy = hit.xy.astype(jnp.float32) / _XY_SCALE * mask[..., None]
+    return jnp.concatenate([per_frame, tmaps, chans.astype(jnp.float32), xy], -1), mask
+
+
+def _omega_band(config: WaveNetConfig, camera):
+    """``(omega_lo, omega_hi)`` of the slots for ``camera``: the shortest wave the camera
+    shows at normal level (see the module docstring)."""
+    hit = cam.intersect_sea(camera)
+    fp_min = jnp.min(jnp.where(hit.mask, hit.footprint, jnp.inf))
+    fp_min = jnp.where(jnp.isfinite(fp_min), fp_min, 1.0)
+    n_lo = hierarchy.DEFAULT_N_MIN + 0.1 * (hierarchy.DEFAULT_N_MAX - hierarchy.DEFAULT_N_MIN)
+    om_hi = jnp.sqrt(2 * jnp.pi * GRAVITY / (n_lo * fp_min))
+    # the longest wave: one wavelength across the sea's extent (a longer one is a tilt)
+    m = hit.mask[..., None]
+    lo_xy = jnp.min(jnp.where(m, hit.xy, jnp.inf), (0, 1))
+    hi_xy = jnp.max(jnp.where(m, hit.xy, -jnp.inf), (0, 1))
+    extent = jnp.sqrt(jnp.sum(jnp.square(jnp.where(jnp.isfinite(hi_xy - lo_xy), hi_xy - lo_xy, 1.0))))
+    om_lo = jnp.maximum(jnp.sqrt(2 * jnp.pi * GRAVITY / jnp.maximum(extent, 1e-3)), config.omega_min)
+    om_lo = jnp.minimum(om_lo, 0.5 * om_hi)
+    return om_lo.astype(jnp.float32), om_hi.astype(jnp.float32)
+
+
+def _slot_outputs(config: WaveNetConfig, raw, om_lo, om_hi):
+    """Raw MLP outputs ``(N, 4)`` of one scene -> ``omega``, ``theta``, ``presence`` ``(N,)``."""
+    log_lo, log_hi = jnp.log(om_lo), jnp.log(om_hi)
+    omega = jnp.exp(log_lo + (log_hi - log_lo) * jax.nn.sigmoid(raw[:, 0]))
+    c, s = raw[:, 1], raw[:, 2]
+    # atan2 of a vector kept away from the origin (a finite gradient everywhere)
+    r = jnp.sqrt(c * c + s * s + 1e-12)
+    theta = jnp.arctan2(s, c + 1e-6 * (r < 1e-6))
+    return omega, theta, jax.nn.sigmoid(raw[:, 3])
+
+
+def _amplitudes(config: WaveNetConfig, normals, camera, times, omega, theta, presence):
+    """Amplitude (physical, presence-weighted) and phase by the linear solve."""
+    from jaxocean.fit.waves import solve_amplitudes
+
+    w = solve_amplitudes(normals, camera, times, omega, theta, ridge=config.ridge)
+    k = omega * omega / GRAVITY
+    s = config.max_steepness
+    h = presence * (s / k) * jnp.tanh(k * w.amplitude / s)
+    return h, w.phase
+
+
+def apply(model: WaveNetModel, normals, roughness, camera, times, *, key=None, train: bool = False) -> WaveSlots:
+    """Every slot for a batch: ``normals (B, T, H, W, 3)``, ``roughness (B, T, H, W)`` or
+    None, ``camera`` a Camera with ``(B,)`` leaves, ``times (B, T)``."""
+    config = model.config
+    normals = jnp.asarray(normals, jnp.float32)
+    times = jnp.asarray(times, jnp.float32)
+    if normals.ndim != 5:
+        raise ValueError(f"apply takes a batch of normals (B, T, H, W, 3); got {tuple(normals.shape)} "
+                         "(use predict for one scene)")
+    one = jax.tree.map(lambda x: x[0], camera)
+    _check_scene(config, normals[0], None if roughness is None else roughness[0], one, times[0])
+    rough_in = roughness if roughness is not None else None
+    feats, mask = jax.vmap(lambda n, r, c, t: features(n, r, c, t), in_axes=(0, 0 if rough_in is not None else None,
+                                                                             0, 0))(normals, rough_in, camera, times)
+    encoder, mlp = _networks(config)
+    k1, k2 = (None, None) if key is None else jax.random.split(key)
+    f = encoder.apply(model.params["encoder"], feats, key=k1, train=train)  # (B, H, W, w0)
+    m = mask[..., None].astype(f.dtype)
+    mean = jnp.sum(f * m, (1, 2)) / jnp.maximum(jnp.sum(m, (1, 2)), 1.0)
+    mx = jnp.max(jnp.where(m > 0, f, -1e4), (1, 2))
+    mx = jnp.where(mx > -1e3, mx, 0.0)
+    t_rel = times - times[:, :1]
+    g = jnp.concatenate([mean, mx, t_rel], -1)
+    raw = mlp.apply(model.params["mlp"], g, key=k2, train=train).reshape(-1, config.slots, 4)
+
+    def per_scene(raw_i, n_i, cam_i, t_i):
+        lo, hi = _omega_band(config, cam_i)
+        omega, theta, presence = _slot_outputs(config, raw_i, lo, hi)
+        h, phase = _amplitudes(config, n_i, cam_i, t_i, omega, theta, presence)
+        return WaveSlots(Waves(h, omega, theta, phase), presence)
+
+    return jax.vmap(per_scene)(raw, normals, camera, times)
+
+
+def slots_to_waves(slots: WaveSlots, threshold: float = 0.5) -> Waves:
+    """The waves of one scene's slots (leaves ``(N,)``) whose presence exceeds ``threshold``,
+    sorted by frequency (eager, NumPy float64 leaves)."""
+    keep = np.asarray(slots.presence) > threshold
+    w = Waves(*[np.asarray(x, np.float64)[keep] for x in slots.waves])
+    order = np.argsort(w.omega)
+    return Waves(*[x[order] for x in w])
+
+
+def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold: float = 0.5,
+            return_slots: bool = False):
+    """The waves of one scene (``Waves`` with ``(n,)`` leaves: the slots with presence above
+    ``threshold``), or ``(Waves, WaveSlots)`` with ``return_slots=True``. Inputs as in the
+    module docstring; ``ValueError`` names a wrong shape, frame count or resolution, and
+    frame times that are not finite and strictly increasing."""
+    normals = jnp.asarray(normals, jnp.float32)
+    times_np = np.asarray(times, np.float64)
+    rough = None if roughness is None else jnp.asarray(roughness, jnp.float32)
+    _check_scene(model.config, normals, rough, camera, times_np)
+    if not (np.all(np.isfinite(times_np)) and np.all(np.diff(times_np) > 0)):
+        raise ValueError(f"times must be finite and strictly increasing; got {times_np}")
+    if not 0.0 <= threshold < 1.0:
+        raise ValueError(f"threshold must be in [0, 1); got {threshold}")
+    slots = _predict_jit(model.config, model.params, normals[None], None if rough is None else rough[None],
+                         jax.tree.map(lambda x: jnp.asarray(x)[None], camera), jnp.asarray(times_np, jnp.float32)[None])
+    slots = jax.tree.map(lambda x: x[0], slots)
+    w = slots_to_waves(slots, threshold)
+    return (w, slots) if return_slots else w
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _predict_jit(config, params, normals, roughness, camera, times):
+    return apply(WaveNetModel(config, params), normals, roughness, camera, times)
+
+
+# --------------------------------------------------------------------------- files
+
+
+def save(path, model: WaveNetModel, meta: dict | None = None) -> Path:
+    """Write a model (params and config) to ``path`` (``.npz``), atomically."""
+    return save_tree(path, model.params, {"format": _FORMAT, "config": model.config.to_json(), **(meta or {})})
+
+
+def load(path=None) -> WaveNetModel:
+    """A model written by :func:`save`; ``None`` loads the shipped pretrained model.
+
+    Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
+    missing, corrupt or not a wave network of this version."""
+    path = PRETRAINED_PATH if path is None else Path(path)
+    meta = load_tree(path, None, meta_only=True)
+    if meta.get("format") != _FORMAT:
+        raise CheckpointError(path, f"not a wave network (format {meta.get('format')!r}, expected {_FORMAT!r})")
+    try:
+        config = WaveNetConfig.from_json(meta["config"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise CheckpointError(path, f"bad model config: {err}") from None
+    template = init(jax.random.key(0), config).params
+    params, _ = load_tree(path, template)
+    return WaveNetModel(config, params)
+
+
+def model_info(path=None) -> dict:
+    """The metadata stored with a model (config, training summary)."""
+    return load_tree(PRETRAINED_PATH if path is None else Path(path), None, meta_only=True)
+

@@ -1,0 +1,170 @@
+"""Wave-estimation network: physical outputs, permutation-free loss, overfitting one scene,
+bad inputs, the shipped model and the net-started wave fit."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from jaxocean import camera as cam
+from jaxocean.fit import waves as fit_waves_fn
+from jaxocean.fit.waves import match, predict as render_waves
+from jaxocean.nn import CheckpointError
+from jaxocean.nn import waves as wn
+from jaxocean.nn import waves_train as wt
+from jaxocean.waves import GRAVITY, Waves
+
+TINY = wn.WaveNetConfig(frames=4, slots=4, widths=(4, 8), hidden=16)
+CAMERA = cam.make_camera(height=12.0, pitch=0.9, fov=0.8, resolution=(16, 16))
+TIMES = np.arange(4, dtype=np.float32) * 0.2
+SWELL = Waves(*(jnp.asarray(v, jnp.float32) for v in ([0.05, 0.03], [1.6, 2.2], [0.3, -1.2], [1.0, 4.0])))
+
+
+def _scene(waves=SWELL, camera=CAMERA, times=TIMES):
+    n, r = render_waves(waves, camera, jnp.asarray(times))
+    return np.asarray(n), np.asarray(r)
+
+
+def _batch(normals, roughness, camera=CAMERA, times=TIMES):
+    return {"normal": normals[None], "roughness": roughness[None],
+            "camera": jax.tree.map(lambda x: jnp.asarray(x)[None], camera), "times": jnp.asarray(times)[None]}
+
+
+_TINY_MODEL = wn.init(jax.random.key(0), TINY)
+
+
+@pytest.fixture(scope="module")
+def tiny_model():
+    return _TINY_MODEL
+
+
+@settings(max_examples=8)
+@given(seed=st.integers(0, 2 ** 16), scale=st.floats(0.0, 30.0), dt=st.floats(0.02, 2.0),
+       tilt=st.floats(0.0, 3.0))
+def test_outputs_are_physical_for_any_input(seed, scale, dt, tilt):
+    tiny_model = _TINY_MODEL
+    rng = np.random.default_rng(seed)
+    # any finite normals facing up (tilted up to `tilt` in slope), params scaled arbitrarily
+    s = rng.normal(0.0, tilt, (4, 16, 16, 2))
+    n = np.concatenate([-s, np.ones((4, 16, 16, 1))], -1)
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    rough = rng.uniform(0, 0.1, (4, 16, 16))
+    params = jax.tree.map(lambda p: p * scale + rng.normal(0, 1, p.shape).astype(np.float32) * (scale > 10),
+                          tiny_model.params)
+    model = tiny_model._replace(params=params)
+    w, slots = wn.predict(model, n, rough, CAMERA, np.arange(4) * dt, return_slots=True)
+    om, h = np.asarray(slots.waves.omega), np.asarray(slots.waves.amplitude)
+    k = om ** 2 / GRAVITY
+    assert np.all(np.isfinite(np.stack(slots.waves))) and np.all(np.isfinite(slots.presence))
+    assert np.all(om > 0) and np.all(h >= 0)
+    assert np.all(k * h <= TINY.max_steepness + 1e-6)
+    assert np.all((slots.presence >= 0) & (slots.presence <= 1))
+    assert w.omega.shape[0] == int(np.sum(np.asarray(slots.presence) > 0.5))
+
+
+def test_loss_is_invariant_to_permuting_wave_slots():
+    normals, rough = _scene()
+    waves = Waves(*(jnp.asarray(v, jnp.float32) for v in ([0.04, 0.02, 0.01], [1.5, 2.3, 3.0], [0.2, -1.0, 2.0],
+                                                           [0.5, 3.0, 1.0])))
+    perm = np.array([2, 0, 1])
+    permuted = Waves(*(x[perm] for x in waves))
+    args = (jnp.asarray(normals), jnp.asarray(rough), CAMERA, jnp.asarray(TIMES))
+    loss = jax.jit(wt.geometry_loss)
+    a, b = float(loss(waves, *args)), float(loss(permuted, *args))
+    assert a == pytest.approx(b, rel=1e-5)
+    changed = waves._replace(omega=waves.omega.at[0].set(1.9))
+    assert abs(float(loss(changed, *args)) - a) > 1e-3  # the loss does see the waves
+    presence = jnp.asarray([0.9, 0.6, 0.3])
+    slots = wn.WaveSlots(waves, presence)
+    slots_p = wn.WaveSlots(permuted, presence[perm])
+    weight = jnp.ones(2)
+    assert float(wt.supervised_loss(slots, SWELL, weight)) == pytest.approx(
+        float(wt.supervised_loss(slots_p, SWELL, weight)), rel=1e-6)
+    # the true swell's own loss is (nearly) zero, the flat sea's is 1 by the normalisation
+    two = Waves(*(jnp.concatenate([x, x[:1] * 0 + (1.0 if i == 1 else 0.0)]) for i, x in enumerate(SWELL)))
+    assert float(loss(two, *args)) < 1e-3  # the true swell (plus a zero wave) explains its own geometry
+    flat = Waves(*(jnp.asarray([0.0, 0.0, 0.0], jnp.float32) if i != 1 else jnp.ones(3, jnp.float32) for i in range(4)))
+    assert float(loss(flat, *args)) == pytest.approx(1.0)
+
+
+def test_tiny_network_overfits_one_sequence():
+    normals, rough = _scene()
+    # geometry loss alone (self-supervised); 8 slots for the 2 waves (4 can settle on one)
+    config = wt.TrainConfig(name="tiny", model=TINY._replace(slots=8), losses="geometry", epochs=1,
+                            steps_per_epoch=150, learning_rate=1e-2, presence_weight=0.0, time_budget_minutes=None)
+    state = wt.init_state(config, jax.random.key(1))
+    step = wt.make_step(config)
+    batch = _batch(normals, rough)
+    losses = []
+    for i in range(150):
+        state, logs = step(state, batch, jax.random.key(i))
+        losses.append(float(logs["geometry"]))
+    assert losses[0] > 0.3
+    assert min(losses[-10:]) < losses[0] / 100, (losses[0], losses[-10:])
+
+
+def test_bad_inputs_name_the_problem(tiny_model):
+    normals, rough = _scene()
+    with pytest.raises(ValueError, match="exactly 4 frames"):
+        wn.predict(tiny_model, normals[:3], rough[:3], CAMERA, TIMES[:3])
+    with pytest.raises(ValueError, match=r"normals must be \(T, H, W, 3\)"):
+        wn.predict(tiny_model, normals[..., :2], rough, CAMERA, TIMES)
+    with pytest.raises(ValueError, match="roughness must be"):
+        wn.predict(tiny_model, normals, rough[:, :8], CAMERA, TIMES)
+    with pytest.raises(ValueError, match=r"times must be \(T,\)"):
+        wn.predict(tiny_model, normals, rough, CAMERA, TIMES[:2])
+    with pytest.raises(ValueError, match="strictly increasing"):
+        wn.predict(tiny_model, normals, rough, CAMERA, TIMES[::-1])
+    odd = cam.make_camera(height=12.0, pitch=0.9, fov=0.8, resolution=(15, 16))
+    n_odd, r_odd = _scene(camera=odd)
+    with pytest.raises(ValueError, match="divisible by 2"):
+        wn.predict(tiny_model, n_odd, r_odd, odd, TIMES)
+    with pytest.raises(ValueError, match="frames must be an int >= 2"):
+        wn.WaveNetConfig(frames=1).validate()
+    with pytest.raises(ValueError, match="init must be Waves, None or 'net'"):
+        fit_waves_fn(normals, rough, CAMERA, TIMES, init="spectrum")
+
+
+def test_save_load_round_trip_and_errors(tiny_model, tmp_path):
+    path = wn.save(tmp_path / "m.npz", tiny_model, {"note": "x"})
+    back = wn.load(path)
+    assert back.config == TINY
+    for a, b in zip(jax.tree.leaves(back.params), jax.tree.leaves(tiny_model.params)):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    (tmp_path / "bad.npz").write_bytes(b"not a zip")
+    with pytest.raises(CheckpointError, match="bad.npz"):
+        wn.load(tmp_path / "bad.npz")
+
+
+def _swell4(camera, times):
+    waves = Waves(*(jnp.asarray(v, jnp.float32) for v in ([0.06, 0.04, 0.03, 0.02], [1.3, 1.7, 2.1, 2.6],
+                                                          [0.4, -0.6, 1.3, 2.4], [0.5, 2.0, 4.0, 5.5])))
+    return waves, _scene(waves, camera, times)
+
+
+def test_shipped_model_loads_and_predicts_physical_waves():
+    model = wn.load()
+    T = model.config.frames
+    camera = cam.make_camera(height=15.0, pitch=0.8, fov=0.8, resolution=(32, 32))
+    times = np.arange(T, dtype=np.float32) * 0.15
+    truth, (normals, rough) = _swell4(camera, times)
+    w = wn.predict(model, normals, rough, camera, times)
+    assert 1 <= w.omega.shape[0] <= model.config.slots
+    assert np.all(w.amplitude * w.omega ** 2 / GRAVITY <= model.config.max_steepness + 1e-6)
+
+
+@pytest.mark.slow
+def test_net_started_fit_recovers_a_clean_four_wave_swell():
+    model = wn.load()
+    T = model.config.frames
+    camera = cam.make_camera(height=15.0, pitch=0.8, fov=0.8, resolution=(32, 32))
+    times = np.arange(T, dtype=np.float32) * 0.15
+    truth, (normals, rough) = _swell4(camera, times)
+    fit = fit_waves_fn(normals, rough, camera, times, init="net", net=model)
+    m = match(fit.waves, truth)
+    assert m.true_index.size == 4
+    assert np.max(m.abs_error.amplitude) < 2e-3
+    assert np.max(m.abs_error.omega) < 0.02
+    assert np.max(m.abs_error.theta) < 0.02
