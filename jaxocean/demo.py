@@ -147,7 +147,12 @@ def _wave_chart(path: Path, truth, fitted) -> Path:
     return plots.save_figure(fig, path, dpi=110)
 
 
-def reconstruct_stage(out: Path, scene, images, *, width: int = 128, wave_frames: int = 8) -> dict:
+#: the demo's reconstruct settings: small, so that `make demo` stays within a few minutes on a
+#: laptop CPU (the command's defaults are larger)
+DEMO_RECONSTRUCT = dict(width=64, wave_frames=6, max_waves=8, refine_steps=8, refine_rounds=2)
+
+
+def reconstruct_stage(out: Path, scene, images) -> dict:
     """Write ``images (T, H, W, 3)`` of ``scene`` as 8-bit PNG frames with a camera-and-times
     ``scene.json`` (no waves, no lighting), reconstruct them, and compare the forecast and
     a re-rendered view with the truth (``reconstruct_vs_truth.png``)."""
@@ -159,8 +164,7 @@ def reconstruct_stage(out: Path, scene, images, *, width: int = 128, wave_frames
     frames_dir.mkdir(parents=True, exist_ok=True)
     files = [save_png(frames_dir / f"frame_{i:05d}.png", img) for i, img in enumerate(np.asarray(images))]
     camera_json = write_scene(frames_dir, scene_to_dict(camera=scene.camera, times=scene.times))
-    result = rc.reconstruct(files, camera_json, out=out / "reconstruct", width=width, response="bruneton",
-                            wave_frames=wave_frames)
+    result = rc.reconstruct(files, camera_json, out=out / "reconstruct", response="bruneton", **DEMO_RECONSTRUCT)
     seq, outlook = result.sequence, result.outlook
     true_fc = fc.forecast(scene.waves, outlook["times"], seq.camera, scene.lighting)
     true_sea = _sea_state(scene.waves)
@@ -183,13 +187,12 @@ def _sea_state(waves) -> dict:
     return dict(hs=float(4 * np.sqrt(np.sum(h ** 2) / 2)), tp=float(2 * np.pi / w[np.argmax(h ** 2 / w)]))
 
 
-def real_stage(out: Path, clip_dir: Path, *, width: int = 128, wave_frames: int = 8) -> dict:
+def real_stage(out: Path, clip_dir: Path) -> dict:
     """``reconstruct`` on the frames and camera file in ``clip_dir``; its report in
     ``out/real``."""
     from jaxocean import reconstruct as rc
 
-    result = rc.reconstruct([], Path(clip_dir) / "camera.json", out=out / "real", width=width,
-                            wave_frames=wave_frames)
+    result = rc.reconstruct([], Path(clip_dir) / "camera.json", out=out / "real", **DEMO_RECONSTRUCT)
     return dict(stages={n: dict(success=r.success, seconds=r.seconds, message=r.message)
                         for n, r in result.stages.items()},
                 hs_m=result.sea["hs_m"], tp_s=result.sea["tp_s"], direction_deg=result.sea["direction_deg"],

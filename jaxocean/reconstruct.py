@@ -426,7 +426,7 @@ def _spread(n: int, k: int | None) -> np.ndarray:
 
 
 def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | None = 16, overcast: bool = False,
-                      max_steps: int | None = None):
+                      max_steps: int | None = None, rounds: int | None = None):
     """Stage 5: waves, lighting and exposure refined jointly against the images through the
     renderer with a robust loss (:func:`jaxocean.fit.photometric`)."""
     from jaxocean.fit import photometric_fit as ph
@@ -434,7 +434,7 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
     idx = _spread(len(seq.times), frames)
 
     def run():
-        kw = {} if max_steps is None else dict(max_steps=max_steps)
+        kw = {k: v for k, v in (("max_steps", max_steps), ("rounds", rounds)) if v is not None}
         images = seq.images[idx][..., 0] if seq.gray else seq.images[idx]
         result = ph.photometric(images, seq.camera, seq.times[idx], waves, lighting, mask=seq.usable[idx],
                                 overcast=overcast, **kw)
@@ -579,11 +579,14 @@ def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.
 def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, response: str = "srgb",
                 gamma: float = 2.2, step: int = 1, max_frames: int | None = None, height: float | None = None,
                 wave_frames: int | None = 16, max_waves: int = 24, overcast: bool | None = None,
-                refine: bool = True, progress: bool = True) -> Reconstruction:
+                refine: bool = True, refine_steps: int | None = None, refine_rounds: int | None = None,
+                progress: bool = True) -> Reconstruction:
     """Run every stage (module docstring) and, with ``out``, write ``result.json``, the
     report and its figures there (:mod:`jaxocean.report`). A stage that fails does not stop
     the pipeline while its output exists; its flag says what the later numbers rest on.
-    ``refine=False`` skips stage 5 (the two-step method of the paper)."""
+    ``refine=False`` skips stage 5 (the two-step method of the paper); ``refine_steps`` /
+    ``refine_rounds``: its Levenberg-Marquardt steps per IRLS round and its rounds (None:
+    :func:`jaxocean.fit.photometric`'s defaults)."""
     stages = {}
 
     def say(report):
@@ -605,7 +608,8 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     waves, waves_ok, lighting = wfit.waves, rep.success, light.lighting
     photo = None
     if refine:
-        photo, rep = photometric_stage(seq, waves, lighting, frames=wave_frames, overcast=over)
+        photo, rep = photometric_stage(seq, waves, lighting, frames=wave_frames, overcast=over,
+                                       max_steps=refine_steps, rounds=refine_rounds)
         say(rep)
         if rep.success:
             waves, lighting = photo.waves, photo.lighting

@@ -4,6 +4,7 @@
   warning is filtered.
 * ``key`` gives a fresh PRNG key per test; ``x64`` switches 64-bit floats on for one test
   (gradient checks run there).
+* The command line's persistent XLA compilation cache is off.
 * hypothesis: a small deterministic profile so `make test` stays fast and reproducible.
 """
 
@@ -12,6 +13,9 @@ import os
 import jax
 import pytest
 from hypothesis import HealthCheck, settings
+
+# the command line's persistent compilation cache stays off in tests (hermetic runs)
+os.environ["JAXOCEAN_COMPILE_CACHE"] = "0"
 
 settings.register_profile(
     "ci",

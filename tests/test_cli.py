@@ -443,3 +443,13 @@ def test_forecast_refuses_a_failed_fit_and_other_json(tiny_scene, tmp_path, caps
     assert cli.main(["forecast", str(light), "--frames", "0", "--out", str(tmp_path / "fc2")]) == 2
     assert capsys.readouterr().err == (f"jaxocean: error: {light}: this is a lighting fit result (jaxocean "
                                        f"fit-lighting); forecast needs waves (a fit-waves result or a scene.json)\n")
+
+
+def test_compile_cache_folder(monkeypatch, tmp_path):
+    monkeypatch.setenv("JAXOCEAN_COMPILE_CACHE", "0")
+    assert cli._compile_cache() is None
+    monkeypatch.setenv("JAXOCEAN_COMPILE_CACHE", str(tmp_path / "c"))
+    assert cli._compile_cache() == tmp_path / "c"
+    monkeypatch.delenv("JAXOCEAN_COMPILE_CACHE")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    assert cli._compile_cache() == tmp_path / "jaxocean" / "xla"

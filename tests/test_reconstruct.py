@@ -107,3 +107,4 @@ def test_reconstruct_command_end_to_end(tmp_path):
     page = (out / "report.html").read_text()
     for figure in ("frames.png", "sea.png", "forecast.png"):
         assert (out / figure).stat().st_size > 0 and figure in page
+
