@@ -365,11 +365,12 @@ def _frame_jacobian(y, i, d: _Data, st: _Static):
       path's normal (:func:`jaxocean.fit.waves._model.jacobian`);
     * ``d slope_variance / d wave`` per row: forward mode through the row roughness.
 
-    The hits path (``refine > 0``) uses :func:`_frame_jacobian_dense`."""
-    if st.plan.refine != 0 or not st.fit_waves:
+    Without fitted waves only the shading's columns. The hits path (``refine > 0``) uses
+    :func:`_frame_jacobian_dense`."""
+    if st.plan.refine != 0:
         return _frame_jacobian_dense(y, i, d, st)
     lay, P = _layout(st)
-    n = st.n_waves
+    n = st.n_waves if st.fit_waves else 0
     dtype = y.dtype
     waves_, _, _ = _unpack(y, d, st)
     t = d.times[i]
@@ -399,10 +400,13 @@ def _frame_jacobian(y, i, d: _Data, st: _Static):
     t_v = jnp.concatenate([jnp.stack([zero_v, zero_v, one_x, one_y]), jnp.broadcast_to(zero_v, (n_other,) + sv.shape)])
     t_y = jnp.concatenate([jnp.zeros((4, P), dtype), other])
     r, cols = _blocked_jvps(shaded, (normal, sv, y), (t_n, t_v, t_y))  # r (H, W, C), cols (4 + n_other, H, W, C)
+    S, C = H * W, r.shape[-1]
+    J_other = jnp.moveaxis(cols[4:], 0, -1).reshape(S * C, n_other)
+    if not st.fit_waves:
+        return r.reshape(-1), J_other
 
     # d normal_xy / d wave per pixel (the wave fit's rows-path model)
     hit = cam.intersect_sea(d.camera)
-    S = H * W
     samples = Samples(t=jnp.full((S,), t, dtype), xy=hit.xy.reshape(S, 2),
                       fp=jnp.broadcast_to(hit.footprint[:, W // 2][:, None], (H, W)).reshape(S),
                       target=jnp.zeros((S, 2), dtype), sw=jnp.ones((S,), dtype))
@@ -420,9 +424,7 @@ def _frame_jacobian(y, i, d: _Data, st: _Static):
     jsv = jnp.moveaxis(jsv, 0, -1) * jnp.any(hit.mask, axis=1)[:, None, None]  # (H, 2, 4N)
     jw = (cols[0][..., None] * jn[:, :, None, 0] + cols[1][..., None] * jn[:, :, None, 1]
           + cols[2][..., None] * jsv[:, None, None, 0] + cols[3][..., None] * jsv[:, None, None, 1])  # (H, W, C, 4N)
-    C = r.shape[-1]
-    J = jnp.concatenate([jw.reshape(S * C, 4 * n), jnp.moveaxis(cols[4:], 0, -1).reshape(S * C, n_other)], axis=1)
-    return r.reshape(-1), J
+    return r.reshape(-1), jnp.concatenate([jw.reshape(S * C, 4 * n), J_other], axis=1)
 
 
 # --------------------------------------------------------------------------- robust weights
