@@ -53,7 +53,7 @@ from jaxocean import forecast as fc
 from jaxocean import render, shading
 from jaxocean.errors import InvalidValueError
 from jaxocean.io.images import VIDEO_SUFFIXES
-from jaxocean.waves import Waves
+from jaxocean.waves import Waves, wavenumber
 
 __all__ = ["STAGES", "StageReport", "Sequence", "Reconstruction", "load_sequence", "sea_view", "geometry_stage",
            "lighting_stage", "waves_stage", "photometric_stage", "sea_stage", "outlook_stage", "reconstruct",
@@ -69,6 +69,8 @@ DEFAULT_WIDTH = 128
 HORIZON_MARGIN = 0.05
 #: and its bottom edge this far [rad] inside the lowest view of every frame
 BOTTOM_MARGIN = 0.03
+#: the steepest wave the later stages are given (k h = 1 loops the trochoid's crest)
+MAX_STEEPNESS = 0.9
 #: width [px] of the view the space-time evidence is computed in (at most the source's)
 EVIDENCE_WIDTH = 320
 #: display values at or below this are black (the bottom code of an 8-bit file): masked
@@ -412,11 +414,29 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
         n = int(result.n_waves)
         details = dict(n_waves=n, frames=len(idx), normal_error_rad=float(result.normal_error),
                        determined=int(np.sum(result.determined)) if result.determined is not None else None)
-        msg = "" if result.success else (f"stopped at the cap of {max_waves} waves" if n >= max_waves
-                                        else "the waves do not explain the geometry within its noise")
-        return result, bool(result.success), msg, details
+        why = [] if result.success else [f"stopped at the cap of {max_waves} waves" if n >= max_waves
+                                         else "the waves do not explain the geometry within its noise"]
+        # a fit to noisy geometry can explain the noise with waves too steep to exist (looping
+        # crests, k h > 1): they are reported and capped so that the later stages can render
+        waves, capped = _cap_steepness(result.waves, why)
+        details["capped_waves"] = capped
+        return result._replace(waves=waves), bool(result.success) and not capped, "; ".join(why), details
 
     return _timed("waves", run)
+
+
+def _cap_steepness(waves: Waves, why: list):
+    """``(waves, count)``: amplitudes of waves steeper than :data:`MAX_STEEPNESS` capped
+    there, and how many; a note is appended to ``why`` when any was."""
+    k = np.asarray(wavenumber(waves))
+    kh = k * np.asarray(waves.amplitude)
+    steep = kh > MAX_STEEPNESS
+    if not steep.any():
+        return waves, 0
+    why.append(f"{int(steep.sum())} of {kh.size} waves steeper than k h = {MAX_STEEPNESS} (up to {kh.max():.2f}; "
+               f"k h > 1 loops the crest): amplitudes capped there for the later stages")
+    capped = np.where(steep, MAX_STEEPNESS / k, np.asarray(waves.amplitude))
+    return waves._replace(amplitude=jnp.asarray(capped, waves.amplitude.dtype)), int(steep.sum())
 
 
 def _spread(n: int, k: int | None) -> np.ndarray:
@@ -440,7 +460,10 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
                                 overcast=overcast, **kw)
         details = ph.fit_to_dict(result)
         details.update(frames=len(idx), times=[float(t) for t in seq.times[idx]])
-        return result, bool(result.success), str(result.message), details
+        why = [str(result.message)] if result.message else []
+        waves_, capped = _cap_steepness(result.waves, why)
+        details["capped_waves"] = capped
+        return result._replace(waves=waves_), bool(result.success) and not capped, "; ".join(why), details
 
     return _timed("photometric", run)
 

@@ -108,3 +108,15 @@ def test_reconstruct_command_end_to_end(tmp_path):
     for figure in ("frames.png", "sea.png", "forecast.png"):
         assert (out / figure).stat().st_size > 0 and figure in page
 
+
+
+def test_steep_waves_are_capped_and_reported():
+    waves = jo.make_waves([0.5, 0.01], [4.0, 1.0], [0.0, 1.0])
+    waves = waves._replace(amplitude=np.asarray([1.5 * 9.81 / 16.0, 0.01], np.float32))  # k h = 1.5, 0.001
+    why = []
+    capped, count = rc._cap_steepness(waves, why)
+    assert count == 1 and "1 of 2 waves steeper" in why[0]
+    kh = np.asarray(jo.waves.wavenumber(capped)) * np.asarray(capped.amplitude)
+    np.testing.assert_allclose(kh, [rc.MAX_STEEPNESS, 0.01 * 1.0 / 9.81], rtol=1e-5)
+    same, none = rc._cap_steepness(jo.make_waves([0.01], [1.0], [0.0]), why)
+    assert none == 0 and len(why) == 1
