@@ -75,8 +75,11 @@ at the final scale ``sigma``, so they compare like with like.
 Noise (the level the success test holds the residual to), in the comparison space (about
 the relative radiance noise near the sea's level): ``noise=`` as given, or estimated from
 the images by Immerkaer's operator (the 3x3 kernel ``[[1,-2,1],[-2,4,-2],[1,-2,1]]``, which
-cancels planes and ramps): ``median |K * c(image)| / (0.6745 * 6)`` over pixels whose 3x3
-neighbourhood is used sea, all frames and channels. Wave texture near the pixel scale adds
+cancels planes and ramps, noise gain 6) over pixels whose 3x3 neighbourhood is used sea,
+all frames and channels, with a trimmed scale: the mean of ``|K * c(image)|`` below its
+90th percentile over 0.6573 (that truncated mean of a unit half-normal) over 6. Trimmed, not
+a median, because on 8-bit frames most neighbourhoods of the dark sea are flat and a
+median is 0. Wave texture near the pixel scale adds
 to it, so the estimate is an upper bound of the noise: a lenient residual test, which is why
 the success test also asks the waves to explain the images' structure.
 
@@ -88,8 +91,8 @@ that fails):
   model keeps is at the noise level (``NOISE_FLOOR = 1e-3``: the model's own consistency);
 * ``outlier_fraction <= MAX_OUTLIER_FRACTION (0.2)``: the model produces most of the image;
 * the images hold structure above the noise: ``signal_scale >= STRUCTURE_RATIO (1.05) *
-  max(noise, NOISE_FLOOR)``, ``signal_scale`` the MAD of ``c(image)`` about its per-row
-  median (the view-dependent mean); pure noise fails here;
+  max(noise, NOISE_FLOOR)``, ``signal_scale`` the trimmed scale (as the noise's) of
+  ``c(image)`` about its per-row median (the view-dependent mean); pure noise fails here;
 * the fitted waves explain that structure: the residual's spread above the noise,
   ``sqrt(max(robust_scale^2 - noise^2, 0))``, is at most ``EXPLAINED_RATIO (0.5)`` of the
   images', ``sqrt(signal_scale^2 - noise^2)``;
@@ -178,6 +181,8 @@ DETERMINED_ENERGY = 0.9
 #: the IRLS scale never goes below this (comparison-space units)
 SCALE_FLOOR = 1e-6
 _MAD = 1.4826
+_TRIM = 0.9  # noise and spread estimates: mean |x| below this quantile of |x| ...
+_TRIMMED_HALF_NORMAL = 0.6573  # ... over its value for unit Gaussian noise, 2 (phi(0) - phi(1.645)) / 0.9
 _BLOCK = 8  # forward-mode Jacobian columns per vmapped block (see solvers.value_and_jacobian)
 _COLOR_NAMES = ("sun_color", "sky_color", "sea_color")
 
@@ -574,6 +579,17 @@ def _align_scale(y, d: _Data, st: _Static):
 # --------------------------------------------------------------------------- statistics
 
 
+def _trimmed_sigma(x, valid):
+    """Standard deviation of zero-mean ``x`` from the mean of ``|x|`` over the ``valid``
+    entries below the 90th percentile of ``|x|``, divided by that truncated mean of a unit
+    half-normal (0.6573): robust to 10% outliers, and unlike a median it does not collapse to
+    0 on 8-bit data whose values are mostly equal."""
+    a = jnp.where(valid, jnp.abs(x), jnp.nan)
+    q = jnp.nanquantile(a, _TRIM)
+    keep = valid & (jnp.abs(x) <= q)
+    return jnp.sum(jnp.where(keep, jnp.abs(x), 0.0)) / jnp.maximum(jnp.sum(keep), 1) / _TRIMMED_HALF_NORMAL
+
+
 @jax.jit
 def _noise_estimate(target, used):
     """Immerkaer's noise estimate of ``target (T, H, W, C)`` over used 3x3 neighbourhoods."""
@@ -581,18 +597,18 @@ def _noise_estimate(target, used):
     T, H, W, C = target.shape
     conv = sum(k[i][j] * target[:, i:H - 2 + i, j:W - 2 + j] for i in range(3) for j in range(3))
     ok = functools.reduce(jnp.logical_and, [used[:, i:H - 2 + i, j:W - 2 + j] > 0 for i in range(3) for j in range(3)])
-    a = jnp.where(ok[..., None], jnp.abs(conv), jnp.nan)
-    return jnp.nanmedian(a) / (0.6745 * 6.0)
+    sigma = _trimmed_sigma(conv, jnp.broadcast_to(ok[..., None], conv.shape)) / 6.0
+    return jnp.where(jnp.any(ok), sigma, jnp.nan)
 
 
 @jax.jit
 def _signal_scale(target, used):
-    """MAD of ``target`` about its per-row median over used pixels (all frames, columns)."""
+    """Spread of ``target`` about its per-row median over used pixels (all frames, columns)."""
     T, H, W, C = target.shape
-    t = jnp.where(used[..., None] > 0, target, jnp.nan)
+    valid = jnp.broadcast_to(used[..., None] > 0, target.shape)
+    t = jnp.where(valid, target, jnp.nan)
     rows = jnp.nanmedian(jnp.moveaxis(t, 1, 0).reshape(H, T * W, C), axis=1)  # (H, C)
-    dev = jnp.abs(t - rows[None, :, None, :])
-    return _MAD * jnp.nanmedian(dev)
+    return _trimmed_sigma(jnp.where(valid, target - rows[None, :, None, :], 0.0), valid)
 
 
 def estimate_noise(images, mask=None, sea_scale=None):
