@@ -686,7 +686,6 @@ def _check_images(images, camera, times, mask):
 
 def _used_pixels(images, camera, mask, sky: bool):
     """``(T, H, W)`` float: mask and finite and (sea unless ``sky``)."""
-    T = images.shape[0]
     used = jnp.all(jnp.isfinite(images), axis=-1)
     if mask is not None:
         used = used & mask
