@@ -80,9 +80,14 @@ def geometry_error(w: Waves, normals, rough, camera, times) -> dict:
     return {"normal_error_deg": math.degrees(float(np.mean(ang[mask]))), "geometry_loss": loss}
 
 
+def _short(x):
+    """Values as a list of floats to 6 significant digits (float32 data: the JSON stays small)."""
+    return [float(f"{v:.6g}") for v in np.asarray(x, float).ravel()]
+
+
 def score(w: Waves, truth: Waves) -> dict:
     m = match(w, truth)
-    return {"errors": {f: np.asarray(getattr(m.abs_error, f), float).tolist() for f in FIELDS},
+    return {"errors": {f: _short(getattr(m.abs_error, f)) for f in FIELDS},
             "matched": int(m.true_index.size), "returned": int(np.size(w.omega)),
             "pairs": {"true": m.true_index.tolist(), "fit": m.fit_index.tolist()}}
 
@@ -117,9 +122,9 @@ def run_scene(model, data, s, T, methods) -> dict:
         wall = time.perf_counter() - t0
         w = Waves(*(np.asarray(x, np.float64) for x in w))
         r = score(w, truth) | geometry_error(w, normals, rough, sc.camera, times) | {"time_s": wall, "error": err}
-        r["waves"] = {f: np.asarray(getattr(w, f)).tolist() for f in w._fields}
+        r["waves"] = {f: _short(getattr(w, f)) for f in w._fields}
         row[name] = r
-    row["truth"] = {f: np.asarray(getattr(truth, f)).tolist() for f in truth._fields}
+    row["truth"] = {f: _short(getattr(truth, f)) for f in truth._fields}
     return row
 
 

@@ -93,12 +93,12 @@ def test_tiny_network_overfits_one_sequence():
     normals, rough = _scene()
     # geometry loss alone (self-supervised); 8 slots for the 2 waves (4 can settle on one)
     config = wt.TrainConfig(name="tiny", model=TINY._replace(slots=8), losses="geometry", epochs=1,
-                            steps_per_epoch=150, learning_rate=1e-2, presence_weight=0.0, time_budget_minutes=None)
+                            steps_per_epoch=40, learning_rate=1e-2, presence_weight=0.0, time_budget_minutes=None)
     state = wt.init_state(config, jax.random.key(1))
     step = wt.make_step(config)
     batch = _batch(normals, rough)
     losses = []
-    for i in range(150):
+    for i in range(40):  # measured: 0.74 -> 1.3e-3 after 20 steps, 2e-4 after 50
         state, logs = step(state, batch, jax.random.key(i))
         losses.append(float(logs["geometry"]))
     assert losses[0] > 0.3
@@ -162,9 +162,13 @@ def test_net_started_fit_recovers_a_clean_four_wave_swell():
     camera = cam.make_camera(height=15.0, pitch=0.8, fov=0.8, resolution=(32, 32))
     times = np.arange(T, dtype=np.float32) * 0.15
     truth, (normals, rough) = _swell4(camera, times)
-    fit = fit_waves_fn(normals, rough, camera, times, init="net", net=model)
+    # prune: the Wald test drops the net's slots that the data do not need (measured: without
+    # it 31 spurious waves stay, explaining the noise-free data to 6e-6 rad, and one true
+    # wave shares its amplitude with a neighbour: h error 1.9e-3 m)
+    fit = fit_waves_fn(normals, rough, camera, times, init="net", net=model, prune=True)
     m = match(fit.waves, truth)
+    assert bool(fit.success) and int(fit.n_waves) == 4
     assert m.true_index.size == 4
-    assert np.max(m.abs_error.amplitude) < 2e-3
-    assert np.max(m.abs_error.omega) < 0.02
-    assert np.max(m.abs_error.theta) < 0.02
+    assert np.max(m.abs_error.amplitude) < 1e-5
+    assert np.max(m.abs_error.omega) < 1e-4
+    assert np.max(m.abs_error.theta) < 1e-4
