@@ -1,6 +1,6 @@
 """The whole pipeline on held-out synthetic scenes written as 8-bit PNG (issue: reconstruct).
 
-    python experiments/reconstruct.py DATASET [--scenes 3] [--variants clean,noise03,jpeg]
+    python experiments/reconstruct.py DATASET [--scenes 3] [--variants clean,noise01,noise03,jpeg]
 
 For each of the first ``--scenes`` scenes of DATASET's test split (a ``jaxocean simulate``
 dataset; its scenes were never trained on): ``--frames`` frames rendered at the scene's
@@ -128,7 +128,9 @@ def run_one(dataset, index: int, variant: str, work: Path, *, frames: int, dt: f
     row = dict(scene=index, variant=variant, exposure=exposure, wall_s=wall, stages=stages,
                table1=_geometry_scores(result.geometry, geo, scene.camera),
                stage4=_wave_scores(result.waves.waves, scene.waves, scene.camera),
-               final=_wave_scores(result.sea["waves"], scene.waves, scene.camera),
+               # stage 5's waves whether or not it reported success (its flag is in stages)
+               final=_wave_scores(result.photometric.waves if result.photometric is not None
+                                  else result.sea["waves"], scene.waves, scene.camera),
                sea=_sea_errors(result.sea, scene.waves, scene.spectrum),
                dispersion_ratio=(result.sea.get("dispersion") or {}).get("ratio"))
     return row
@@ -167,7 +169,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("dataset")
     ap.add_argument("--scenes", type=int, default=3)
-    ap.add_argument("--variants", default="clean,noise03,jpeg")
+    ap.add_argument("--variants", default="clean,noise01,noise03,jpeg")
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--dt", type=float, default=0.25)
     ap.add_argument("--work", default="out/reconstruct_experiment")

@@ -662,6 +662,8 @@ def result_dict(result: Reconstruction) -> dict:
               for h, w, t, p in zip(*(np.asarray(x, np.float64) for x in waves))]
     stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, details=_json_safe(r.details))
               for name, r in result.stages.items()}
+    # the flag beside the numbers, for scripts that read only this section
+    sea["success"] = bool(result.stages["spectrum"].success) if "spectrum" in result.stages else False
     return dict(spectrum=_json_safe(sea), waves=listed, stages=stages, success=all(r.success for r in
                                                                                      result.stages.values()),
                 camera=cam.camera_to_dict(seq.camera, degrees=True), times_s=[float(t) for t in seq.times],

@@ -152,6 +152,8 @@ def _html(data, figures) -> str:
         f"{'ok' if st['success'] else 'FAILED'}</td><td>{st['seconds']:.1f} s</td>"
         f"<td>{html.escape(st.get('message') or '')}</td></tr>" for n, st in data["stages"].items())
     bound = "" if s.get("peak_observed") else " (bound: the peak lies outside the observed band)"
+    if not s.get("success"):
+        bound += " <b class=bad>(not a measurement: the spectrum stage failed)</b>"
     disp = s.get("dispersion") or {}
     headline = (f"<ul><li>Hs = {num(s.get('hs_m'))} m &plusmn; {num(s.get('hs_std_m'))}{bound}</li>"
                 f"<li>Tp = {num(s.get('tp_s'))} s{bound}</li>"

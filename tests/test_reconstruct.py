@@ -99,6 +99,7 @@ def test_reconstruct_command_end_to_end(tmp_path):
     data = json.loads((out / "result.json").read_text())
     for key in ("hs_m", "tp_s", "direction_deg", "peak_observed"):
         assert key in data["spectrum"]
+    assert data["spectrum"]["success"] is data["stages"]["spectrum"]["success"]
     assert set(data["stages"]) == set(rc.STAGES)
     for stage in data["stages"].values():
         assert isinstance(stage["success"], bool) and stage["seconds"] >= 0
