@@ -118,7 +118,7 @@ def test_robust_fit_ignores_whitecaps_and_reports_them(scene):
     robust = _fit(scene, images)
     plain = _fit(scene, images, robust=None)
     m = match(robust.waves, scene["truth"]).abs_error
-    assert np.max(m.amplitude) < 1e-5 and np.max(m.omega) < 1e-5 and np.max(m.phase) < 1e-4
+    assert np.max(m.amplitude) < 1e-5 and np.max(m.omega) < 1e-4 and np.max(m.phase) < 1e-3
     assert float(lighting_error(_seen_lighting(robust), scene["light"])["sun_angle_deg"]) < 0.01
     recall = np.sum(robust.outliers & blobs) / np.sum(blobs)
     false_alarms = np.sum(robust.outliers & ~blobs) / np.sum(~blobs)

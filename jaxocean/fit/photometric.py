@@ -53,8 +53,9 @@ so that the model's sea median matches the images' (one closed-form step).
 
 Robust loss (``robust="cauchy"``, ``"huber"``, ``"tukey"``; ``None``: plain least squares):
 iteratively reweighted least squares. Each of ``rounds`` rounds fixes the scale ``sigma =
-1.4826 median |r|`` (the MAD of the residuals over used pixels and channels, floored at
-``SCALE_FLOOR``) and per-pixel weights ``w(u)`` of ``u = rms_channels(r) / (c sigma)``
+1.4826 median |r|`` (the MAD of the residuals over used pixels and channels, floored at the
+noise level (*Noise* below): without the floor, on 8-bit frames the scale can collapse onto
+the pixels a fit reproduces exactly and mark the rest outliers) and per-pixel weights ``w(u)`` of ``u = rms_channels(r) / (c sigma)``
 (Cauchy ``1 / (1 + u^2)``, ``c = 2.385``; Huber ``min(1, 1 / u)``, ``c = 1.345``; Tukey
 ``(1 - u^2)^2`` for ``u < 1`` else 0, ``c = 4.685``), then minimises ``sum w r^2`` by
 Levenberg-Marquardt (Nielsen damping, Marquardt scaling) on normal equations accumulated
@@ -198,7 +199,7 @@ class PhotometricFit(NamedTuple):
     * ``weights``    ``(T, H, W)`` final IRLS weights (0 on unused pixels).
     * ``loss_init``, ``loss`` ``()`` the robust loss at the start and at the answer, both at
       the final scale (module docstring).
-    * ``robust_scale`` ``()`` final MAD scale of the residual (comparison space).
+    * ``robust_scale`` ``()`` final MAD scale of the residual (comparison space), floored at the noise level.
     * ``noise``      ``()`` the noise level of the success test (given or estimated).
     * ``outlier_fraction`` ``()`` outliers over used pixels.
     * ``steps``      total Levenberg-Marquardt steps over the rounds.
@@ -472,16 +473,17 @@ def _robust_loss(r, used, scale, code):
 
 
 @jax.jit
-def _irls_weights(r, used, code):
-    """``(scale, weights (T, H, W))`` of residuals ``r``: one IRLS round's."""
-    scale = jnp.maximum(_mad(r, used), SCALE_FLOOR)
+def _irls_weights(r, used, code, floor):
+    """``(scale, weights (T, H, W))`` of residuals ``r``: one IRLS round's; the scale is
+    floored at ``floor`` (the noise level)."""
+    scale = jnp.maximum(_mad(r, used), jnp.maximum(floor, SCALE_FLOOR))
     return scale, used * _weight(_pixel_u(r, scale, code), code)
 
 
 @jax.jit
-def _statistics(r, r_init, used, code):
+def _statistics(r, r_init, used, code, floor):
     """Scale, weights, outliers, the two losses and the outlier fraction at the answer."""
-    scale, w = _irls_weights(r, used, code)
+    scale, w = _irls_weights(r, used, code, floor)
     rule = used * _weight(_pixel_u(r, scale, jnp.maximum(code, 1)), jnp.maximum(code, 1))
     outliers = (used > 0) & (rule < OUTLIER_WEIGHT)
     loss = _robust_loss(r, used, scale, code)
@@ -799,12 +801,15 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
               log_exposure0=jnp.asarray(math.log(exposure), dtype), basis=basis)
 
     code = jnp.asarray(_CODES.index(robust), jnp.int32)
+    estimated = noise is None
+    noise_val = _noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
+    floor = jnp.where(jnp.isfinite(noise_val), noise_val, 0.0)
     y_init = _pack(d, st)
     y = _align_scale(y_init, d, st)
     steps, prev = 0, math.inf
     for rnd in range(1 if robust is None else int(rounds)):
         t0 = time.perf_counter()
-        sc, w = _irls_weights(_residuals(y, d, st), used, code)
+        sc, w = _irls_weights(_residuals(y, d, st), used, code, floor)
         y, f, n_steps, jtj = _solve(y, w, d, st, int(max_steps), float(rtol))
         steps += int(n_steps)
         sc = float(sc)
@@ -815,10 +820,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
             break
         prev = sc
     w, outliers, loss, loss_init, rscale, frac = _statistics(_residuals(y, d, st), _residuals(y_init, d, st), used,
-                                                             code)
+                                                             code, floor)
     waves_fit, light_fit, exp_fit = _unpack(y, d, st)
-    estimated = noise is None
-    noise_val = _noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
     signal = _signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
     if st.fit_waves:
