@@ -793,6 +793,8 @@ def cmd_fit_waves(args):
 
     if args.n_waves is not None and args.n_waves < 1:
         raise ValueError(f"--n-waves must be >= 1; got {args.n_waves}")
+    if args.net_model and args.init != "net":
+        raise ValueError("--net-model is used with --init net only")
     if args.max_waves < 1:
         raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
     if args.noise is not None and not (np.isfinite(args.noise) and args.noise > 0):
@@ -816,8 +818,6 @@ def cmd_fit_waves(args):
     normals, roughness = _read_geometry_frames(scene_dir, frames, scene.camera.resolution)
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
-    if args.net_model and args.init != "net":
-        raise ValueError("--net-model is used with --init net only")
     result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
                        noise=args.noise, throw=False, verbose=args.verbose,
                        init="net" if args.init == "net" else None, net=args.net_model)
@@ -938,6 +938,7 @@ _INTERRUPTED = {
     "fit-lighting": "nothing was written; running the command again starts the fit over",
     "fit-waves": "nothing was written; running the command again starts the fit over",
     "train-geometry": "the last checkpoint is kept; run the same command to resume",
+    "train-waves": "the last checkpoint is kept; run the same command to resume",
     "predict-geometry": "frames written so far are kept; running the command again predicts every frame again",
     "eval-geometry": "nothing was written; running the command again starts over",
     "reconstruct": "files written so far are kept; running the command again starts over",

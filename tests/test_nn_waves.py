@@ -172,3 +172,37 @@ def test_net_started_fit_recovers_a_clean_four_wave_swell():
     assert np.max(m.abs_error.amplitude) < 1e-5
     assert np.max(m.abs_error.omega) < 1e-4
     assert np.max(m.abs_error.theta) < 1e-4
+
+
+def test_cli_train_waves_and_fit_waves_init_options(tmp_path, capsys):
+    from jaxocean import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["train-waves", "--help"])
+    assert e.value.code == 0
+    assert "--config {cpu,paper}" in capsys.readouterr().out
+    assert "train-waves" in cli._INTERRUPTED
+    code = cli.main(["fit-waves", str(tmp_path), "--out", str(tmp_path / "w.json"), "--net-model", "m.npz"])
+    assert code == cli.EXIT_INPUT
+    assert "--net-model is used with --init net only" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["fit-waves", str(tmp_path), "--out", str(tmp_path / "w.json"), "--init", "nett"])
+
+
+@pytest.mark.slow
+def test_train_writes_a_loadable_model_and_resumes(tmp_path):
+    from jaxocean.io import dataset
+
+    root = tmp_path / "data"
+    dataset.simulate(root, 12, 4, (16, 16), seed=2, progress=False)
+    config = wt.TrainConfig(name="tiny", model=TINY, losses="geometry+supervised", epochs=2, steps_per_epoch=2,
+                            batch_size=2, time_budget_minutes=None)
+    first = wt.train(root, tmp_path / "run", config, progress=False, stop_after_steps=3)
+    assert first["stopped"] == "step_limit"
+    summary = wt.train(root, tmp_path / "run", config, progress=False)
+    assert summary["stopped"] == "epochs" and summary["steps"] == 4
+    model = wn.load(tmp_path / "run" / "model.npz")
+    assert model.config == TINY
+    assert (tmp_path / "run" / "curves.png").exists()
+    with pytest.raises(ValueError, match="unknown config"):
+        wt.train(root, tmp_path / "run2", "gpu")
