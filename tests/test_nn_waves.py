@@ -206,3 +206,12 @@ def test_train_writes_a_loadable_model_and_resumes(tmp_path):
     assert (tmp_path / "run" / "curves.png").exists()
     with pytest.raises(ValueError, match="unknown config"):
         wt.train(root, tmp_path / "run2", "gpu")
+
+
+def test_jitted_apply_equals_eager(tiny_model):
+    normals, rough = _scene()
+    b = _batch(normals, rough)
+    eager = wn.apply(tiny_model, b["normal"], b["roughness"], b["camera"], b["times"])
+    jitted = wn._predict_jit(TINY, tiny_model.params, b["normal"], b["roughness"], b["camera"], b["times"])
+    for a, c in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(c), rtol=1e-4, atol=1e-6)
