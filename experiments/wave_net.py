@@ -97,6 +97,9 @@ def spectrum_corrected(w: Waves, camera, rough):
     return fit.correct_amplitudes(w, sea.spectrum, reliable=None)
 
 
+PRUNE = False  # --prune: both fit rows with fit.waves(..., prune=True)
+
+
 def run_scene(model, data, s, T, methods) -> dict:
     sc, normals, rough, times = scene_inputs(data, s, T)
     ok = np.asarray(resolvable(sc.waves, sc.camera))
@@ -112,9 +115,9 @@ def run_scene(model, data, s, T, methods) -> dict:
                 w = wn.predict(model, normals, rough, sc.camera, times)
                 w = spectrum_corrected(Waves(*(jnp.asarray(x, jnp.float32) for x in w)), sc.camera, rough)
             elif name == "fit.waves (default)":
-                w = fit.waves(normals, rough, sc.camera, times).waves
+                w = fit.waves(normals, rough, sc.camera, times, prune=PRUNE).waves
             else:
-                w = fit.waves(normals, rough, sc.camera, times, init="net", net=model).waves
+                w = fit.waves(normals, rough, sc.camera, times, init="net", net=model, prune=PRUNE).waves
             jax.block_until_ready(w)
             err = None
         except Exception as e:  # noqa: BLE001 -- a method that fails on a scene is a result, recorded
@@ -170,7 +173,7 @@ def print_summary(summary) -> None:
     benchutil.print_table([{"row": k, **{c: v.get(c) for c in cols}} for k, v in summary.items()], ["row"] + cols)
 
 
-def plot_speed(summary):
+def plot_speed(summary, fname="wave_net"):
     plt = benchutil.pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     colors = dict(zip(ROWS, ("tab:blue", "tab:cyan", "tab:red", "tab:green")))
@@ -189,10 +192,10 @@ def plot_speed(summary):
         ax.set_title(f"MAE {f} ({'m' if f == 'amplitude' else 'rad/s' if f == 'omega' else 'rad'})")
     axes[0].legend(fontsize=7)
     fig.tight_layout()
-    return benchutil.save_figure(fig, "wave_net")
+    return benchutil.save_figure(fig, fname)
 
 
-def plot_fig7(row, methods):
+def plot_fig7(row, methods, fname="wave_net_fig7"):
     plt = benchutil.pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     truth = row["truth"]
@@ -214,7 +217,7 @@ def plot_fig7(row, methods):
     axes[0].legend(fontsize=7)
     fig.suptitle(f"test scene {row['scene']}: matched waves ({row['n_resolvable']} resolvable true waves)")
     fig.tight_layout()
-    return benchutil.save_figure(fig, "wave_net_fig7")
+    return benchutil.save_figure(fig, fname)
 
 
 def main(argv=None):
@@ -224,7 +227,12 @@ def main(argv=None):
     p.add_argument("--scenes", type=int, default=48, help="test scenes for the net rows (the first of the split)")
     p.add_argument("--fit-scenes", type=int, default=8,
                    help="of those, the first scenes that also get the two fit.waves rows (minutes each)")
+    p.add_argument("--prune", action="store_true",
+                   help="both fit rows with prune=True (results as wave_net_prune.json / .png)")
     args = p.parse_args(argv)
+    global PRUNE
+    PRUNE = args.prune
+    name = "wave_net_prune" if args.prune else "wave_net"
     data = Dataset(args.data)
     model = wn.load(args.model)
     T = model.config.frames
@@ -257,11 +265,11 @@ def main(argv=None):
             "frames": T, "warmup_s": warm, "summary_net_rows": summary_all, "net_scenes": len(rows),
             "summary_every_row": summary_fit, "fit_scenes": n_fit, "targets": t,
             "load_avg": list(os.getloadavg())}
-    benchutil.save("wave_net", rows, meta)
-    plot_speed(summary_fit or summary_all)
+    benchutil.save(name, rows, meta | {"prune": args.prune})
+    plot_speed(summary_fit or summary_all, name)
     fitted = rows[:n_fit] or rows
     best = max(fitted, key=lambda r: r["net"]["matched"])
-    plot_fig7(best, [m for m in ROWS if m in best])
+    plot_fig7(best, [m for m in ROWS if m in best], name + "_fig7")
 
 
 if __name__ == "__main__":
