@@ -10,6 +10,9 @@ Protocol
   structure (a pytree of the same structure, e.g. a freshly initialised model), checked
   leaf by leaf for shape and dtype. ``load_tree(path, None, meta_only=True)`` reads the
   metadata alone.
+* ``save_model`` / ``load_model``: a network's parameters with its config and a format tag
+  (``{"format": ..., "config": config.to_json()}`` in the metadata); loading checks the tag
+  and rebuilds the config before the parameters are read into a fresh initialisation.
 
 Every problem -- missing file, not an npz, truncated, another structure -- raises
 :class:`CheckpointError` naming the file. Host-side only.
@@ -26,7 +29,7 @@ import numpy as np
 
 from jaxocean.files import atomic_write
 
-__all__ = ["CheckpointError", "save_tree", "load_tree"]
+__all__ = ["CheckpointError", "save_tree", "load_tree", "save_model", "load_model"]
 
 
 class CheckpointError(ValueError):
@@ -97,3 +100,23 @@ def load_tree(path, template, *, meta_only: bool = False):
                                   "(another architecture)")
         out.append(arr)
     return jax.tree.unflatten(treedef, out), meta
+
+
+def save_model(path, params, config, fmt: str, meta: dict | None = None) -> Path:
+    """Write a network's ``params`` with its ``config`` (``to_json()``) and format tag."""
+    return save_tree(path, params, {"format": fmt, "config": config.to_json(), **(meta or {})})
+
+
+def load_model(path, *, fmt: str, what: str, config_from_json, init_params):
+    """``(config, params)`` of a file written by :func:`save_model` with tag ``fmt``.
+    ``what`` names the kind in the error ("a wave network"); ``config_from_json`` rebuilds
+    the config; ``init_params(config)`` gives the parameter structure to fill."""
+    meta = load_tree(path, None, meta_only=True)
+    if meta.get("format") != fmt:
+        raise CheckpointError(path, f"not {what} (format {meta.get('format')!r}, expected {fmt!r})")
+    try:
+        config = config_from_json(meta["config"])
+    except (KeyError, TypeError, ValueError) as err:
+        raise CheckpointError(path, f"bad model config: {err}") from None
+    params, _ = load_tree(path, init_params(config))
+    return config, params

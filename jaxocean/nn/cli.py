@@ -28,6 +28,17 @@ _SCORE_COLUMNS = (("within_5deg", "5deg", "{:.1%}"), ("normal_mae", "MAE rad", "
                   ("frames_per_s", "frames/s", "{:.1f}"))
 
 
+def _add_training_options(p, configs, loss_terms) -> None:
+    """The options every train-* command shares: dataset, config, run directory, overrides."""
+    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
+    p.add_argument("--config", choices=sorted(configs), default="cpu",
+                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
+    p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
+    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
+    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
+    p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(loss_terms)}")
+
+
 def register(sub, *, add_camera_options, camera_from_args) -> dict:
     """Add the subcommands to ``sub``; returns ``{name: command}``. ``add_camera_options(p)``
     and ``camera_from_args(args, base, resolution, where)`` are the main CLI's camera
@@ -38,13 +49,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                        description="Train a geometry network on a `jaxocean simulate` dataset. Killing it and "
                                    "running the same command again resumes where it stopped. RUN/model.npz is "
                                    "the model with the best validation score.")
-    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
-    p.add_argument("--config", choices=sorted(CONFIGS), default="cpu",
-                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
-    p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
-    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
-    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
-    p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(LOSS_TERMS)}")
+    _add_training_options(p, CONFIGS, LOSS_TERMS)
     p.add_argument("--backbone", choices=("unet", "resnet"), help="override the backbone")
     p.add_argument("--normal-head", choices=("vec", "sphere", "slope"), help="override the normal head")
     p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
@@ -81,13 +86,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "through the differentiable geometry). Killing it and running the same command "
                                    "again resumes where it stopped. RUN/model.npz is the model with the best "
                                    "validation loss; fit-waves --init net --net-model RUN/model.npz uses it.")
-    p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
-    p.add_argument("--config", choices=sorted(WAVE_CONFIGS), default="cpu",
-                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
-    p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
-    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
-    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
-    p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(WAVE_LOSS_TERMS)}")
+    _add_training_options(p, WAVE_CONFIGS, WAVE_LOSS_TERMS)
     p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

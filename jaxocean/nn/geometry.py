@@ -55,7 +55,7 @@ from jaxocean._records import record_from_json, record_to_json
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
-from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
+from jaxocean.nn.checkpoint import load_model, load_tree, save_model
 
 __all__ = [
     "GeometryConfig",
@@ -281,7 +281,7 @@ def _predict_jit(config, params, images, camera):
 
 def save(path, model: GeometryModel, meta: dict | None = None) -> Path:
     """Write a model (params and config) to ``path`` (``.npz``), atomically."""
-    return save_tree(path, model.params, {"format": _FORMAT, "config": model.config.to_json(), **(meta or {})})
+    return save_model(path, model.params, model.config, _FORMAT, meta)
 
 
 def load(path=None) -> GeometryModel:
@@ -289,16 +289,9 @@ def load(path=None) -> GeometryModel:
 
     Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
     missing, corrupt or not a geometry model of this version."""
-    path = PRETRAINED_PATH if path is None else Path(path)
-    meta = load_tree(path, None, meta_only=True)
-    if meta.get("format") != _FORMAT:
-        raise CheckpointError(path, f"not a geometry model (format {meta.get('format')!r}, expected {_FORMAT!r})")
-    try:
-        config = GeometryConfig.from_json(meta["config"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise CheckpointError(path, f"bad model config: {err}") from None
-    template = init(jax.random.key(0), config).params
-    params, _ = load_tree(path, template)
+    config, params = load_model(PRETRAINED_PATH if path is None else Path(path), fmt=_FORMAT, what="a geometry model",
+                                config_from_json=GeometryConfig.from_json,
+                                init_params=lambda c: init(jax.random.key(0), c).params)
     return GeometryModel(config, params)
 
 

@@ -48,7 +48,7 @@ from jaxocean.io.dataset import Dataset
 from jaxocean.nn import discriminators as disc
 from jaxocean.nn import geometry as geo
 from jaxocean.nn import metrics
-from jaxocean.nn.training import data_parallel, train_loop
+from jaxocean.nn.training import data_parallel, loss_terms, train_loop
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "variant", "train", "evaluate", "flat_method", "model_method",
            "pixel_method"]
@@ -76,11 +76,7 @@ class TrainConfig(NamedTuple):
     seed: int = 0
 
     def terms(self) -> tuple:
-        terms = tuple(self.losses.split("+"))
-        bad = [t for t in terms if t not in LOSS_TERMS]
-        if bad or not terms:
-            raise ValueError(f"losses must be '+'-joined terms of {LOSS_TERMS}; got {self.losses!r}")
-        return terms
+        return loss_terms(self.losses, LOSS_TERMS)
 
     def to_json(self) -> dict:
         d = self._asdict()

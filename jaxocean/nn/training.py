@@ -49,7 +49,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxocean.files import write_json
 from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
 
-__all__ = ["data_parallel", "train_loop", "CHECKPOINT", "HISTORY", "CURVES"]
+__all__ = ["data_parallel", "train_loop", "loss_terms", "CHECKPOINT", "HISTORY", "CURVES"]
 
 CHECKPOINT = "checkpoint.npz"
 HISTORY = "history.json"
@@ -115,6 +115,16 @@ def _plot_curves(path: Path, history: list) -> None:
         axes[1].legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path, dpi=90)
+
+
+def loss_terms(spec: str, allowed: tuple) -> tuple:
+    """The terms of a ``"+"``-joined loss specification (``"image+gan"``), each one of
+    ``allowed``; ``ValueError`` otherwise."""
+    terms = tuple(spec.split("+"))
+    bad = [t for t in terms if t not in allowed]
+    if bad or not terms:
+        raise ValueError(f"losses must be '+'-joined terms of {allowed}; got {spec!r}")
+    return terms
 
 
 def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: Callable, epochs: int,

@@ -70,7 +70,7 @@ from jaxocean import hierarchy, shading
 from jaxocean._records import record_from_json, record_to_json
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
-from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
+from jaxocean.nn.checkpoint import load_model, load_tree, save_model
 from jaxocean.nn.geometry import camera_channels
 from jaxocean.waves import GRAVITY, Waves
 
@@ -343,7 +343,7 @@ def _predict_jit(config, params, normals, roughness, camera, times):
 
 def save(path, model: WaveNetModel, meta: dict | None = None) -> Path:
     """Write a model (params and config) to ``path`` (``.npz``), atomically."""
-    return save_tree(path, model.params, {"format": _FORMAT, "config": model.config.to_json(), **(meta or {})})
+    return save_model(path, model.params, model.config, _FORMAT, meta)
 
 
 def load(path=None) -> WaveNetModel:
@@ -351,16 +351,9 @@ def load(path=None) -> WaveNetModel:
 
     Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
     missing, corrupt or not a wave network of this version."""
-    path = PRETRAINED_PATH if path is None else Path(path)
-    meta = load_tree(path, None, meta_only=True)
-    if meta.get("format") != _FORMAT:
-        raise CheckpointError(path, f"not a wave network (format {meta.get('format')!r}, expected {_FORMAT!r})")
-    try:
-        config = WaveNetConfig.from_json(meta["config"])
-    except (KeyError, TypeError, ValueError) as err:
-        raise CheckpointError(path, f"bad model config: {err}") from None
-    template = init(jax.random.key(0), config).params
-    params, _ = load_tree(path, template)
+    config, params = load_model(PRETRAINED_PATH if path is None else Path(path), fmt=_FORMAT, what="a wave network",
+                                config_from_json=WaveNetConfig.from_json,
+                                init_params=lambda c: init(jax.random.key(0), c).params)
     return WaveNetModel(config, params)
 
 

@@ -49,7 +49,7 @@ import optax
 from jaxocean.files import write_json
 from jaxocean.io.dataset import Dataset
 from jaxocean.nn import waves as wn
-from jaxocean.nn.training import data_parallel, train_loop
+from jaxocean.nn.training import data_parallel, loss_terms, train_loop
 from jaxocean.waves import GRAVITY, Waves
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "geometry_loss", "supervised_loss", "make_step", "init_state",
@@ -74,11 +74,7 @@ class TrainConfig(NamedTuple):
     seed: int = 0
 
     def terms(self) -> tuple:
-        terms = tuple(self.losses.split("+"))
-        bad = [t for t in terms if t not in LOSS_TERMS]
-        if bad or not terms:
-            raise ValueError(f"losses must be '+'-joined terms of {LOSS_TERMS}; got {self.losses!r}")
-        return terms
+        return loss_terms(self.losses, LOSS_TERMS)
 
     def to_json(self) -> dict:
         d = self._asdict()
