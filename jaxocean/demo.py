@@ -156,6 +156,7 @@ def reconstruct_stage(out: Path, scene, images) -> dict:
     """Write ``images (T, H, W, 3)`` of ``scene`` as 8-bit PNG frames with a camera-and-times
     ``scene.json`` (no waves, no lighting), reconstruct them, and compare the forecast and
     a re-rendered view with the truth (``reconstruct_vs_truth.png``)."""
+    from jaxocean import fit
     from jaxocean import reconstruct as rc
     from jaxocean.io.images import save_png
     from jaxocean.io.scene import scene_to_dict, write_scene
@@ -167,7 +168,8 @@ def reconstruct_stage(out: Path, scene, images) -> dict:
     result = rc.reconstruct(files, camera_json, out=out / "reconstruct", response="bruneton", **DEMO_RECONSTRUCT)
     seq, outlook = result.sequence, result.outlook
     true_fc = fc.forecast(scene.waves, outlook["times"], seq.camera, scene.lighting)
-    true_sea = _sea_state(scene.waves)
+    state = fit.sea_state(scene.waves)
+    true_sea = dict(hs=state.hs, tp=state.tp)
     got = result.sea
     rows = [[plots.display(t), plots.display(np.clip(f, 0, None))] for t, f in
             zip(np.asarray(true_fc.image), outlook["forecast"])]
@@ -179,12 +181,6 @@ def reconstruct_stage(out: Path, scene, images) -> dict:
                         for n, r in result.stages.items()},
                 hs_m=got["hs_m"], tp_s=got["tp_s"], truth=true_sea, report=str(out / "reconstruct" / "report.html"),
                 figure=str(path))
-
-
-def _sea_state(waves) -> dict:
-    h = np.asarray(waves.amplitude, np.float64)
-    w = np.asarray(waves.omega, np.float64)
-    return dict(hs=float(4 * np.sqrt(np.sum(h ** 2) / 2)), tp=float(2 * np.pi / w[np.argmax(h ** 2 / w)]))
 
 
 def real_stage(out: Path, clip_dir: Path) -> dict:

@@ -44,14 +44,15 @@ import time
 from pathlib import Path
 from typing import Any, NamedTuple, Sequence as Seq
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import forecast as fc
-from jaxocean import render, shading
+from jaxocean import shading
+from jaxocean._math import slope_from_normal
 from jaxocean.errors import InvalidValueError
+from jaxocean.files import json_safe
 from jaxocean.io.images import VIDEO_SUFFIXES
 from jaxocean.waves import Waves, wavenumber
 
@@ -350,9 +351,7 @@ def geometry_stage(seq: Sequence, *, model=None):
         sea = np.asarray(pred.mask)
         finite = np.isfinite(pred.normal).all(-1) & np.isfinite(pred.roughness)
         ok = bool(finite[sea].all())
-        slope = -pred.normal[..., :2] / np.maximum(pred.normal[..., 2:], 1e-6)
-        mss_resolved = float(np.mean((slope ** 2).sum(-1)[sea]))
-        mss_sub = float(np.mean(pred.roughness[sea]))
+        mss_resolved, mss_sub = _mean_square_slopes(pred)
         details = dict(mean_square_slope=mss_resolved + mss_sub, mean_square_slope_resolved=mss_resolved,
                        mean_square_slope_subpixel=mss_sub)
         return pred, ok, "" if ok else "non-finite network output on sea pixels", details
@@ -528,7 +527,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
                                          "(too few resolved waves for a spectrum)"),
             omega_band=None if sf is None else [float(x) for x in sf.omega_band],
             waves_hs_m=float(state.hs), waves_tp_s=float(state.tp), resolved_waves=n_reliable,
-            mean_square_slope=float(geometry_mss(geometry)),
+            mean_square_slope=sum(_mean_square_slopes(geometry)),
             spectrum_success=sf is not None and bool(sf.success),
             spectrum_misfit=None if sf is None else float(sf.misfit),
             dispersion=None if check is None else _check_dict(check),
@@ -563,11 +562,12 @@ def _check_dict(check) -> dict:
     return out
 
 
-def geometry_mss(geometry) -> float:
-    mask = np.asarray(geometry.mask)
-    n = np.asarray(geometry.normal)
-    slope = -n[..., :2] / np.maximum(n[..., 2:], 1e-6)
-    return float(np.mean(((slope ** 2).sum(-1) + np.asarray(geometry.roughness))[mask]))
+def _mean_square_slopes(geometry) -> tuple:
+    """``(resolved, sub-pixel)`` mean square slope over the sea pixels of every frame: of the
+    normals, and the roughness (slope variance) below the pixel."""
+    sea = np.asarray(geometry.mask)
+    slope = np.asarray(slope_from_normal(jnp.asarray(geometry.normal), 1e-6))
+    return float(np.mean((slope ** 2).sum(-1)[sea])), float(np.mean(np.asarray(geometry.roughness)[sea]))
 
 
 def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.0, ahead=(2.0, 10.0, 30.0),
@@ -660,28 +660,11 @@ def result_dict(result: Reconstruction) -> dict:
     listed = [dict(amplitude_m=float(h), omega_rad_s=float(w), period_s=2 * math.pi / float(w),
                    direction_deg=direction_deg(float(t), seq.compass), phase_rad=float(p))
               for h, w, t, p in zip(*(np.asarray(x, np.float64) for x in waves))]
-    stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, details=_json_safe(r.details))
+    stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, details=json_safe(r.details))
               for name, r in result.stages.items()}
     # the flag beside the numbers, for scripts that read only this section
     sea["success"] = bool(result.stages["spectrum"].success) if "spectrum" in result.stages else False
-    return dict(spectrum=_json_safe(sea), waves=listed, stages=stages, success=all(r.success for r in
+    return dict(spectrum=json_safe(sea), waves=listed, stages=stages, success=all(r.success for r in
                                                                                      result.stages.values()),
                 camera=cam.camera_to_dict(seq.camera, degrees=True), times_s=[float(t) for t in seq.times],
                 files=list(seq.files))
-
-
-def _json_safe(x):
-    if isinstance(x, dict):
-        return {str(k): _json_safe(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_json_safe(v) for v in x]
-    if isinstance(x, (bool, np.bool_)):
-        return bool(x)
-    if isinstance(x, (int, np.integer)):
-        return int(x)
-    if isinstance(x, (float, np.floating)) or (hasattr(x, "shape") and np.ndim(x) == 0):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, np.ndarray) or hasattr(x, "shape"):
-        return _json_safe(np.asarray(x).tolist())
-    return x

@@ -22,14 +22,13 @@ Every file is written atomically (:func:`jaxocean.files.atomic_write`).
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 
 from jaxocean import plots, render
 from jaxocean import spectrum as spec
-from jaxocean.files import atomic_write
+from jaxocean.files import atomic_write, write_json
 
 __all__ = ["write", "rerender"]
 
@@ -181,7 +180,7 @@ def write(out_dir, result) -> Path:
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     data = reconstruct.result_dict(result)
-    atomic_write(out / "result.json", lambda tmp: Path(tmp).write_text(json.dumps(data, indent=1)))
+    write_json(out / "result.json", data)
     figures = [("Frames, geometry, re-rendering and residuals", _frames_figure(out / "frames.png", result)),
                ("Waves and spectrum", _sea_figure(out / "sea.png", result))]
     check = result.sea.get("check")
