@@ -17,6 +17,7 @@ which owns error handling and exit codes; each command returns an exit code.
 
 from __future__ import annotations
 
+import argparse
 import sys
 from pathlib import Path
 
@@ -53,6 +54,9 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
     p.add_argument("--backbone", choices=("unet", "resnet"), help="override the backbone")
     p.add_argument("--normal-head", choices=("vec", "sphere", "slope"), help="override the normal head")
     p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
+    p.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
+                   help="show the network its inputs through the display round trip of camera files (8 bits, "
+                        "unknown exposure, display noise: jaxocean.nn.augment); default: the config's (on for cpu)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("predict-geometry", help="per-pixel normal and roughness of images with a trained network",
@@ -99,11 +103,14 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
 
 def _train(args) -> int:
     from jaxocean.nn import geometry_train as gt
+    from jaxocean.nn.augment import DisplayAugment
 
     config = gt.CONFIGS[args.config]
     config = gt.variant(config, losses=args.losses, backbone=args.backbone, normal_head=args.normal_head)
     changes = {k: v for k, v in (("epochs", args.epochs), ("steps_per_epoch", args.steps_per_epoch),
                                  ("time_budget_minutes", args.time_budget_min)) if v is not None}
+    if args.augment is not None:
+        changes["augment"] = (config.augment or DisplayAugment()) if args.augment else None
     config = config._replace(**changes)
     config.terms()
     summary = gt.train(args.dataset, args.out, config, progress=not args.quiet)

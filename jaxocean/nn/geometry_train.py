@@ -42,16 +42,18 @@ import optax
 
 from jaxocean import camera as cam
 from jaxocean import render, shading
+from jaxocean._records import record_to_json
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.files import write_json
 from jaxocean.io.dataset import Dataset
+from jaxocean.nn import augment as aug
 from jaxocean.nn import discriminators as disc
 from jaxocean.nn import geometry as geo
 from jaxocean.nn import metrics
 from jaxocean.nn.training import data_parallel, loss_terms, train_loop
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "variant", "train", "evaluate", "flat_method", "model_method",
-           "pixel_method"]
+           "augmented_method", "pixel_method"]
 
 LOSS_TERMS = ("image", "gan", "supervised")
 _DISC_DEPTH = 3
@@ -74,6 +76,7 @@ class TrainConfig(NamedTuple):
     patience: int = 6
     time_budget_minutes: float | None = 50.0
     seed: int = 0
+    augment: aug.DisplayAugment | None = None  # display round trip of the input frames (None: off)
 
     def terms(self) -> tuple:
         return loss_terms(self.losses, LOSS_TERMS)
@@ -81,12 +84,14 @@ class TrainConfig(NamedTuple):
     def to_json(self) -> dict:
         d = self._asdict()
         d["model"] = self.model.to_json()
+        d["augment"] = None if self.augment is None else record_to_json(self.augment)
         return d
 
 
 CONFIGS = {
-    # two CPU cores, under an hour: UNet sub-networks on 64^2 crops
-    "cpu": TrainConfig(),
+    # two CPU cores, under an hour: UNet sub-networks on 64^2 crops, inputs through the
+    # display round trip that camera files take (8 bits, unknown exposure, display noise)
+    "cpu": TrainConfig(augment=aug.DisplayAugment()),
     # the paper: ResNet-VecN, image + GAN losses, 200 epochs of whole 128^2 frames (a GPU)
     "paper": TrainConfig(name="paper", model=geo.GeometryConfig(backbone="resnet", normal_head="vec",
                                                                  roughness_widths=(32,)),
@@ -132,13 +137,20 @@ def _crop(key, arrays, crop, H, W):
     return [jax.lax.dynamic_slice_in_dim(jax.lax.dynamic_slice_in_dim(a, y0, crop, 1), x0, crop, 2) for a in arrays]
 
 
-def _prepare(batch, key, color, crop):
-    """Device-side batch: features etc. of every frame, cropped; leading axes (B, S)."""
+def _prepare(batch, key, color, crop, augment=None):
+    """Device-side batch: features etc. of every frame, cropped; leading axes (B, S). With
+    ``augment`` (a :class:`~jaxocean.nn.augment.DisplayAugment`) the features are made from
+    each sample's display round trip; ``image`` stays the true radiance (the image loss
+    compares with the renderer under the known lighting)."""
     images = batch["image"]
     B, S, H, W, _ = images.shape
 
     def one(k, im, normal, sv, camera, lighting):
-        feats, mask, view = _scene_inputs(im, camera, color)
+        seen = im
+        if augment is not None:
+            k, k_aug = jax.random.split(k)
+            seen = aug.augment(k_aug, im, augment)
+        feats, mask, view = _scene_inputs(seen, camera, color)
         yaw = jnp.broadcast_to(jnp.asarray(camera.yaw, jnp.float32), (S,))
         feats, mask, view, im, normal, sv = _crop(k, [feats, mask, view, im, normal, sv], crop, H, W)
         return dict(feats=feats, mask=mask, view=view, yaw=yaw, image=im, normal=normal, sv=sv,
@@ -272,7 +284,7 @@ def make_step(config: TrainConfig):
     @jax.jit
     def step(state, batch, key):
         k_prep, k_drop = jax.random.split(key)
-        d = _prepare(batch, k_prep, config.model.color, config.crop)
+        d = _prepare(batch, k_prep, config.model.color, config.crop, config.augment)
         (_, logs), grads = jax.value_and_grad(g_loss, has_aux=True)(state["g"], state.get("d"), d, k_drop)
         updates, g_state = g_opt.update(grads, state["g_opt"], state["g"])
         new = dict(state, g=optax.apply_updates(state["g"], updates), g_opt=g_state)
@@ -309,6 +321,8 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
         config = CONFIGS[config]
     config = config._replace(**overrides)
     terms = config.terms()
+    if config.augment is not None:
+        config.augment.validate()
     data = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     _require_complete(data)
     parallel = parallel or data_parallel()
@@ -331,7 +345,9 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
 
     def validate(state):
         model = geo.GeometryModel(config.model, state["g"])
-        scores = _score_frames(model_method(model), data, val_windows)
+        method = model_method(model) if config.augment is None else \
+            augmented_method(model, config.augment, jax.random.fold_in(key, 3))
+        scores = _score_frames(method, data, val_windows)
         loss = scores["cos_loss"] if "supervised" in terms else scores["image_loss"]
         return {"loss": loss, **{k: scores[k] for k in ("cos_loss", "image_loss", "skill_along", "skill_across",
                                                         "within_5deg", "log_slope_variance_mse")}}
@@ -365,6 +381,23 @@ def model_method(model: geo.GeometryModel):
     """A scoring method ``(images (T, H, W, 3), scene) -> GeometryPrediction`` from a model
     (it uses the scene's camera only)."""
     return lambda images, scene: geo.predict(model, images, scene.camera)
+
+
+def augmented_method(model: geo.GeometryModel, config: aug.DisplayAugment, key):
+    """A scoring method that shows the model each scene's frames through a display round
+    trip drawn from ``config`` (:func:`jaxocean.nn.augment.augment`) with the key
+    ``fold_in(key, scene.seed)``: the same frames every call (the validation of an
+    augmented run)."""
+    def method(images, scene):
+        k = jax.random.fold_in(key, 0 if scene.seed is None else int(scene.seed))
+        return geo.predict(model, np.asarray(_augment_jit(k, jnp.asarray(images), config)), scene.camera)
+
+    return method
+
+
+@functools.partial(jax.jit, static_argnums=2)
+def _augment_jit(key, images, config):
+    return aug.augment(key, images, config)
 
 
 def pixel_method(images, scene):
