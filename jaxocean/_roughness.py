@@ -24,15 +24,20 @@ whole input range. Wave quantities are ``(N,)`` (or ``(..., N)``); a footprint i
   ``shading.MIN_SLOPE_VARIANCE``. This equals the sum of the pair
   :func:`jaxocean.surface.slope_variance` returns for the roughness weights of
   :func:`jaxocean.hierarchy.weights`.
+* ``observed_rows(roughness (T, H, W) or (H, W), mask (H, W)) -> (row_mean (H,), rows (H,))``:
+  host-side (NumPy) mean observed roughness of each image row over its sea pixels and frames
+  (NaN ignored; 0 where a row has no sea pixel), and which rows have sea pixels: the data
+  the per-row roughness fits compare :func:`row_roughness` with.
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 
 from jaxocean._math import safe_sqrt, smoothstep
 
-__all__ = ["normal_weight", "wave_slope_variance", "row_roughness"]
+__all__ = ["normal_weight", "wave_slope_variance", "row_roughness", "observed_rows"]
 
 
 def normal_weight(wavelength, footprint, n_min, n_max):
@@ -52,3 +57,17 @@ def row_roughness(wavenumber, amplitude, footprint, n_min, n_max):
     k = jnp.asarray(wavenumber)
     weight = 1.0 - normal_weight(2.0 * jnp.pi / k, footprint, n_min, n_max)
     return jnp.sum(weight * wave_slope_variance((amplitude * k) ** 2), axis=-1)
+
+
+def observed_rows(roughness, mask):
+    """Mean observed roughness per image row ``(H,)`` over the row's sea pixels (``mask (H,
+    W)``) and every frame of ``roughness (T, H, W)`` or ``(H, W)``, NaN ignored, 0 on rows
+    without sea; and the bool ``(H,)`` of rows with sea. NumPy (host side)."""
+    r = np.asarray(roughness, np.float64)
+    r = r[None] if r.ndim == 2 else r
+    mask = np.asarray(mask, bool)
+    rows = mask.any(1)
+    vals = np.where(mask[None], r, np.nan)
+    count = np.sum(np.isfinite(vals), axis=(0, 2))
+    mean = np.nansum(vals, axis=(0, 2)) / np.maximum(count, 1)
+    return np.where(rows & (count > 0), mean, 0.0), rows

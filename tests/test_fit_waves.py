@@ -402,6 +402,51 @@ def test_determined_waves_are_the_separable_ones(ortho_fit):
     assert fw.refine(*ortho_fit_inputs(), w, max_steps=2).determined is None
 
 
+def long_wave_sea():
+    # the three resolvable waves plus a swell three views long (36 m in the 12 m view) and
+    # one twice as long, each steeper than the short waves: over the window a smooth,
+    # slowly moving tilt that no resolved wave explains
+    long = make_waves([0.12, 0.05], [float(np.sqrt(GRAVITY * 2 * np.pi / 36.0)),
+                                     float(np.sqrt(GRAVITY * 2 * np.pi / 24.0))], [-2.5, 1.0], [1.0, 3.0])
+    return jax.tree.map(lambda x, y: jnp.concatenate([x, y]), few_waves(), long)
+
+
+def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
+    c = ortho()
+    truth = long_wave_sea()
+    normals, rough = fw.predict(truth, c, TIMES)
+    resolvable = fw.resolvable(truth, c)
+    assert resolvable.tolist() == [True, True, True, False, False]
+    fit = fw.waves(normals, rough, c, TIMES)
+    assert bool(fit.success) and float(fit.normal_error) < fw.normal_error_bound()
+    # every resolvable wave found, no more than 1.5x as many fitted
+    m = fw.match(fit.waves, jax.tree.map(lambda x: x[resolvable], truth))
+    assert m.missed.size == 0
+    assert int(fit.n_waves) <= 1.5 * resolvable.sum()
+    assert np.max(m.abs_error.amplitude) < 2e-3 and np.max(m.abs_error.omega) < 2e-2
+    # the band absorbed the long waves: its slope variance over the window is theirs
+    long_normals, _ = fw.predict(jax.tree.map(lambda x: x[3:], truth), c, TIMES)
+    long_var = float(jnp.mean(jnp.sum(long_normals[..., :2] ** 2, -1)))
+    assert fit.long_waves is not None
+    assert float(fit.long_waves.slope_variance) == pytest.approx(long_var, rel=0.1)
+    assert fit.long_waves.frame_slope.shape == (TIMES.size, 2)
+    assert fit.determined[m.fit_index].all()
+
+
+def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):
+    c, truth, normals, rough = ortho_scene
+    with_band, _ = ortho_fit
+    without = fw.waves(normals, rough, c, TIMES, long_waves=False)
+    assert int(with_band.n_waves) == int(without.n_waves) == 3
+    for leaf in ("amplitude", "omega", "theta"):
+        np.testing.assert_allclose(getattr(with_band.waves, leaf), getattr(without.waves, leaf), atol=1e-5)
+    # the band holds (next to) nothing when nothing is longer than the view
+    assert float(with_band.long_waves.slope_variance) < 1e-9
+    assert without.long_waves is None
+    with pytest.raises(ValueError, match="long_waves"):
+        fw.waves(normals, rough, c, TIMES, solver="lm")
+
+
 def ortho_fit_inputs():
     c = ortho()
     normals, rough = fw.predict(few_waves(), c, TIMES)

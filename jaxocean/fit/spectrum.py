@@ -69,7 +69,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean import spectrum as spec
-from jaxocean._roughness import normal_weight, row_roughness
+from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.errors import InvalidValueError, check_values
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -257,12 +257,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     if roughness is not None:
         hit = cam.intersect_sea(camera)
         W = camera.resolution[1]
-        r = np.asarray(roughness, np.float64)
-        r = r.mean(0) if r.ndim == 3 else r
-        mask = np.asarray(hit.mask)
         fp_row = np.asarray(hit.footprint)[:, W // 2]
-        rows = mask.any(1)
-        r_row = np.array([r[i][mask[i]].mean() if rows[i] else 0.0 for i in range(r.shape[0])])
+        r_row, rows = observed_rows(roughness, hit.mask)
         fitted_share = np.asarray(row_roughness(np.asarray(waves.omega) ** 2 / GRAVITY, waves.amplitude, fp_row,
                                                 n_min, n_max), np.float64)
         informative = rows & (r_row > 2.0 * shading.MIN_SLOPE_VARIANCE)

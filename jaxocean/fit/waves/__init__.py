@@ -44,11 +44,16 @@ Pipeline of :func:`waves`:
    refined in ``(a, b, omega, theta)`` by a single-wave Levenberg-Marquardt, solved jointly
    for ``(a, b)`` (sidelobes and repeats lose their energy there), added in batches, and
    the whole set is refined by the structured Levenberg-Marquardt below (without the
-   roughness term: the observed roughness holds waves the model does not have yet). A
+   roughness term: the observed roughness holds waves the model does not have yet). The
+   part of the sea the view cannot separate into waves -- waves longer than the view -- is
+   modelled by a long-wave band (:mod:`jaxocean.fit.waves._band`: 48 nuisance waves of fixed
+   wave vector, only their amplitudes and phases fitted, jointly with the waves), and a
+   candidate becomes a wave only if the image resolves it and it stands at least
+   ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from every model wave. A
    batch is kept while it lowers the information criterion (``"bic"``:
    ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
-   ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, the model's own
-   floating-point precision). Optionally the final set is pruned by each wave's Wald
+   ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, by default the
+   noise whose mean normal angle is the success bound of noise-free data). Optionally the final set is pruned by each wave's Wald
    statistic against the same penalty. The final refinement adds the roughness term with
    the sub-pixel tail of waves outside the set fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
@@ -75,10 +80,11 @@ along its direction of travel. Longer waves are seen only as a smooth tilt field
 explains them with some long waves, not with the true ones (``experiments/WAVES.md``).
 """
 
+from jaxocean.fit.waves._band import LongWaveBand
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import WaveMatch, match, resolvable, separable
+from jaxocean.fit.waves._match import WaveMatch, match, rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -88,6 +94,7 @@ __all__ = [
     "SpectralEstimate",
     "OrderSelection",
     "WaveMatch",
+    "LongWaveBand",
     "SOLVER_NAMES",
     "NOISE_FACTOR",
     "NORMAL_ERROR_FLOOR",
@@ -102,6 +109,7 @@ __all__ = [
     "predict",
     "resolvable",
     "separable",
+    "rayleigh_separation",
     "match",
     "check_inputs",
 ]

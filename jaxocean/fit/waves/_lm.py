@@ -25,7 +25,7 @@ from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chun
                                         valid_weights)
 from jaxocean.fit.waves._model import (bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
                                        rough_data, rough_residual, to_waves, unpack)
-from jaxocean.waves import Waves, validate
+from jaxocean.waves import GRAVITY, Waves, validate
 
 
 #: solver names accepted by :func:`waves` / :func:`refine`: ours first, then the registry's.
@@ -35,6 +35,9 @@ SOLVER_NAMES = ("structured", "lm", "gauss_newton", "dogleg", "bfgs", "lbfgsb", 
 # and never below 1 mrad (noise-free fits reach 1e-5 rad; half-float EXR frames ~1e-4)
 NOISE_FACTOR = 1.5
 NORMAL_ERROR_FLOOR = 1e-3
+#: ridge weight on the slope amplitudes of held (long-wave band) waves, relative to the mean
+#: squared normal residual of the loss
+BAND_RIDGE = 1e-3
 _CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
 
 
@@ -61,6 +64,10 @@ class WaveFit(NamedTuple):
       :func:`separable` -- resolved by the image and separated from every other fitted wave
       by the observation window, so its parameters are measured; the others stand in for
       what the view cannot separate (waves longer than the view, close pairs).
+    * ``long_waves``   (:func:`waves` with ``long_waves=True`` only, else None) the
+      :class:`~jaxocean.fit.waves._band.LongWaveBand`: what the long-wave nuisance band
+      absorbed (its fitted stand-in waves, the slope variance they explain, their mean tilt
+      per frame). ``normal_error`` and ``loss`` are those of the waves and the band together.
     """
 
     waves: Waves
@@ -74,6 +81,7 @@ class WaveFit(NamedTuple):
     time_s: jax.Array
     history: jax.Array | None = None
     determined: np.ndarray | None = None
+    long_waves: object | None = None
 
 
 def _chunk_size(n_pad):
@@ -124,14 +132,15 @@ def _hessian_samples(n_pad: int, m_total: int) -> int:
     return int(min(m_total, max(16384, 32 * 4 * n_pad)))
 
 
-def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
+def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
                    max_steps, rtol, atol, hessian_samples, history_len, xtol=1e-7):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
     spread subset of ``hessian_samples`` pixel-frames, rescaled by the weight ratio. The
     accept test uses the exact loss through ``render.geometry``, so an approximate
-    ``J^T J`` only slows convergence near the optimum, it does not move it.
+    ``J^T J`` only slows convergence near the optimum, it does not move it. ``held (N,)``:
+    waves whose ``log omega`` and ``theta`` stay fixed (only their ``a, b`` are fitted).
     """
     n = active.shape[0]
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
@@ -139,7 +148,7 @@ def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows,
     sub = subsample(samples, hessian_samples)
     sub_chunks = chunked(sub, size)
     ratio = jnp.sum(samples.sw ** 2) / jnp.maximum(jnp.sum(sub.sw ** 2), 1e-30)
-    act4 = jnp.tile(active, 4)
+    act4 = jnp.concatenate([active, active, active & ~held, active & ~held])
     dtype = y0.dtype
 
     def normal_eq(y):
@@ -149,14 +158,22 @@ def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows,
         jtj = _gauss_newton(y, active, sub_chunks, n_min, n_max) * ratio
         _, jr = jax.linearize(lambda yy: rough_residual(yy, active, rough, tail_rows, n_min, n_max), y)
         Jr = jax.vmap(jr, out_axes=1)(jnp.eye(4 * n, dtype=dtype))  # (H, 4N)
-        jtj = jtj + Jr.T @ Jr
+        jtj = jtj + Jr.T @ Jr + jnp.diag(jnp.concatenate([ridge, ridge, jnp.zeros_like(ridge), jnp.zeros_like(ridge)]))
         # inactive (padding) parameters: identity rows, zero gradient
         jtj = jnp.where(act4[:, None] & act4[None, :], jtj, jnp.diag(jnp.where(act4, 0.0, 1.0)).astype(dtype))
         jtr = jnp.where(act4, jtr, 0.0)
         return jtj, jtr
 
+    # a weak ridge on the held waves' slope amplitudes k (a, b): the long-wave band's
+    # neighbouring wave vectors are nearly collinear over the window, and without it the
+    # solver crawls along their valley (the bias is BAND_RIDGE / (1/2 + BAND_RIDGE) of a band
+    # wave's amplitude)
+    ridge = BAND_RIDGE * (held & active).astype(dtype) * jnp.exp(4.0 * unpack(y0, n)[2]) / GRAVITY ** 2  # k^2
+
     def f(y):
-        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max)
+        P = unpack(y, n)
+        prior = 0.5 * jnp.sum(ridge * (P[0] ** 2 + P[1] ** 2))
+        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max) + prior
 
     f0 = f(y0)
     jtj0, jtr0 = normal_eq(y0)
@@ -220,26 +237,29 @@ def _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows,
 
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
-                  max_steps, roughness_weight, hessian_samples=None, history=False):
+                  max_steps, roughness_weight, hessian_samples=None, history=False, held=None):
+    """The structured LM on packed parameters ``y0 (4N,)``; ``active (N,)`` marks real waves,
+    ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed."""
+    held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
     # max_steps is traced (one compilation serves every step budget); the history's length
     # is static and only as long as asked for
-    return _refine_jit(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol,
+    return _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol,
                        jnp.asarray(max_steps, jnp.int32), n_min=n_min, n_max=n_max,
                        roughness_weight=roughness_weight, hessian_samples=int(hessian_samples),
                        history_len=int(max_steps) + 1 if history else 1)
 
 
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len"))
-def _refine_jit(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, *, n_min, n_max,
-                roughness_weight, hessian_samples, history_len):
+def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, *, n_min,
+                n_max, roughness_weight, hessian_samples, history_len):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     n_valid = jnp.maximum(jnp.sum(weight), 1.0)
     scale = 1.0 / n_valid
     rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
-    out = _structured_lm(y0, active, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
+    out = _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
                          n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
                          history_len=history_len)
     return out, n_valid

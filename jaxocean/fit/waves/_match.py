@@ -2,8 +2,9 @@
 
 Protocol: :func:`resolvable` says which waves ``(N,)`` a camera's image resolves
 individually, :func:`separable` which of those the observation window also separates from
-every other wave of the set (the waves a fit determines); :func:`match` pairs fitted with true waves one to one and returns the
-absolute errors of the pairs (:class:`WaveMatch`).
+every other wave of the set (the waves a fit determines) and :func:`rayleigh_separation` by how
+much; :func:`match` pairs fitted with true waves one to one and returns the absolute errors of
+the pairs (:class:`WaveMatch`).
 """
 
 from __future__ import annotations
@@ -74,33 +75,45 @@ def separable(waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
     Waves ``i`` and ``j`` are separated when ``|omega_i - omega_j| T >= 2 pi`` (``T`` the
     observed duration ``times[-1] - times[0]`` [s]) or ``|k_i - k_j| L_ij >= 2 pi`` (``L_ij``
     the extent, along ``k_i - k_j``, of the sea pixels that resolve both waves, or the
-    shorter-footprint ones resolving wave ``i`` when none resolves both): the Rayleigh limit.
-    Closer pairs are one blurred peak in any space-time spectrum of the data, and a fit
-    explains them with waves whose split the data do not determine.
+    shorter-footprint ones resolving wave ``i`` when none resolves both): the Rayleigh limit
+    (:func:`rayleigh_separation` >= 1). Closer pairs are one blurred peak in any space-time
+    spectrum of the data, and a fit explains them with waves whose split the data do not
+    determine.
     """
-    om, th, fp, xy = _sea_view(waves_, camera, max_distance)
     ok = resolvable(waves_, camera, n_max=n_max, max_distance=max_distance)
-    k = om ** 2 / GRAVITY
-    kv = np.stack([k * np.cos(th), k * np.sin(th)], -1)
-    lam = 2 * np.pi / k
+    sep = rayleigh_separation(waves_, waves_, camera, times, n_max=n_max, max_distance=max_distance)
+    np.fill_diagonal(sep, np.inf)
+    return ok & np.all(sep >= 1.0, axis=1)
+
+
+def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
+                        max_distance=cam.DEFAULT_MAX_DISTANCE) -> np.ndarray:
+    """Separation ``(M, N)`` of each of ``new (M,)`` from each of ``waves_ (N,)`` in units of
+    the window's Rayleigh limit: ``max(|omega_i - omega_j| T, |k_i - k_j| L_ij) / (2 pi)``
+    with ``T`` and ``L_ij`` as in :func:`separable` (eager, NumPy); below 1 the window does
+    not separate the pair."""
+    om_n, th_n, fp, xy = _sea_view(new, camera, max_distance)
+    om_s, th_s, _, _ = _sea_view(waves_, camera, max_distance)
     t = np.asarray(times, np.float64)
     duration = float(t[-1] - t[0])
-    out = np.zeros(om.shape, bool)
-    for i in np.flatnonzero(ok):
-        good = True
-        for j in range(om.size):
-            if j == i or abs(om[i] - om[j]) * duration >= 2 * np.pi:
-                continue
-            dk = kv[i] - kv[j]
-            n = np.linalg.norm(dk)
-            sel = fp * n_max <= min(lam[i], lam[j])
-            if not sel.any():
-                sel = fp * n_max <= lam[i]
-            proj = xy[sel] @ (dk / max(n, 1e-12))
-            if n * (proj.max() - proj.min()) < 2 * np.pi:
-                good = False
-                break
-        out[i] = good
+    k_n, k_s = om_n ** 2 / GRAVITY, om_s ** 2 / GRAVITY
+    kv_n = np.stack([k_n * np.cos(th_n), k_n * np.sin(th_n)], -1)
+    kv_s = np.stack([k_s * np.cos(th_s), k_s * np.sin(th_s)], -1)
+    lam_n, lam_s = 2 * np.pi / k_n, 2 * np.pi / k_s
+    reach = fp * n_max  # (P,) the shortest wavelength each pixel resolves
+    out = np.zeros((om_n.size, om_s.size))
+    for i in range(om_n.size):
+        dk = kv_n[i] - kv_s  # (N, 2)
+        n = np.linalg.norm(dk, axis=-1)
+        proj = xy @ (dk / np.maximum(n, 1e-12)[:, None]).T  # (P, N)
+        sel = reach[:, None] <= np.minimum(lam_n[i], lam_s)[None, :]
+        own = reach <= lam_n[i]
+        sel = np.where(sel.any(0)[None, :], sel, own[:, None])
+        has = sel.any(0)
+        hi = np.max(np.where(sel, proj, -np.inf), axis=0)
+        lo = np.min(np.where(sel, proj, np.inf), axis=0)
+        extent = np.where(has, hi - lo, 0.0)
+        out[i] = np.maximum(np.abs(om_n[i] - om_s) * duration, n * extent) / (2 * np.pi)
     return out
 
 

@@ -25,16 +25,20 @@ from jaxocean._math import sincos, smoothstep
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
-from jaxocean.fit.waves._lm import (SOLVER_NAMES, WaveFit, dense_jtj, fit_result, maybe_throw,
-                                    normal_error_bound, refine_kernel, registry_refine)
-from jaxocean._roughness import normal_weight, row_roughness
+from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj, fit_result,
+                                    maybe_throw, normal_error_bound, refine_kernel, registry_refine)
+from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle
-from jaxocean.fit.waves._match import separable
+from jaxocean.fit.waves._band import band_waves, summary as band_summary
+from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
 from jaxocean.waves import GRAVITY, Waves, validate
 
 
 _CRITERIA = ("bic", "aic", "holdout")
+#: the criterion's default noise floor: the per-component sigma of the normals whose mean
+#: angle ``sqrt(pi/2) sigma`` times ``NOISE_FACTOR`` is the success bound of noise-free data
+DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2))
 
 
 class OrderSelection(NamedTuple):
@@ -226,8 +230,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=0.0,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
-          score_samples: int = 32768, prune: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
-          n_max=hierarchy.DEFAULT_N_MAX,
+          score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
+          n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
           throw: bool = False, history: bool = False, return_selection: bool = False, verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
 
@@ -236,10 +240,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       out and a batch is kept while it lowers the held-out normal error), up to
       ``max_waves``. ``noise``: known noise sigma of the normal components (used instead of
       the residual estimate). ``noise_floor``: the smallest residual sigma the criterion
-      believes in (default ``200 eps`` of the dtype: 2.4e-5 in float32, 4.4e-14 in float64;
-      in float32 the precision of a phase ``k . X`` of a few thousand radians), so that
-      noise-free data stop adding waves once the model is explained to its floating-point
-      precision.
+      believes in (default :data:`DEFAULT_NOISE_FLOOR` = 5.3e-4: the per-component sigma
+      whose mean normal angle is the success bound ``normal_error_bound()`` of noise-free
+      data), so that noise-free data stop adding waves once the model explains them as
+      well as ``success`` asks; a smaller floor (down to ``200 eps`` of the dtype, 2.4e-5
+      in float32, the precision of a phase ``k . X`` of a few thousand radians) makes the
+      selection go on explaining the long-wave band's residual with more waves.
     * ``init``: starting waves; then no spectral initialisation, and waves are added only
       if ``n_waves`` asks for more. ``init="net"``: start from the waves of the wave network
       (:func:`jaxocean.nn.waves.predict` on the first ``config.frames`` frames: the slots
@@ -249,6 +255,15 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     * ``prune``: after the greedy stage, drop waves whose Wald statistic is below the
       criterion's penalty, refit, and keep the smaller model only if the criterion improves
       (off by default: with correlated long waves a refit can land in a worse optimum).
+    * ``long_waves``: model the part of the sea the view cannot separate into waves -- waves
+      longer than the view -- by the long-wave band of :mod:`jaxocean.fit.waves._band` (48
+      nuisance waves of fixed wave vector whose amplitudes and phases are fitted jointly),
+      and add as waves only candidates that the image resolves (:func:`resolvable`) and
+      that stand at least ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from
+      every wave already in the model and from each other; what the band absorbed is
+      returned in ``WaveFit.long_waves``. Needs ``solver="structured"``. ``False``: every
+      candidate may become a wave (closer than 0.7 of the whole image's wave-vector
+      resolution to a model wave excepted), no band.
     * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
     * ``throw``: raise :class:`jaxocean.fit.solvers.FitError` (carrying the result) whenever
       ``success`` is False -- the final refinement did not converge, the selection stopped at
@@ -272,8 +287,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"n_waves must be a positive int or None; got {n_waves!r}")
     if noise is not None:
         check_values(np.asarray(noise) > 0, "noise must be > 0", noise)
+    if long_waves and solver != "structured":
+        raise ValueError(f"long_waves=True (the long-wave band) needs solver='structured'; got {solver!r} "
+                         "(pass long_waves=False to refine with a registry solver)")
+    check_values(np.asarray(separation) >= 0, "separation must be >= 0 (Rayleigh limits)", separation)
     dtype = normals.dtype
-    floor2 = (200 * float(jnp.finfo(dtype).eps) if noise_floor is None else float(noise_floor)) ** 2
+    floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
     H = camera.resolution[0]
     tail_rows = jnp.zeros(H, dtype)
     rw = 0.0 if roughness is None else float(roughness_weight)
@@ -289,25 +308,44 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     path_n, path_c, path_rss, path_acc = [], [], [], []
     total_steps = 0
 
-    def run_lm(w: Waves, steps: int):
+    # the long-wave band (fitted amplitudes carried from one accepted model to the next)
+    band = band_waves(camera, dtype) if long_waves else None
+    n_band = 0 if band is None else band.omega.shape[0]
+
+    def with_band(w: Waves, band_: Waves | None):
+        # the model's waves: the resolved ones first, then the band; and the held mask
+        n = w.omega.shape[0]
+        if band_ is None:
+            return w, None
+        full = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), w, band_)
+        n_pad = bucket_size(n + n_band)
+        return full, jnp.arange(n_pad) >= n
+
+    def split(y, n, n_pad):
+        fitted = to_waves(y, n_pad)
+        return (jax.tree.map(lambda x: x[:n], fitted),
+                None if band is None else jax.tree.map(lambda x: x[n:n + n_band], fitted))
+
+    def run_lm(w: Waves, band_: Waves | None, steps: int):
         # no roughness term while waves are missing: the observed roughness holds the
         # sub-pixel share of waves the model does not have yet, and would pull the others
         n = w.omega.shape[0]
-        n_pad = bucket_size(n)
-        wp, active = pad_waves(w, n_pad)
+        full, held = with_band(w, band_)
+        n_pad = bucket_size(full.omega.shape[0])
+        wp, active = pad_waves(full, n_pad)
         out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                               max_steps=steps, roughness_weight=0.0)
-        fitted = jax.tree.map(lambda x: x[:n], to_waves(out.y, n_pad))
-        return fitted, out
+                               max_steps=steps, roughness_weight=0.0, held=held)
+        fitted, band_fit = split(out.y, n, n_pad)
+        return fitted, band_fit, out
 
     def rss_of(out):
         # out.loss = 0.5 |r|^2 with residuals scaled by 1/sqrt(P): the RSS is loss * m
         return float(out.loss) * m_obs
 
-    def score_of(w: Waves, out):
+    def score_of(w: Waves, band_: Waves | None, out):
         if holdout:
-            pred, _ = predict_jit(w, camera, times[-1:], n_min, n_max)
+            pred, _ = predict_jit(with_band(w, band_)[0], camera, times[-1:], n_min, n_max)
             wt = valid_weights(normals[-1:], camera)
             d = pred[..., :2] - normals[-1:, ..., :2]
             return float(jnp.sum(d * d * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
@@ -337,9 +375,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     k_res = 2 * math.pi / max(baseline, 1e-6)
 
     if current.omega.shape[0] > 0:
-        current, best_out = run_lm(current, inner_steps if limit > current.omega.shape[0] else max_steps)
+        current, band, best_out = run_lm(current, band, inner_steps if limit > current.omega.shape[0] else max_steps)
         total_steps += int(best_out.steps)
-        best_score = score_of(current, best_out)
+        best_score = score_of(current, band, best_out)
         rss_now = rss_of(best_out)
     elif holdout:
         wt = valid_weights(normals[-1:], camera)
@@ -362,7 +400,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         n_cur = current.omega.shape[0]
         t_a = time.perf_counter()
         if n_cur > 0:
-            resid, wt = _residual_slopes(current, fit_n, camera, fit_t, n_min, n_max)
+            resid, wt = _residual_slopes(with_band(current, band)[0], fit_n, camera, fit_t, n_min, n_max)
         else:
             wt = weight
             resid = slope_field(clean_inputs(fit_n, None, wt)[0])
@@ -408,17 +446,30 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         kr = _kvec(r_om, r_th)
         k_old = _kvec(current.omega, current.theta) if n_cur else np.zeros((0, 2))
         n_add = min(cur_batch, limit - n_cur)
+        if long_waves:
+            # what the view can separate: resolved by the image, and at least `separation`
+            # Rayleigh limits from every model wave and every other chosen candidate
+            cand = Waves(jnp.zeros(n_cand, dtype), jnp.asarray(np.maximum(r_om, 1e-3), dtype),
+                         jnp.asarray(r_th, dtype), jnp.zeros(n_cand, dtype))
+            admissible = resolvable(cand, camera, n_max=n_max)
+            if n_cur:
+                admissible &= np.min(rayleigh_separation(cand, current, camera, fit_t, n_max=n_max), 1) >= separation
+            mutual = rayleigh_separation(cand, cand, camera, fit_t, n_max=n_max)
         chosen = []
         for j in np.argsort(-e_ref):
             if len(chosen) >= n_add or not np.isfinite(e_ref[j]) or e_ref[j] <= 0:
                 break
+            if r_om[j] < 0.5 * omega_min:
+                continue
+            if long_waves:
+                if admissible[j] and all(mutual[j, i] >= separation for i in chosen):
+                    chosen.append(j)
+                continue
             kn = np.hypot(*kr[j])
             sep = max(0.02 * kn, 0.7 * k_res)
             if k_old.size and np.min(np.hypot(*(k_old - kr[j]).T)) < sep:
                 continue  # a wave the model already has
             if any(np.hypot(*(kr[j] - kr[i])) < max(sep, 0.5 * res_scale[0]) for i in chosen):
-                continue
-            if r_om[j] < 0.5 * omega_min:
                 continue
             chosen.append(j)
         if not chosen:
@@ -442,10 +493,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         trial = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), current, add)
         t_c = time.perf_counter()
         timing["refine"] += t_c - t_b
-        trial, out = run_lm(trial, inner_steps)
+        trial, trial_band, out = run_lm(trial, band, inner_steps)
         timing["lm"] += time.perf_counter() - t_c
         total_steps += int(out.steps)
-        sc = score_of(trial, out)
+        sc = score_of(trial, trial_band, out)
         accepted = n_waves is not None or sc < best_score
         path_n.append(trial.omega.shape[0])
         path_c.append(sc)
@@ -456,9 +507,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                   f"{'kept' if accepted else 'rejected'}  ({time.perf_counter() - t0:.0f} s; "
                   + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()) + ")", flush=True)
         if accepted:
-            current, best_score = trial, sc
+            current, band, best_score = trial, trial_band, sc
             if n_waves is None and not holdout and rss_of(out) / m_obs <= floor2:
-                break  # explained to the floating-point floor: nothing left to find
+                break  # explained to the noise floor: nothing left to find
         elif cur_batch > 1:
             cur_batch = max(1, cur_batch // 2)
         else:
@@ -471,29 +522,30 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     rough_info = roughness is not None and rw > 0 and _roughness_informative(roughness, camera)
 
-    def final_fit(w: Waves):
+    def final_fit(w: Waves, band_: Waves | None):
         # with informative roughness, the sub-pixel tail of the waves outside ``w`` (non-negative
         # least squares over virtual wavelengths) is fitted first and then held fixed
         tail = _nnls_tail(w, roughness, camera, n_min, n_max, dtype) if rough_info else tail_rows
-        return _final_once(w, tail)
+        return _final_once(w, band_, tail)
 
-    def _final_once(w: Waves, tail):
+    def _final_once(w: Waves, band_: Waves | None, tail):
         if solver == "structured":
-            n_pad = bucket_size(w.omega.shape[0])
-            wp, active = pad_waves(w, n_pad)
+            full, held = with_band(w, band_)
+            n_pad = bucket_size(full.omega.shape[0])
+            wp, active = pad_waves(full, n_pad)
             out, n_valid = refine_kernel(pack(wp), active, normals, roughness, times, camera, tail,
                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
-                                         else 0.0, history=history)
+                                         else 0.0, history=history, held=held)
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
-                        active=active, n_valid=n_valid, n_pad=n_pad)
+                        active=active, n_valid=n_valid, n_pad=n_pad, band=split(out.y, w.omega.shape[0], n_pad)[1])
         active = jnp.ones(w.omega.shape[0], bool)
         o, n_valid, residual = registry_refine(pack(w), active, normals, roughness, times, camera, tail,
                                                solver=solver, n_min=n_min, n_max=n_max, max_steps=max_steps,
                                                rtol=rtol, atol=atol, roughness_weight=rw if rough_info else 0.0,
                                                history=history, options=None)
         return dict(y=o.params, jtj=dense_jtj(residual, o.params), half=o.loss, steps=o.steps, success=o.success,
-                    hist=o.history, active=active, n_valid=n_valid, n_pad=w.omega.shape[0])
+                    hist=o.history, active=active, n_valid=n_valid, n_pad=w.omega.shape[0], band=None)
 
     m_all = 2.0 * float(jnp.sum(valid_weights(normals, camera)))
 
@@ -501,7 +553,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         return _criterion_value(criterion if criterion != "holdout" else "bic", float(fit_["half"]) * m_all, m_all,
                                 n, noise, floor2)
 
-    best = final_fit(current)
+    best = final_fit(current, band)
     total_steps += int(best["steps"])
     if n_waves is None and prune:
         for _ in range(2):
@@ -512,7 +564,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                 break
             fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
             pruned = jax.tree.map(lambda x: x[np.nonzero(keep)[0]], fitted)
-            trial = final_fit(pruned)
+            trial = final_fit(pruned, best["band"])
             total_steps += int(trial["steps"])
             better = crit(trial, pruned.omega.shape[0]) <= crit(best, n_cur)
             if verbose:
@@ -534,9 +586,13 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     # wave 1.25-2 footprints long, aliased by the start, "converged" at 0.05-0.12 rad)
     bound = normal_error_bound(noise)
     unexplained = not float(result.normal_error) <= bound
+    absorbed = None
+    if best["band"] is not None:
+        band_normals, _ = predict_jit(best["band"], camera, times, n_min, n_max)
+        absorbed = band_summary(best["band"], band_normals, valid_weights(normals, camera), camera)
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
                              success=jnp.asarray(result.success) & (not capped) & (not unexplained),
-                             determined=separable(result.waves, camera, times, n_max=n_max))
+                             determined=separable(result.waves, camera, times, n_max=n_max), long_waves=absorbed)
     maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
@@ -579,9 +635,7 @@ def _nnls_tail(w: Waves, roughness, camera, n_min, n_max, dtype, n_virtual=24):
     H, W = camera.resolution
     mask = np.asarray(hit.mask)
     fp_row = np.asarray(hit.footprint)[:, W // 2].astype(np.float64)
-    r = np.asarray(roughness, np.float64)
-    rows = mask.any(1)
-    obs = np.array([np.nanmean(r[:, i][:, mask[i]]) if rows[i] else 0.0 for i in range(H)])
+    obs, rows = observed_rows(roughness, mask)
     share = np.asarray(row_roughness(np.asarray(w.omega) ** 2 / GRAVITY, w.amplitude, fp_row, n_min, n_max),
                        np.float64)
     fp_sea = fp_row[rows]
