@@ -38,7 +38,6 @@ the camera file gives compass headings, else from the library's +x counter-clock
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -179,12 +178,17 @@ def _working_height(width: int, W_src: int, H_src: int) -> int:
     return max(16, int(round(width * H_src / W_src / 16)) * 16)
 
 
-def _is_scene_file(path: Path) -> bool:
+def _scene_of(data, path: Path):
+    """The :class:`~jaxocean.io.scene.Scene` of a camera JSON that is a synthetic
+    ``scene.json`` (a ``camera`` and no ``intrinsics``), else None."""
+    from jaxocean.io.scene import SceneError, SceneFileError, scene_from_dict
+
+    if not (isinstance(data, dict) and "camera" in data and "intrinsics" not in data):
+        return None
     try:
-        d = json.loads(Path(path).read_text())
-    except (OSError, ValueError) as error:
-        raise InvalidValueError(f"cannot read the camera file {path}: {error}") from None
-    return isinstance(d, dict) and "camera" in d and "intrinsics" not in d
+        return scene_from_dict(data)
+    except SceneError as error:
+        raise SceneFileError(path, str(error)) from error
 
 
 def _frame_files(frames, listed: Seq[Path], where) -> list:
@@ -235,10 +239,9 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
 
         loaded = load(frames) if video else None
         n_video = None if loaded is None else len(loaded.linear)
-        if _is_scene_file(camera_path):
-            from jaxocean.io.scene import read_scene
-
-            scene = read_scene(camera_path)
+        json_path, data = cf_io.read_camera_json(camera_path)  # read once: a scene or a camera file
+        scene = _scene_of(data, json_path)
+        if scene is not None:
             if scene.camera is None or scene.times is None:
                 raise InvalidValueError(f"{camera_path} has no camera or no times")
             times = np.asarray(scene.times, np.float64)
@@ -255,7 +258,8 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                                            lens.Distortion(), tuple(listed) * (len(times) if video else 1), times,
                                            poses, False)
         else:
-            camera_file = cf_io.read_camera_file(camera_path, require_pose=height is None, check_files=not video)
+            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=height is None,
+                                                      check_files=not video)
             if video:
                 if n_video != len(camera_file.times):
                     raise InvalidValueError(f"the video {frames[0]} has {n_video} frames; the camera file "

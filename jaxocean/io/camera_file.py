@@ -65,6 +65,8 @@ __all__ = [
     "CameraFile",
     "CameraFileError",
     "read_camera_file",
+    "read_camera_json",
+    "camera_file_from_json",
     "write_camera_file",
     "camera_file_to_dict",
     "select",
@@ -170,16 +172,32 @@ def read_camera_file(path, *, require_pose: bool = True, check_files: bool = Tru
         CameraFileError: malformed JSON, or any field outside the protocol (module
             docstring); the message names the file and the field.
     """
+    path, data = read_camera_json(path)
+    return camera_file_from_json(data, path, require_pose=require_pose, check_files=check_files)
+
+
+def read_camera_json(path) -> tuple[Path, Any]:
+    """``(path, data)``: the camera file's path (a directory means its ``camera.json``) and
+    its parsed, not yet validated JSON -- for callers that look at the JSON before deciding
+    how to read it (``reconstruct`` also accepts a ``scene.json``); validate it with
+    :func:`camera_file_from_json`. Raises as :func:`read_camera_file` does for a missing
+    file or malformed JSON."""
     path = Path(path)
     if path.is_dir():
         path = path / CAMERA_FILENAME
     path = require_file(path, "camera file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        return path, json.loads(path.read_text(encoding="utf-8"))
     except UnicodeDecodeError as error:
         raise CameraFileError(path, f"not UTF-8 text ({error})") from error
     except json.JSONDecodeError as error:
         raise CameraFileError(path, f"malformed JSON: {error.msg} at line {error.lineno}, column {error.colno}") from error
+
+
+def camera_file_from_json(data, path, *, require_pose: bool = True, check_files: bool = True) -> CameraFile:
+    """Validate the parsed JSON ``data`` of the camera file at ``path`` (frame paths are
+    relative to its folder; errors name it): :func:`read_camera_file` without the reading."""
+    path = Path(path)
     f = _Fields(path)
     data = f.mapping(data, "top level")
 
