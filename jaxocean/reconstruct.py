@@ -79,6 +79,12 @@ BLACK_LEVEL = 0.5 / 255
 #: is told: its mean angle error on the held-out test split of its dataset is 0.105 rad,
 #: i.e. sigma = 0.105 / sqrt(pi / 2) per component for a Gaussian error (experiments/NETS.md)
 GEOMETRY_NOISE = 0.084
+#: the correlation length of that error, as a fraction of the view's width: the network's
+#: normal errors are smooth (their autocorrelation on 4 dataset scenes at 128^2 is 0.24-0.55
+#: at 8 px and 0.13-0.45 at 16 px), and errors taken as independent average out over the
+#: glitter and let a wrong sun pass (experiments/LIGHTING.md); 1/8 of the width (16 px at
+#: 128) errs on the correlated side
+GEOMETRY_CORRELATION = 0.125
 
 
 class StageReport(NamedTuple):
@@ -370,10 +376,15 @@ class _Geo(NamedTuple):
     mask: Any
 
 
-def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcast: bool | None = None):
+def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcast: bool | None = None,
+                   normal_noise: float = GEOMETRY_NOISE, correlation: float = GEOMETRY_CORRELATION):
     """Stage 3: the lighting of one frame (default the middle one) with its geometry held
     fixed. ``overcast`` (None: decided from the footage -- gray images whose sky view is
-    clipped, or no usable glint) fixes the sun colour at 0 and fits the sky and sea colours."""
+    clipped, or no usable glint) fixes the sun colour at 0 and fits the sky and sea colours.
+    The fit is told the geometry's error per normal component (``normal_noise`` [rad],
+    :func:`jaxocean.fit.lighting`), correlated over ``correlation`` times the view's width:
+    success means the lighting explains the frame as well as geometry of that accuracy
+    allows, and that geometry determines every fitted field."""
     from jaxocean import fit
 
     i = len(seq.times) // 2 if frame is None else frame
@@ -388,13 +399,17 @@ def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcas
         kw = {}
         if over:
             kw = dict(init=shading.make_lighting(sun_color=(0.0, 0.0, 0.0)), fit=("sky_color", "sea_color"))
-        result = fit.lighting(seq.images[i], g, seq.camera, mask=seq.usable[i], throw=False, **kw)
+        length = float(correlation) * seq.camera.resolution[1]
+        result = fit.lighting(seq.images[i], g, seq.camera, mask=seq.usable[i], throw=False,
+                              normal_noise=normal_noise, normal_correlation=length, **kw)
         details = fit.fit_to_dict(result)
-        details.update(overcast=over, frame=int(i))
+        details.update(overcast=over, frame=int(i), normal_noise_rad=float(normal_noise),
+                       normal_correlation_px=length)
         msg = "overcast sky: no sun term" if over else ""
         if not result.success:
-            msg = (msg + "; " if msg else "") + "the lighting does not explain the frame within its noise"
-        return result, result.success, msg, details
+            why = fit.lighting_fit.failure_message(result, normal_noise=normal_noise)
+            msg = (msg + "; " if msg else "") + why
+        return result, bool(result.success), msg, details
 
     return _timed("lighting", run)
 

@@ -16,7 +16,14 @@ over pixels and channels, ``w`` the fit's weights (``(H, W, 3)``, 0 on unused pi
   fits use for ``noise=None``): the image is noise-free.
 * :func:`loss_bound`: the largest loss a right answer can leave::
 
-      bound = NOISE_FACTOR * noise^2 + LOSS_FLOOR * sum(w^2 image^2) / sum(w^2)
+      bound = NOISE_FACTOR * (noise^2 + geometry) + LOSS_FLOOR * sum(w^2 image^2) / sum(w^2)
+
+  ``geometry`` [loss units, >= 0; default None: 0] is the loss that errors of the *model's
+  inputs* leave at the right answer, added in quadrature to the image noise: for a fit
+  whose geometry (normals) carries a stated error, the mean square residual that the error
+  propagates into the model image (``fit.lighting``'s ``normal_noise``: the model rendered
+  with the normals tilted by draws of the stated error). None: the image-noise rule above,
+  bit for bit.
 
   ``LOSS_FLOOR`` (1e-6: a residual RMS of 1e-3 of the image's) is the models' own
   consistency (rounding, float32 storage, hit refinement); ``NOISE_FACTOR = 1.5`` leaves
@@ -32,6 +39,9 @@ over pixels and channels, ``w`` the fit's weights (``(H, W, 3)``, 0 on unused pi
   vanishing column, e.g. the sun's angles when no glitter is in view, or a combination of
   columns that cancels) gets a huge standard deviation (``inf`` for an exactly zero
   column), never a negative variance.
+* :func:`gauss_newton_step`: ``-(J^T J)^+ J^T r`` with the same regularised pseudo-inverse:
+  how far a residual ``r`` moves a least-squares answer (first order); a direction without
+  information does not move.
 
 All functions are jittable and vmappable; shapes as stated, float32 or float64.
 """
@@ -41,7 +51,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-__all__ = ["NOISE_FACTOR", "LOSS_FLOOR", "energy", "loss_bound", "noise_variance", "parameter_std"]
+__all__ = ["NOISE_FACTOR", "LOSS_FLOOR", "energy", "loss_bound", "noise_variance", "parameter_std",
+           "gauss_newton_step"]
 
 #: success needs ``loss <= NOISE_FACTOR * noise**2 + LOSS_FLOOR * (weighted mean square image)``
 NOISE_FACTOR = 1.5
@@ -54,9 +65,12 @@ def energy(image, weight):
     return jnp.sum(w2 * image * image) / jnp.sum(w2)
 
 
-def loss_bound(image, weight, noise):
-    """The largest loss a right answer can leave (module docstring), ``()``."""
-    return NOISE_FACTOR * noise * noise + LOSS_FLOOR * energy(image, weight)
+def loss_bound(image, weight, noise, geometry=None):
+    """The largest loss a right answer can leave (module docstring), ``()``. ``geometry``
+    ``()`` [loss units]: the loss the errors of the model's inputs leave (None: 0, the
+    image-noise rule exactly)."""
+    var = noise * noise if geometry is None else noise * noise + geometry
+    return NOISE_FACTOR * var + LOSS_FLOOR * energy(image, weight)
 
 
 def noise_variance(image, weight, noise):
@@ -75,6 +89,27 @@ def parameter_std(jtj, variance):
     information gets the largest variance the working precision can state (about ``1 /
     (P eps)`` in scaled units), never a negative one; a zero column gives ``inf``.
     """
+    has, d, lam, vec = _scaled_eigen(jtj)
+    var_scaled = jnp.sum(vec * vec / lam[None, :], axis=1)
+    var = jnp.where(has, variance * var_scaled / (d * d), jnp.inf)
+    return jnp.sqrt(var)
+
+
+def gauss_newton_step(jtj, jtr):
+    """``-(J^T J)^+ J^T r`` ``(P,)`` for ``jtj (P, P)`` and ``jtr (P,)``, with the regularised
+    pseudo-inverse of :func:`parameter_std`: the first-order change of a least-squares answer
+    when its residual changes by ``r``. A parameter without information (zero column)
+    does not move."""
+    has, d, lam, vec = _scaled_eigen(jtj)
+    g = jnp.where(has, jax.lax.stop_gradient(jtr) / d, 0.0)
+    step = vec @ ((vec.T @ g) / lam)
+    return jnp.where(has, -step / d, 0.0)
+
+
+def _scaled_eigen(jtj):
+    """``(has, d, lam, vec)``: the columns with information, the column norms, and the
+    eigen-decomposition of ``J^T J`` scaled to a unit diagonal, its eigenvalues floored at
+    ``P eps max(lam)``."""
     jtj = jax.lax.stop_gradient(jtj)
     dtype = jtj.dtype
     diag = jnp.diagonal(jtj)
@@ -84,6 +119,4 @@ def parameter_std(jtj, variance):
     scaled = jnp.where(has[:, None] & has[None, :], scaled, jnp.eye(jtj.shape[0], dtype=dtype))
     lam, vec = jnp.linalg.eigh(scaled)
     floor = jnp.finfo(dtype).eps * jnp.max(lam) * lam.shape[0]
-    var_scaled = jnp.sum(vec * vec / jnp.maximum(lam, floor)[None, :], axis=1)
-    var = jnp.where(has, variance * var_scaled / (d * d), jnp.inf)
-    return jnp.sqrt(var)
+    return has, d, jnp.maximum(lam, floor), vec

@@ -84,7 +84,30 @@ square image) for the stated ``noise`` (``None``: noise-free; the rule of
 of the residual in the fitted fields at the answer) is below 0.5 deg for the sun direction
 (whose glitter must also carry >= 1e-8 of the weighted image energy) and below 10% of the
 colour's brightest channel for a colour. A converged wrong stationary point (a local
-minimum) leaves a loss far above the bound: it is a failure, not an answer. Otherwise
+minimum) leaves a loss far above the bound: it is a failure, not an answer.
+
+Geometry with a stated error (``normal_noise=`` [rad per tangent component], optionally
+correlated over ``normal_correlation`` pixels): the error is propagated through the shading
+at the answer by sampling: the normals are tilted by :data:`GEOMETRY_SAMPLES` fixed draws
+(a fixed key: the result is a deterministic function of the inputs) of Gaussian fields of
+that size and correlation, and the model image is rendered for each. The draws' mean square
+residual (``geometry_loss``) joins the image noise's in the bound, ``1.5 (noise^2 +
+geometry_loss) + 1e-6 x``, and the change of the fitted fields each draw implies (first
+order in the fields: ``(J^T J)^-1 J^T r_k``, with ``J`` the Jacobian of the model whose
+glitter has its slope variances widened by ``normal_noise^2``, the mean glitter of normals
+known to that accuracy), bias and spread together, joins ``std`` (the ``extra`` term of
+:func:`jaxocean.fit._plausibility.parameter_std`). Both move together: a
+bound loosened by a large normal error comes with a large ``std``, so a sun the stated
+geometry cannot place within 0.5 deg, or a colour it biases by 10%, is undetermined and the
+fit fails. Success then says: this lighting explains the frame as well as geometry of the
+stated accuracy allows, and that geometry determines every fitted field. Why sampling and
+not a JVP of the shading: the glitter lobes of resolved pixels are narrower (0.003-0.05
+rad) than a network's normal error (0.084 rad), and Fresnel and the sky reflection are
+strongly curved at grazing views, so derivatives at the given normals misjudge both the
+residual and the colours' bias (measured: with a first- plus second-order propagation,
+overcast colours 30-43% off were flagged determined). Why the widened Jacobian: a draw moves
+a narrow glint by more than its width, a change the sharp lobe's Jacobian barely sees
+(measured: a sun 74 deg off flagged determined, std 0.07 deg). Otherwise
 ``success=False``; called eagerly with ``throw=True`` (the default) it raises
 :class:`jaxocean.fit.solvers.FitError` carrying the result and saying why
 (:func:`failure_message`): the residual and its bound, "sun direction undetermined: no sun
@@ -109,8 +132,8 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
-from jaxocean._math import angle_between
-from jaxocean.errors import is_concrete
+from jaxocean._math import angle_between, safe_normalize
+from jaxocean.errors import InvalidValueError, is_concrete
 from jaxocean.files import json_safe
 from jaxocean.fit import _image_inputs as inp
 from jaxocean.fit import _photometry as ph
@@ -125,6 +148,7 @@ __all__ = [
     "COLOR_FIELDS",
     "DETERMINED_SUN_DEG",
     "DETERMINED_COLOR_REL",
+    "GEOMETRY_SAMPLES",
     "STRUCTURES",
     "COLOR_RANGES",
     "LightingFit",
@@ -159,6 +183,8 @@ DETERMINED_SUN_DEG = 0.5
 #: a fitted colour is determined when every channel's standard deviation is below this
 #: fraction of the colour's brightest channel
 DETERMINED_COLOR_REL = 0.1
+#: draws of the stated normal error (``normal_noise``) the fit propagates through the shading
+GEOMETRY_SAMPLES = 32
 
 
 class LightingFit(NamedTuple):
@@ -189,6 +215,8 @@ class LightingFit(NamedTuple):
     * ``loss_bound`` ``()`` the largest loss a right answer can leave at the stated noise.
     * ``glitter``   ``()`` the weighted energy of the fitted sun's glitter over that of the
       image (0: the sun lights no selected pixel).
+    * ``geometry_loss`` ``()`` the loss the stated normal error (``normal_noise``) leaves at
+      the answer, included in ``loss_bound`` (0 when no normal error is stated).
     """
 
     lighting: Lighting
@@ -201,6 +229,7 @@ class LightingFit(NamedTuple):
     std: Any = None
     loss_bound: Any = None
     glitter: Any = None
+    geometry_loss: Any = None
 
 
 # --------------------------------------------------------------------------- parameterisation
@@ -328,6 +357,8 @@ class _Static(NamedTuple):
     space: str
     exposure: float
     tonemap: str
+    geometry: bool = False  # a normal error is stated (normal_noise given)
+    correlation: float = 0.0  # its correlation length [px]
 
 
 def _final(data: ph.Data, pq, init_colors, free, colors=None):
@@ -417,10 +448,93 @@ def _plain_bound(fit: tuple, log_colors: bool):
     return solvers.dense_jacobian(fn)
 
 
-def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise):
-    """``(std, determined)`` dicts of the answer (see :class:`LightingFit`): Gauss-Newton
-    standard deviations from ``J^T J`` of the linear-colour residual of the fitted fields
-    (built column by column, ``O(pixels)`` memory) at the stated noise."""
+def _tilt_fields(key, shape, length: float, dtype):
+    """``(GEOMETRY_SAMPLES, 2, H, W)`` standard normal tilt fields (two tangent axes),
+    independent per pixel (``length = 0``) or correlated as ``exp(-d^2 / (2 length^2))`` over
+    ``d`` pixels: white noise on a larger grid through a Gaussian filter of ``length /
+    sqrt(2)`` pixels, normalised to unit variance (stationary up to the image's edges)."""
+    H, W = shape
+    if length <= 0:
+        return jax.random.normal(key, (GEOMETRY_SAMPLES, 2, H, W), dtype)
+    width = length / math.sqrt(2.0)
+    radius = int(math.ceil(4.0 * width))
+    x = np.arange(-radius, radius + 1, dtype=np.float64)
+    kernel = np.exp(-0.5 * (x / width) ** 2)
+    kernel = jnp.asarray(kernel / np.sqrt(np.sum(kernel**2)), dtype)  # unit variance per axis
+    white = jax.random.normal(key, (GEOMETRY_SAMPLES, 2, H + 2 * radius, W + 2 * radius), dtype)
+    rows = sum(kernel[k] * white[:, :, k:k + H, :] for k in range(2 * radius + 1))
+    return sum(kernel[k] * rows[:, :, :, k:k + W] for k in range(2 * radius + 1))
+
+
+def _widen_glitter(data: ph.Data, normal_noise):
+    """``data`` whose sun glitter has its slope pdf widened by the stated normal error
+    (``normal_noise (H, W)`` [rad], variance added per axis): the mean glitter of normals
+    known to that accuracy, whose sun-direction Jacobian measures how far a glint can move.
+    The glitter lobes of resolved pixels are far narrower than a network's normal error,
+    and the sharp lobe's Jacobian barely sees a glint moved by more than its width. The
+    sky and sea terms are the fit's own: they are linear in their colours, and the colours'
+    sensitivity must be the one the fit used."""
+    sigma2 = jax.lax.stop_gradient(normal_noise) ** 2
+    sx2, sy2 = data.sx2 + sigma2, data.sy2 + sigma2
+    lambda_view = shading.smith_lambda(data.z_view, shading.projected_variance(data.view, data.normal, sx2, sy2))
+    return data._replace(sx2=sx2, sy2=sy2, lambda_view=lambda_view, pdf_norm=1.0 / (2.0 * jnp.pi * jnp.sqrt(sx2 * sy2)))
+
+
+def _geometry_effect(prepare_at, normal, weight, used, pq, colors, normal_noise, st: _Static):
+    """What the stated normal error does to the fit at the answer ``(pq, colors)``:
+    ``(geometry_loss (), shifts (GEOMETRY_SAMPLES, P))``.
+
+    The error is propagated by sampling, not by derivatives: the normals are tilted about
+    their tangent axes by ``GEOMETRY_SAMPLES`` fixed draws (key 0: the result is a
+    deterministic function of the inputs) of Gaussian fields of standard deviation
+    ``normal_noise (H, W)`` [rad per axis], correlated over ``st.correlation`` pixels.
+
+    * ``geometry_loss``: the mean square, over the draws, of the change of the model image
+      at the answer, in the reported loss's residual (the linear one, or with
+      ``space="display"`` the tone-mapped one over the used pixels): the residual a right
+      lighting leaves when the normals are off by the stated error.
+    * ``shifts``: for each draw, how far the fitted fields (the layout of
+      :func:`_plain_layout`) move when the model image at the given normals is fitted on
+      the tilted normals (one Gauss-Newton step, :func:`_plausibility.gauss_newton_step`:
+      exact for the colours, which are linear; the glitter widened by the error,
+      :func:`_widen_glitter`). This emulates the fit's own situation -- data from one set of
+      normals, the model on normals off by the error -- bias included: normals with an
+      error are rougher than the truth, and Fresnel and the sky reflection are strongly
+      curved at grazing views, so the colours' error is mostly a bias, which a symmetric
+      spread around the given normals does not show."""
+    sigma = jax.lax.stop_gradient(normal_noise)
+    normal = safe_normalize(normal)
+    direction = pq_to_direction(pq)
+    t_x, t_y = shading.tangent_frame(normal)
+    fields = _tilt_fields(jax.random.PRNGKey(0), normal.shape[:2], st.correlation, normal.dtype)
+    base = ph.model(prepare_at(normal), direction, colors)
+
+    stated = (sigma > 0)[..., None]
+
+    def sample(ab):
+        tilted = normal + sigma[..., None] * (ab[0][..., None] * t_x + ab[1][..., None] * t_y)
+        data = prepare_at(tilted)
+        # pixels without a stated error change by exactly 0 (not by the rounding of a second
+        # evaluation): normal_noise=0 is the plain fit's bound and std, bit for bit
+        model = jnp.where(stated, ph.model(data, direction, colors), base)
+        if st.space == "display":
+            shown = used * (shading.tonemap(model, st.exposure, st.tonemap)
+                            - shading.tonemap(base, st.exposure, st.tonemap))
+            loss = jnp.sum(shown * shown) / jnp.sum(used)
+        else:
+            loss = jnp.sum((weight * (model - base)) ** 2) / jnp.sum(weight * weight)
+        jtj, jtr = _normal_equations(_widen_glitter(data._replace(target=jnp.where(stated, base, model)), sigma), pq,
+                                     colors, st)
+        return loss, _plausibility.gauss_newton_step(jtj, jtr)
+
+    losses, shifts = jax.lax.map(sample, fields)
+    return jax.lax.stop_gradient(jnp.mean(losses)), jax.lax.stop_gradient(shifts)
+
+
+def _normal_equations(data: ph.Data, pq, colors, st: _Static):
+    """``(J^T J (P, P), J^T r (P,))`` of the linear-colour residual of the fitted fields at
+    ``(pq, colors)`` (layout of :func:`_plain_layout`; built column by column, ``O(pixels)``
+    memory)."""
     data, pq, colors = jax.lax.stop_gradient((data, pq, colors))
     dtype = data.target.dtype
     layout, n = _plain_layout(st.fit)
@@ -431,10 +545,25 @@ def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise):
     def residual(y):
         return _plain_residual(y, (data, pq, colors, st.fit, False))
 
-    _, jvp = jax.linearize(residual, y)
+    r, jvp = jax.linearize(residual, y)
     vjp = jax.linear_transpose(jvp, y)
     jtj = jax.lax.map(lambda e: vjp(jvp(e))[0], jnp.eye(n, dtype=dtype))
+    return jtj, vjp(r)[0]
+
+
+def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise, shifts=None):
+    """``(std, determined)`` dicts of the answer (see :class:`LightingFit`): Gauss-Newton
+    standard deviations from ``J^T J`` of the linear-colour residual of the fitted fields at
+    the stated noise; with ``shifts`` (:func:`_geometry_effect`) the RMS shift of each field
+    under the stated normal error is added in quadrature, so that ``std`` is the RMS error
+    the image noise and the geometry's error allow together."""
+    dtype = data.target.dtype
+    layout, _ = _plain_layout(st.fit)
+    jtj, _ = _normal_equations(data, pq, colors, st)
     sd = _plausibility.parameter_std(jtj, _plausibility.noise_variance(data.target, data.weight, noise))
+    if shifts is not None:
+        ms = jnp.mean(shifts * shifts, axis=0)
+        sd = jnp.where(ms > 0, jnp.sqrt(sd * sd + ms), sd)
     std, determined = {}, {}
     for name in FIT_FIELDS:
         if name not in layout:
@@ -450,15 +579,24 @@ def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise):
     return std, determined
 
 
-def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, st: _Static):
+def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, normal_noise,
+                st: _Static):
     data = ph.prepare(image, normal, slope_var, camera, weight, horizon_gradient)
     pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
     light = ph.finish(data, pq, colors)
-    if st.space == "display":  # the reported loss is the display-space MSE over the used pixels
-        bound = _plausibility.loss_bound(shading.tonemap(data.target, st.exposure, st.tonemap), used, noise)
+    if st.geometry:
+        def prepare_at(n):
+            return ph.prepare(image, n, slope_var, camera, weight, horizon_gradient)
+
+        geometry_loss, shifts = _geometry_effect(prepare_at, normal, weight, used, pq, colors, normal_noise, st)
     else:
-        bound = _plausibility.loss_bound(data.target, data.weight, noise)
-    std, determined = _uncertainty(data, pq, colors, st, noise)
+        geometry_loss, shifts = None, None
+    if st.space == "display":  # the reported loss is the display-space MSE over the used pixels
+        bound = _plausibility.loss_bound(shading.tonemap(data.target, st.exposure, st.tonemap), used, noise,
+                                         geometry_loss)
+    else:
+        bound = _plausibility.loss_bound(data.target, data.weight, noise, geometry_loss)
+    std, determined = _uncertainty(data, pq, colors, st, noise, shifts)
     glitter = sun_energy / jnp.sum((data.weight * data.target) ** 2)
     if "sun_direction" in st.fit:
         # the sun direction is only determined where its glitter is seen: a fit that explains
@@ -468,7 +606,8 @@ def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient
     success = success & jnp.isfinite(loss) & (light.sun_elevation > 0) & (loss <= bound)
     for name in st.fit:
         success = success & determined[name]
-    return light, loss, steps, success, hist, determined, std, bound, glitter
+    geometry_loss = jnp.zeros((), loss.dtype) if geometry_loss is None else geometry_loss
+    return light, loss, steps, success, hist, determined, std, bound, glitter, geometry_loss
 
 
 _fit_jit = jax.jit(_fit_arrays, static_argnames=("st",))
@@ -532,8 +671,9 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
              structure: str = "varpro", weights="display", mask=None, exposure=1.0, tonemap: str = "bruneton",
              saturation: float | None = 0.9, space: str = "linear", horizon_gradient=0.0, max_steps: int | None = None,
              rtol: float | None = None, atol: float | None = None, grid: int = 24, n_starts: int = 2,
-             glint: bool = True, noise: float | None = None, batching: str = "vectorized", history: bool = False,
-             throw: bool = True, options: dict | None = None) -> LightingFit:
+             glint: bool = True, noise: float | None = None, normal_noise=None, normal_correlation: float = 0.0,
+             batching: str = "vectorized", history: bool = False, throw: bool = True,
+             options: dict | None = None) -> LightingFit:
     """Fit sun direction and colours to ``image`` given its ``geometry`` and ``camera``.
 
     Args:
@@ -573,6 +713,21 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
             (default, as the command line passes): noise-free up to the model's own
             consistency. It sets the success test's loss bound and the standard deviations
             of ``std`` / ``determined`` (module docstring, *Success*).
+        normal_noise: the error of ``geometry.normal`` [rad]: the standard deviation of each
+            of the two tangent components of the unit normal's error (a tilt about each
+            axis of :func:`jaxocean.shading.tangent_frame`), a number ``>= 0`` or an ``(H,
+            W)`` map. None (default): the normals are exact, and the fit is the one without
+            this argument. Given, the stated error is propagated through the shading at the
+            fitted lighting by :data:`GEOMETRY_SAMPLES` fixed draws of it (module docstring):
+            its expected residual ``geometry_loss`` is added to the image noise's in the loss
+            bound (``1.5 (noise^2 + geometry_loss) + 1e-6 x``), and its effect on the fitted
+            fields (spread and bias) to their ``std`` (so a sun the stated normal error can
+            move by more than 0.5 deg, or a colour by more than 10%, is undetermined, and the
+            fit fails, however low its loss). The fitted lighting itself is unchanged.
+        normal_correlation: the correlation length [px] of the normal errors across the image
+            (Gaussian: ``exp(-d^2 / (2 length^2))``; ``0``, the default: independent per
+            pixel). Correlated errors do not average out over the glitter: they raise
+            ``std``, not ``geometry_loss``. Only with ``normal_noise``.
         batching: how ``jax.vmap`` batches the fit: ``"vectorized"`` (default; every
             transformation works) or ``"sequential"`` (the images of a batch are fitted one
             after another inside the compiled program -- several times faster on a CPU,
@@ -595,9 +750,15 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer))
                                   and math.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
+    if not (isinstance(normal_correlation, (int, float, np.floating, np.integer))
+            and math.isfinite(normal_correlation) and normal_correlation >= 0):
+        raise ValueError(f"normal_correlation must be a finite number of pixels >= 0; got {normal_correlation!r}")
+    if normal_correlation > 0 and normal_noise is None:
+        raise ValueError("normal_correlation is the correlation of normal_noise: pass normal_noise= too")
     if not isinstance(grid, int) or grid < 0 or not isinstance(n_starts, int) or n_starts < 1:
         raise ValueError(f"grid must be an int >= 0 and n_starts an int >= 1; got {grid!r}, {n_starts!r}")
     normal, slope_var, geo_mask = _geometry_fields(geometry, image.shape[:2], dtype)
+    normal_noise_map = _normal_noise_map(normal_noise, image.shape[:2], dtype)
     if space not in ("linear", "display"):
         raise ValueError(f"space must be 'linear' or 'display'; got {space!r}")
     weight = inp.pixel_weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
@@ -605,7 +766,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     init = shading.make_lighting(dtype=dtype) if init is None else init
     shading.validate_lighting(init)
     init = jax.tree.map(lambda a: jnp.asarray(a, dtype), init)
-    traced = not is_concrete(image, normal, slope_var, weight, init, camera)
+    traced = not is_concrete(image, normal, slope_var, weight, init, camera, normal_noise_map)
     inp.check_tracing("fit.lighting", traced, throw, spec, solver)
     inp.validate_values(image, weight, geo_mask, camera, fit, used)
     # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN)
@@ -616,7 +777,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     st = _Static(fit=fit, free=free, solver=solver, structure=structure, max_steps=max_steps, rtol=rtol, atol=atol,
                  grid=int(grid), n_starts=int(n_starts), glint=bool(glint), history=bool(history),
                  options=tuple(sorted((options or {}).items())), space=space, exposure=float(exposure),
-                 tonemap=str(tonemap))
+                 tonemap=str(tonemap), geometry=normal_noise is not None, correlation=float(normal_correlation))
     hg = jnp.asarray(horizon_gradient, dtype)
     if batching not in ("vectorized", "sequential"):
         raise ValueError(f"batching must be 'vectorized' or 'sequential'; got {batching!r}")
@@ -631,28 +792,58 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
         run = _fit_jit
     t0 = time.perf_counter()
     noise_arr = jnp.asarray(0.0 if noise is None else noise, dtype)
-    light, loss, steps, success, hist, determined, std, bound, glitter = run(
-        image, normal, slope_var, camera, weight, used, hg, init, noise_arr, st=st)
+    light, loss, steps, success, hist, determined, std, bound, glitter, geometry_loss = run(
+        image, normal, slope_var, camera, weight, used, hg, init, noise_arr, normal_noise_map, st=st)
     if traced:
         wall = jnp.asarray(jnp.nan, dtype)
     else:
         jax.block_until_ready((light, loss))
         wall = jnp.asarray(time.perf_counter() - t0, dtype)
-    result = LightingFit(light, loss, steps, success, wall, hist, determined, std, bound, glitter)
+    result = LightingFit(light, loss, steps, success, wall, hist, determined, std, bound, glitter, geometry_loss)
     if throw and not bool(success):
-        raise FitError(failure_message(result, solver=solver, structure=structure, noise=noise), result)
+        raise FitError(failure_message(result, solver=solver, structure=structure, noise=noise,
+                                       normal_noise=normal_noise), result)
     return result
 
 
-def failure_message(result: LightingFit, *, solver: str = "lm", structure: str = "varpro", noise=None) -> str:
+def _normal_noise_map(normal_noise, resolution, dtype):
+    """``normal_noise`` (None, a number or an ``(H, W)`` map) as an ``(H, W)`` array (zeros
+    for None, which the fit does not read); values are checked when concrete."""
+    H, W = resolution
+    if normal_noise is None:
+        return jnp.zeros((H, W), dtype)
+    sigma = jnp.asarray(normal_noise, dtype)
+    if sigma.ndim == 0:
+        sigma = jnp.full((H, W), sigma, dtype)
+    if sigma.shape != (H, W):
+        raise ValueError(f"normal_noise must be a number or an (H, W) = {(H, W)} map; got shape {sigma.shape}")
+    if is_concrete(sigma):
+        s = np.asarray(sigma)
+        if not np.all(np.isfinite(s)) or np.any(s < 0):
+            raise InvalidValueError(f"normal_noise must be finite and >= 0 [rad]; got values in "
+                                    f"[{np.nanmin(s):g}, {np.nanmax(s):g}]")
+    return sigma
+
+
+def _noise_text(noise, normal_noise) -> str:
+    text = "noise-free" if noise is None else f"noise={noise:g}"
+    if normal_noise is None:
+        return text
+    nn = f"{normal_noise:g}" if np.ndim(normal_noise) == 0 else "a map"
+    return f"{text}, normal_noise={nn} rad"
+
+
+def failure_message(result: LightingFit, *, solver: str = "lm", structure: str = "varpro", noise=None,
+                    normal_noise=None) -> str:
     """Why a (single, concrete) :class:`LightingFit` failed, in one line: the first of a
-    non-finite loss, a residual above what the noise allows, an undetermined field (the sun
-    direction without glitter in the image, or a standard deviation above the threshold), a
-    sun below the horizon, or the solver's own test. Empty for a success."""
+    non-finite loss, a residual above what the noise (and the stated normal error) allows, an
+    undetermined field (the sun direction without glitter in the image, or a standard
+    deviation above the threshold), a sun below the horizon, or the solver's own test.
+    Empty for a success."""
     if bool(result.success):
         return ""
     loss, bound = float(result.loss), float(result.loss_bound)
-    noise_text = "noise-free" if noise is None else f"noise={noise:g}"
+    noise_text = _noise_text(noise, normal_noise)
     undetermined = [n for n in FIT_FIELDS if not bool(result.determined[n])]
     if not math.isfinite(loss):
         return f"lighting fit failed: loss {loss} is not finite (solver {solver!r}, structure {structure!r})"
@@ -744,6 +935,8 @@ def fit_to_dict(result) -> dict:
         out["std"]["sun_direction_deg"] = None if sd is None else math.degrees(sd)
         out["loss_bound"] = float(result.loss_bound)
         out["glitter"] = float(result.glitter)
+        if getattr(result, "geometry_loss", None) is not None:
+            out["geometry_loss"] = float(result.geometry_loss)
     return out
 
 
