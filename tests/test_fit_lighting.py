@@ -554,3 +554,141 @@ def test_float32_fit_recovers_lighting(scene):
     assert float(err["sun_angle_deg"]) < 0.05
     for name in fit.COLOR_FIELDS:
         assert float(err[name]) < 1e-3, (name, float(err[name]))
+
+
+# --------------------------------------------------------------------------- geometry with a stated normal error
+
+
+def _tilted(geo, sigma, seed):
+    """``geo`` with its normals tilted about their tangent axes by Gaussian draws of ``sigma``
+    [rad] per axis, independent per pixel (the error model of ``normal_noise``)."""
+    n = jnp.asarray(geo.normal)
+    t_x, t_y = shading.tangent_frame(n)
+    ab = np.random.default_rng(seed).normal(size=(2,) + n.shape[:2])
+    tilted = n + sigma * (ab[0][..., None] * t_x + ab[1][..., None] * t_y)
+    return geo._replace(normal=tilted / jnp.linalg.norm(tilted, axis=-1, keepdims=True))
+
+
+def test_gauss_newton_step_and_the_bound_with_a_geometry_term(x64):
+    from jaxocean.fit import _plausibility
+
+    rng = np.random.default_rng(1)
+    jac = rng.normal(size=(40, 4)) * np.array([1.0, 1e-2, 5.0, 0.3])
+    r = rng.normal(size=40)
+    jtj, jtr = jac.T @ jac, jac.T @ r
+    step = _plausibility.gauss_newton_step(jnp.asarray(jtj), jnp.asarray(jtr))
+    np.testing.assert_allclose(step, -np.linalg.solve(jtj, jtr), rtol=1e-8)
+    np.testing.assert_allclose(jax.jit(_plausibility.gauss_newton_step)(jnp.asarray(jtj), jnp.asarray(jtr)), step,
+                               rtol=1e-12)
+    jac[:, 1] = 0.0  # no information: that parameter does not move, the others as without it
+    step = np.asarray(_plausibility.gauss_newton_step(jnp.asarray(jac.T @ jac), jnp.asarray(jac.T @ r)))
+    keep = [0, 2, 3]
+    assert step[1] == 0.0
+    np.testing.assert_allclose(step[keep], -np.linalg.lstsq(jac[:, keep], r, rcond=None)[0], rtol=1e-8)
+    # the bound: geometry None and 0 are today's rule; a geometry term adds 1.5x itself
+    image, w = jnp.asarray(rng.uniform(size=(4, 4, 3))), jnp.ones((4, 4, 3))
+    assert float(_plausibility.loss_bound(image, w, 0.01, 0.0)) == float(_plausibility.loss_bound(image, w, 0.01))
+    assert float(_plausibility.loss_bound(image, w, 0.01, 3e-4)) == pytest.approx(
+        float(_plausibility.loss_bound(image, w, 0.01)) + 1.5 * 3e-4, rel=1e-12)
+
+
+@pytest.fixture(scope="module")
+def tilted_fits(scene):
+    """Fits of image 0 on its geometry tilted by 0.001 rad per axis (small enough against
+    this sea's glitter lobes that the stated error leaves every field determined; at 0.003
+    the sun colour is undetermined), with that error stated, in
+    two configurations: the sun fitted with the colours given (true, or 20% too bright), and
+    the colours fitted with the sun given (true, or 3 deg too high)."""
+    with jax.enable_x64(True):
+        geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][0]
+        image = jnp.asarray(scene["images"][0])
+        tilted = _tilted(geo, 0.001, seed=5)
+        kw = dict(throw=False, normal_noise=0.001)
+        sun = dict(fit=("sun_direction",), grid=0, n_starts=1, glint=False)
+        bright = truth._replace(**{n: 1.2 * getattr(truth, n) for n in fit.COLOR_FIELDS})
+        off = truth._replace(sun_elevation=truth.sun_elevation + math.radians(3.0))
+        return dict(right_sun=fit.lighting(image, tilted, camera, init=truth, **sun, **kw),
+                    colours_off=fit.lighting(image, tilted, camera, init=bright, **sun, **kw),
+                    right_colours=fit.lighting(image, tilted, camera, init=truth, fit=fit.COLOR_FIELDS, **kw),
+                    sun_off=fit.lighting(image, tilted, camera, init=off, fit=fit.COLOR_FIELDS, **kw),
+                    plain=fit.lighting(image, tilted, camera, init=truth, fit=fit.COLOR_FIELDS, throw=False),
+                    truth=truth, image=image, tilted=tilted, camera=camera, off=off)
+
+
+@pytest.mark.slow  # compiles two fit configurations with normal_noise (minutes on the loaded 2-core machine)
+def test_right_lighting_on_perturbed_geometry_passes_with_the_stated_normal_error(tilted_fits, x64):
+    f = tilted_fits
+    for name in ("right_sun", "right_colours"):
+        res = f[name]
+        assert bool(res.success), (name, fit.lighting_fit.failure_message(res, normal_noise=0.001))
+        err = fit.lighting_error(res.lighting, f["truth"])
+        assert float(err["sun_angle_deg"]) < 0.5 and max(float(err[n]) for n in fit.COLOR_FIELDS) < 0.1
+        assert float(res.geometry_loss) > 0 and float(res.loss) <= float(res.loss_bound)
+    # the image-noise-only flag fails the same fit: its residual is the geometry's, not noise
+    plain = f["plain"]
+    assert not bool(plain.success) and float(plain.loss) > float(plain.loss_bound)
+    assert float(f["right_colours"].loss) > 10 * float(plain.loss_bound)
+    assert fit.fit_to_dict(f["right_colours"])["geometry_loss"] == pytest.approx(float(f["right_colours"].geometry_loss))
+
+
+@pytest.mark.slow  # shares the fits above
+def test_wrong_lighting_on_perturbed_geometry_fails_with_the_stated_normal_error(tilted_fits, x64):
+    f = tilted_fits
+    for name in ("sun_off", "colours_off"):
+        res = f[name]
+        assert not bool(res.success), name
+        assert float(res.loss) > float(res.loss_bound), (name, float(res.loss), float(res.loss_bound))
+    with pytest.raises(fit.FitError, match=r"exceeds .*normal_noise=0.001 rad"):
+        fit.lighting(f["image"], f["tilted"], f["camera"], init=f["off"], fit=fit.COLOR_FIELDS, normal_noise=0.001)
+
+
+@pytest.mark.slow  # compiles the free fit with normal_noise
+def test_a_network_sized_normal_error_leaves_the_sun_undetermined(scene, x64):
+    # 0.084 rad per axis (reconstruct.GEOMETRY_NOISE) moves every glint of this 16^2 sea by
+    # more than its lobe: whatever sun the fit returns, the stated geometry cannot place it,
+    # and the flag says so instead of trusting a low loss
+    geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][0]
+    image = jnp.asarray(scene["images"][0])
+    res = fit.lighting(image, _tilted(geo, 0.084, seed=2), camera, throw=False, normal_noise=0.084)
+    assert not bool(res.success)
+    assert not bool(res.determined["sun_direction"])
+    assert float(res.std["sun_direction"]) > math.radians(fit.lighting_fit.DETERMINED_SUN_DEG)
+    for name in fit.FIT_FIELDS:  # no field is claimed determined and wrong
+        if bool(res.determined[name]):
+            err = fit.lighting_error(res.lighting, truth)
+            bad = float(err["sun_angle_deg"]) > 2 if name == "sun_direction" else float(err[name]) > 0.1
+            assert not bad, name
+
+
+@pytest.mark.slow  # compiles three fit configurations with normal_noise
+def test_normal_noise_jit_equals_eager_and_zero_is_the_plain_fit(scene, singles, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    image, init = jnp.asarray(scene["images"][1]), singles["inits"][1]
+    sigma = jnp.full((16, 16), 0.01, jnp.float64).at[:4].set(0.03)  # a per-pixel map
+    eager = fit.lighting(image, geo, camera, init=init, throw=False, normal_noise=sigma, normal_correlation=2.0)
+    jitted = jax.jit(lambda s: fit.lighting(image, geo, camera, init=init, throw=False, normal_noise=s,
+                                            normal_correlation=2.0))(sigma)
+    for a, b in ((eager.loss_bound, jitted.loss_bound), (eager.geometry_loss, jitted.geometry_loss),
+                 (eager.std["sun_direction"], jitted.std["sun_direction"]), (eager.std["sea_color"], jitted.std["sea_color"])):
+        np.testing.assert_allclose(a, b, rtol=1e-10)
+    assert bool(eager.success) == bool(jitted.success) and float(eager.geometry_loss) > 0
+    # normal_noise=0: the plain fit's bound, std and flag, exactly
+    zero = fit.lighting(image, geo, camera, init=init, throw=False, normal_noise=0.0)
+    plain = singles["results"][1]
+    assert float(zero.geometry_loss) == 0.0 and float(plain.geometry_loss) == 0.0
+    assert float(zero.loss_bound) == float(plain.loss_bound) and bool(zero.success) == bool(plain.success)
+    for name in fit.FIT_FIELDS:
+        np.testing.assert_array_equal(zero.std[name], plain.std[name])
+
+
+def test_normal_noise_bad_values_are_clear_errors(scene, x64):
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    image = jnp.asarray(scene["images"][0])
+    with pytest.raises(InvalidValueError, match="normal_noise must be finite and >= 0"):
+        fit.lighting(image, geo, camera, normal_noise=-0.1)
+    with pytest.raises(ValueError, match=r"normal_noise must be a number or an \(H, W\)"):
+        fit.lighting(image, geo, camera, normal_noise=np.ones((8, 8)))
+    with pytest.raises(ValueError, match="pass normal_noise= too"):
+        fit.lighting(image, geo, camera, normal_correlation=3.0)
+    with pytest.raises(ValueError, match="normal_correlation must be"):
+        fit.lighting(image, geo, camera, normal_noise=0.1, normal_correlation=-1.0)
