@@ -254,14 +254,21 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
 
 @pytest.mark.skipif(not geo.PRETRAINED_PATH.exists(), reason="the pretrained model is not built yet")
 def test_the_shipped_model_loads_and_beats_flat(key):
+    from jaxocean import radiometry
+    from jaxocean.nn import augment
+
     model = geo.load()
-    # a dataset-range scene where the model measured 0.53x flat's 1 - cos (an untrained or
-    # broken model scores >= 1x; across scenes the ratio is 0.5-1.0, NETS.md)
+    # a dataset-range scene where the model measured 0.52x flat's 1 - cos on the linear
+    # frames and 0.62x through an 8-bit Bruneton round trip with display noise 0.03 (the
+    # model trained without augmentation: 0.53x and 0.83x; an untrained or broken model
+    # scores >= 1x; across scenes the ratio is 0.5-1.0, NETS.md)
     scene = dataset.sample_scene(jax.random.key(2), dataset.SceneRanges(), (64, 64), 2)
     images, g = dataset.render_scene(scene)
-    pred = geo.predict(model, images, scene.camera)
     mask = np.asarray(g.mask, bool)
-    cos_model = np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask])
     cos_flat = np.mean((1 - np.asarray(g.normal)[..., 2])[mask])
-    assert cos_model < 0.75 * cos_flat, (cos_model, cos_flat)
-    assert "train_config" in geo.model_info()
+    noisy = augment.display_roundtrip(jax.random.key(0), images, radiometry.Response("bruneton"), 1.3, 0.03)
+    for frames, bound in ((images, 0.75), (noisy, 0.7)):
+        pred = geo.predict(model, np.asarray(frames), scene.camera)
+        cos_model = np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask])
+        assert cos_model < bound * cos_flat, (bound, cos_model, cos_flat)
+    assert geo.model_info()["train_config"]["augment"]["bits"] == 8
