@@ -11,9 +11,13 @@ hierarchical normal and roughness maps, 10 frames):
    (:func:`jaxocean.fit.waves.resolvable`: at least one cycle across the view and longer than
    the Nyquist limit of the footprint); mean absolute errors of (h, omega, theta) of the
    matched pairs against the paper's Table 2 (MLP, 60 waves: h 0.00518 m, omega 0.131
-   rad/s, theta 0.227 rad) and the targets (ten times better). Also: how many
-   resolvable waves were found, chosen count against the true count, Hs / Tp / mean
-   direction of the full sea from ``fit.spectrum`` (targets 5%, 5%, 5 deg), and time.
+   rad/s, theta 0.227 rad) on every scene, and over the *separable* true waves
+   (:func:`jaxocean.fit.waves.separable`) against a tenth of it. Also: how many resolvable
+   waves were found, the fitted count against the separable count (target <= 1.5x), the
+   fitted waves ``fit.waves`` marks determined, whether the fit succeeded and stopped by
+   its criterion (below the 96-wave cap), what the long-wave band absorbed, Hs / Tp / mean
+   direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
+   time (target 2 minutes). Geometry on the rows path (:func:`dataset_scene`).
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
    ``adam``) from the same perturbed start; loss and parameter errors against step and
@@ -50,7 +54,9 @@ from jaxocean.waves import make_waves  # noqa: E402
 
 SECTIONS = ("table2", "convergence", "speed")
 PAPER = dict(amplitude=0.00518, omega=0.131, theta=0.227)  # Table 2, MLP, 60 waves
-TARGET = dict(amplitude=5e-4, omega=0.013, theta=0.023, hs_rel=0.05, tp_rel=0.05, dir_deg=5.0)
+# separable waves (every scene), sea state, the count against what the window separates, time
+TARGET = dict(amplitude=5e-4, omega=0.013, theta=0.023, hs_rel=0.10, tp_rel=0.10, dir_deg=10.0,
+              fitted_over_separable=1.5, time_s=120.0)
 NAME = "wave_fit"
 MAX_WAVES = 96  # fit.waves' default cap: a fit that stops below it stopped by its criterion
 
@@ -199,12 +205,27 @@ def table2_summary(rows) -> dict:
     s["found_fraction"] = matched / max(resolvable, 1)
     s["scenes"] = len(rows)
     s["success"] = sum(r["success"] for r in rows)
-    s["met"] = dict(amplitude=s["mae_amplitude"]["mean"] <= TARGET["amplitude"],
-                    omega=s["mae_omega"]["mean"] <= TARGET["omega"],
-                    theta=s["mae_theta"]["mean"] <= TARGET["theta"],
+    s["stopped_by_criterion"] = sum(r.get("stopped_by_criterion", r["n_fitted"] < MAX_WAVES) for r in rows)
+    s["fitted_over_separable"] = agg("fitted_over_separable") if all("fitted_over_separable" in r for r in rows) \
+        else None
+
+    def every(key, bound):
+        return all(r[key] <= bound for r in rows)
+
+    # the issue's targets, scene by scene: every resolvable wave better than the paper's
+    # Table 2, the separable ones within a tenth of it, the count within 1.5x of the
+    # separable waves, and the time
+    s["met"] = dict(success=s["success"] >= (7 * len(rows)) / 8,
+                    paper_h=every("mae_amplitude", PAPER["amplitude"]), paper_omega=every("mae_omega", PAPER["omega"]),
+                    paper_theta=every("mae_theta", PAPER["theta"]),
+                    separable_h=every("mae_amplitude_separable", TARGET["amplitude"]),
+                    separable_omega=every("mae_omega_separable", TARGET["omega"]),
+                    separable_theta=every("mae_theta_separable", TARGET["theta"]),
+                    count=every("fitted_over_separable", TARGET["fitted_over_separable"]),
                     hs=s["hs_rel_error"]["max"] <= TARGET["hs_rel"],
                     tp=s["tp_rel_error"]["max"] <= TARGET["tp_rel"],
-                    direction=s["dir_error_deg"]["max"] <= TARGET["dir_deg"]) if rows else {}
+                    direction=s["dir_error_deg"]["max"] <= TARGET["dir_deg"],
+                    time=s["time_s"]["max"] <= TARGET["time_s"]) if rows else {}
     return s
 
 
@@ -222,11 +243,12 @@ def plot_table2(rows):
         ax.set_xlabel("scene")
     axes[0].legend(fontsize=7)
     ax = axes[3]
-    ax.scatter([r["n_resolvable"] for r in rows], [r["n_matched"] for r in rows], label="matched")
-    ax.scatter([r["n_resolvable"] for r in rows], [r["n_fitted"] for r in rows], marker="x", label="fitted")
+    ax.scatter([r["n_separable"] for r in rows], [r["n_resolvable"] for r in rows], label="resolvable (true)")
+    ax.scatter([r["n_separable"] for r in rows], [r["n_fitted"] for r in rows], marker="x", label="fitted")
     lim = max([r["n_resolvable"] for r in rows] + [r["n_fitted"] for r in rows]) + 2
     ax.plot([0, lim], [0, lim], "k:", lw=1)
-    ax.set_xlabel("resolvable true waves")
+    ax.plot([0, lim / 1.5], [0, lim], "r:", lw=1, label="1.5x separable")
+    ax.set_xlabel("separable true waves")
     ax.set_ylabel("count")
     ax.set_title("order selection")
     ax.legend(fontsize=7)

@@ -283,7 +283,10 @@ def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
 
 def _m_and_floor(normals, c):
     m = 2.0 * float(jnp.sum(_inputs.valid_weights(normals, c)))
-    return m, (200 * float(jnp.finfo(normals.dtype).eps)) ** 2
+    # the default floor: the per-component sigma whose mean angle is the noise-free success bound
+    floor = fw.NORMAL_ERROR_FLOOR / (fw.NOISE_FACTOR * np.sqrt(np.pi / 2))
+    assert _select.DEFAULT_NOISE_FLOOR == pytest.approx(floor)
+    return m, floor ** 2
 
 
 def test_aic_selects_the_count_by_its_formula(ortho_scene):
@@ -438,10 +441,16 @@ def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ort
     with_band, _ = ortho_fit
     without = fw.waves(normals, rough, c, TIMES, long_waves=False)
     assert int(with_band.n_waves) == int(without.n_waves) == 3
-    for leaf in ("amplitude", "omega", "theta"):
-        np.testing.assert_allclose(getattr(with_band.waves, leaf), getattr(without.waves, leaf), atol=1e-5)
-    # the band holds (next to) nothing when nothing is longer than the view
-    assert float(with_band.long_waves.slope_variance) < 1e-9
+    # the same waves; the band, whose shortest member (11 m) is 1.4x the longest wave (7.9 m),
+    # shares a fraction of that wave's slope at the refinement's stopping point: 0.5% of its
+    # amplitude measured, 1% allowed
+    for leaf, tol in (("amplitude", 3e-4), ("omega", 2e-3), ("theta", 2e-3)):
+        np.testing.assert_allclose(getattr(with_band.waves, leaf), getattr(without.waves, leaf), atol=tol)
+    # the band holds next to nothing when nothing is longer than the view: below 1e-4 of the
+    # sea's slope variance (measured 1e-5)
+    k = np.asarray(truth.omega) ** 2 / GRAVITY
+    sea_var = float(np.sum((k * np.asarray(truth.amplitude)) ** 2) / 2)
+    assert float(with_band.long_waves.slope_variance) < 1e-4 * sea_var
     assert without.long_waves is None
     with pytest.raises(ValueError, match="long_waves"):
         fw.waves(normals, rough, c, TIMES, solver="lm")

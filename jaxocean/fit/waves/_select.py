@@ -228,7 +228,7 @@ def _kvec(om, th):
 def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | str | None = None,
           net=None, net_threshold: float = 0.5,
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
-          noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=0.0,
+          noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
           n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
@@ -265,6 +265,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       candidate may become a wave (closer than 0.7 of the whole image's wave-vector
       resolution to a model wave excepted), no band.
     * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
+    * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
+      loss on an accepted step; absolute loss). ``atol`` None: ``noise_floor^2 / 1000`` (or
+      ``noise^2 / 1000``), a mean squared normal residual per component a thousandth of the
+      noise the criterion believes in: past it the fit explains the data 30 times better
+      than asked, and the long-wave band's nearly collinear amplitudes would keep a
+      float32 refinement crawling for hundreds of steps.
     * ``throw``: raise :class:`jaxocean.fit.solvers.FitError` (carrying the result) whenever
       ``success`` is False -- the final refinement did not converge, the selection stopped at
       ``max_waves``, or the fit leaves a mean normal error above :func:`normal_error_bound`
@@ -293,6 +299,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     check_values(np.asarray(separation) >= 0, "separation must be >= 0 (Rayleigh limits)", separation)
     dtype = normals.dtype
     floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
+    if atol is None:
+        # the loss 0.5 mean |dn_xy|^2 is the per-component mean square residual
+        atol = (floor2 if noise is None else float(noise) ** 2) / 1000.0
     H = camera.resolution[0]
     tail_rows = jnp.zeros(H, dtype)
     rw = 0.0 if roughness is None else float(roughness_weight)
