@@ -121,3 +121,22 @@ def test_steep_waves_are_capped_and_reported():
     np.testing.assert_allclose(kh, [rc.MAX_STEEPNESS, 0.01 * 1.0 / 9.81], rtol=1e-5)
     same, none = rc._cap_steepness(jo.make_waves([0.01], [1.0], [0.0]), why)
     assert none == 0 and len(why) == 1
+
+
+@pytest.mark.slow  # compiles the lighting fit with a stated normal error
+def test_lighting_stage_states_the_network_error_and_says_why_it_fails(tmp_path):
+    from jaxocean import render as rd
+
+    files, scene_json, _, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    waves = jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0])
+    geos = [rd.geometry(waves, seq.camera, t) for t in times]
+    stack = rc._Geo(*(np.stack([np.asarray(getattr(g, f)) for g in geos])
+                      for f in ("normal", "roughness", "slope_variance", "mask")))
+    result, rep = rc.lighting_stage(seq, stack, overcast=False)
+    assert rep.details["normal_noise_rad"] == rc.GEOMETRY_NOISE
+    assert rep.details["normal_correlation_px"] == pytest.approx(rc.GEOMETRY_CORRELATION * 32)
+    assert rep.details["geometry_loss"] > 0
+    # the sun is behind the camera (azimuth 2.5 rad): its direction cannot be determined, and
+    # the stage says so in the fit's own words
+    assert not rep.success and "sun direction undetermined" in rep.message
