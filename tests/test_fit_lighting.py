@@ -289,6 +289,7 @@ def test_parameter_std_is_the_delta_method_and_infinite_without_information(x64)
                                                * 0.01), rtol=1e-6)
 
 
+@pytest.mark.slow  # vmapped batch of fits (about a minute on one worker)
 def test_batched_fit_equals_single_fits(scene, singles, x64):
     geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
     inits = jax.tree.map(lambda *xs: jnp.stack(xs), *singles["inits"])
@@ -317,6 +318,7 @@ def test_colours_alone_are_a_linear_solve(scene, x64):
         np.testing.assert_allclose(getattr(res.lighting, name), getattr(truth, name), rtol=1e-10)
 
 
+@pytest.mark.slow  # differentiates through whole fits (about a minute)
 def test_gradient_through_a_fit_matches_finite_differences(scene, singles, x64):
     """d(fitted lighting)/d(image) by the implicit adjoint against central differences; the
     forward evaluations reuse the compiled program of the single fits."""
@@ -423,6 +425,7 @@ def _start(camera, height, pitch):
                                pitch=jnp.asarray(pitch, camera.pitch.dtype))
 
 
+@pytest.mark.slow  # two camera-fit stages on the hits path
 def test_camera_fit_coarse_to_fine_from_an_offset_start(x64):
     # 16^2, waves to 30 wp: the default levels (4, 2, 1) and start search find the camera
     # from 8% / 0.02 rad off (the demo scene's start, at test size)
@@ -433,6 +436,7 @@ def test_camera_fit_coarse_to_fine_from_an_offset_start(x64):
     assert res.history is None
 
 
+@pytest.mark.slow  # joint camera + lighting fit (about a minute)
 def test_camera_fit_jointly_with_the_lighting(x64):
     # camera and lighting together from an offset camera and sun: both recovered, the
     # colours solved in closed form at the fitted geometry

@@ -163,6 +163,7 @@ def test_training_resumes_to_the_uninterrupted_result(tiny_dataset, tmp_path):
     assert model.config == TINY
 
 
+@pytest.mark.slow  # compiles the four discriminators' alternating step
 def test_gan_step_updates_networks_and_discriminators(tiny_dataset):
     config = TINY_TRAIN._replace(losses="image+gan")
     state = gt.init_state(config, jax.random.key(0))
@@ -175,6 +176,7 @@ def test_gan_step_updates_networks_and_discriminators(tiny_dataset):
         assert any(moved)
 
 
+@pytest.mark.slow  # a subprocess with two CPU devices compiles the step twice
 def test_sharded_step_equals_the_single_device_step(tiny_dataset, tmp_path):
     script = textwrap.dedent(f"""
         import jax, numpy as np

@@ -228,6 +228,7 @@ def test_one_pass_jacobian_equals_autodiff_of_the_fixed_point_map(x64):
             np.testing.assert_allclose(np.stack([jx[i, j], jy[i, j]], -1), jac, rtol=1e-10, atol=1e-12)
 
 
+@pytest.mark.slow  # compiles the hit loop twice in float64
 def test_compacting_the_loop_changes_the_cost_not_the_hits(x64, monkeypatch):
     # the loop gathers the points still moving into smaller buffers; with compaction off
     # (one level) every hit and flag is the same, to float rounding
