@@ -76,9 +76,11 @@ EVIDENCE_WIDTH = 320
 #: display values at or below this are black (the bottom code of an 8-bit file): masked
 BLACK_LEVEL = 0.5 / 255
 #: the shipped geometry network's error per normal component (x, y), the noise the wave fit
-#: is told: its mean angle error on the held-out test split of its dataset is 0.105 rad,
-#: i.e. sigma = 0.105 / sqrt(pi / 2) per component for a Gaussian error (experiments/NETS.md)
-GEOMETRY_NOISE = 0.084
+#: is told: its mean angle error on the held-out test split of its dataset, given as 8-bit
+#: Bruneton-tone-mapped frames with display noise sigma 0-0.01 (what this pipeline reads), is
+#: 0.113-0.115 rad, i.e. sigma = 0.115 / sqrt(pi / 2) per component for a Gaussian error
+#: (experiments/NETS.md)
+GEOMETRY_NOISE = 0.092
 #: the correlation length of that error, as a fraction of the view's width: the network's
 #: normal errors are smooth (their autocorrelation on 4 dataset scenes at 128^2 is 0.24-0.55
 #: at 8 px and 0.13-0.45 at 16 px), and errors taken as independent average out over the
