@@ -68,7 +68,8 @@ __all__ = ["main", "build_parser"]
 EXIT_OK, EXIT_PROBLEMS, EXIT_INPUT, EXIT_INTERRUPTED = 0, 1, 2, 130
 
 
-_FLOAT32_HELP = "store R G B as float32 instead of half floats (the geometry is float32 always)"
+_FLOAT32_HELP = ("store R G B as float32 instead of half floats, every channel exact (half-float dataset "
+                 "frames keep their float32 geometry to 24 bits, PXR24)")
 _OUT_DIR_NOTE = ("The output directory holds one scene: rendering into a directory that holds a previous one "
                  "replaces its files (frame_*.exr / .png, normal_00000.png, roughness_00000.png, scene.json; "
                  "frames beyond the new count are removed) and leaves every other file alone.")
