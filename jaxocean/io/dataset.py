@@ -39,7 +39,7 @@ stored, which is what the geometry networks and the wave fits consume.
 Storage. A frame whose R G B are half floats (the default) is written with OpenEXR's PXR24
 compression: lossless for the half channels, and the float32 geometry channels rounded to
 24 bits (relative 2^-16 ~ 1.5e-5, far below any fit's noise floor). That halves the disk
-(128^2: 123 KB a frame against 226 KB with ZIP; ``experiments/bench_dataset.py``) at the
+(128^2 dataset frames: 154 KB against 244 KB with ZIP, ``experiments/bench_dataset.py``) at the
 cost of bit-exactness: shading a loaded frame's geometry reproduces its half-float image to
 within 1.3x the half rounding (measured on 6 default scenes at 128^2: largest relative
 difference 6.2e-4 against the half rounding's 4.9e-4, on 1 pixel in 16,000). Frames
