@@ -50,7 +50,8 @@ step of 6e-8, and values above 65504 would become inf, so :func:`write_frame` re
 (lossless) is the default; any OpenEXR compression can be named (``"none"``, ``"piz"``,
 ``"zstd"``, ...; ``"pxr24"``, ``"b44"``, ``"dwaa"`` ... are lossy). ``"pxr24"`` keeps the
 half channels exact and rounds float32 ones to 24 bits (relative 2^-16): datasets use it for
-their half-float frames (:mod:`jaxocean.io.dataset`, "Storage"), at 0.54-0.63x the size of ZIP (measured on 128^2 dataset frames).
+their half-float frames (:mod:`jaxocean.io.dataset`, "Storage"), at 0.54-0.63x the size of
+ZIP (measured on 128^2 dataset frames).
 
 Metadata. ``meta`` is a small flat dict (scene id, frame index, time, ...) stored as header
 attributes named ``"jaxocean.<key>"``: a ``str`` as a string attribute, an ``int`` as a
