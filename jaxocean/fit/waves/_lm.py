@@ -170,10 +170,12 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     # wave's amplitude)
     ridge = BAND_RIDGE * (held & active).astype(dtype) * jnp.exp(4.0 * unpack(y0, n)[2]) / GRAVITY ** 2  # k^2
 
-    def f(y):
+    def prior(y):
         P = unpack(y, n)
-        prior = 0.5 * jnp.sum(ridge * (P[0] ** 2 + P[1] ** 2))
-        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max) + prior
+        return 0.5 * jnp.sum(ridge * (P[0] ** 2 + P[1] ** 2))
+
+    def f(y):
+        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max) + prior(y)
 
     f0 = f(y0)
     jtj0, jtr0 = normal_eq(y0)
@@ -223,14 +225,14 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         # a loss at the absolute floor, or damping so large that no step can help
         rel = jnp.abs(actual) <= rtol * jnp.maximum(s.f, eps)
         small = jnp.max(jnp.abs(step) / (jnp.abs(s.y) + 1.0)) < xtol
-        floor = fv <= atol
+        floor = fv - prior(y) <= atol  # the data term: the ridge is no misfit
         stalled = lam > 1e12
         conv = (accept & rel) | small | floor | stalled
         hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
         return S(y, fv, jtj, jtr, lam, nu, s.k + 1, conv | ~jnp.isfinite(fv), conv & jnp.isfinite(fv), hist)
 
     s0 = S(y0, f0, jtj0, jtr0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32),
-           f0 <= atol, f0 <= atol, hist0)
+           f0 - prior(y0) <= atol, f0 - prior(y0) <= atol, hist0)
     s = jax.lax.while_loop(cond, body, s0)
     success = s.conv & jnp.isfinite(s.f) & jnp.all(jnp.isfinite(s.y))
     return _LMOut(s.y, s.f, s.k, success, s.jtj, s.hist)
