@@ -157,6 +157,7 @@ def test_a_converged_fit_that_does_not_explain_the_data_is_reported_failed():
     assert fw.normal_error_bound(0.01) == pytest.approx(1.5 * np.sqrt(np.pi / 2) * 0.01)
 
 
+@pytest.mark.slow  # vmapped refinement of several scenes
 def test_refine_maps_over_scenes_with_vmap(ortho_scene):
     c, truth, normals, rough = ortho_scene
     init = truth._replace(amplitude=truth.amplitude * 0.95)
@@ -234,6 +235,7 @@ def test_wave_uncertainty_is_positive_when_the_normal_matrix_is_near_singular():
         assert np.all(np.isfinite(np.asarray(leaf))) and np.all(np.asarray(leaf) > 0)
 
 
+@pytest.mark.slow  # differentiates through whole fits in float64 (a minute or more)
 def test_gradients_through_a_fit_match_finite_differences(x64):
     # d(fitted amplitude) / d(observed normals) through the "lm" solver's implicit adjoint,
     # against central differences of the whole fit along random tangent directions
@@ -299,6 +301,7 @@ def test_aic_selects_the_count_by_its_formula(ortho_scene):
     assert np.all(np.diff(sel.criterion[sel.accepted]) < 0)
 
 
+@pytest.mark.slow  # a full fit with the holdout criterion
 def test_holdout_criterion_scores_the_held_out_frame(ortho_scene):
     c, truth, normals, rough = ortho_scene
     fit, sel = fw.waves(normals, rough, c, TIMES, criterion="holdout", return_selection=True)
