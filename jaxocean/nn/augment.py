@@ -91,7 +91,7 @@ def display_roundtrip(key, linear, response: radiometry.Response, exposure=1.0, 
     quantised -> radiance relative to the exposure, as ``reconstruct`` loads it.
 
     ``response`` is static; ``exposure`` and ``noise`` may be traced scalars. ``key`` draws
-    the noise (unused when ``noise`` is a concrete 0)."""
+    the noise (drawn always, scaled by ``noise``: 0 adds nothing)."""
     linear = jnp.asarray(linear, jnp.float32)
     display = radiometry.to_display(linear, response, exposure)
     display = display + noise * jax.random.normal(key, linear.shape, linear.dtype)
