@@ -19,8 +19,9 @@ a per-frame quadratic elevation (5 coefficients a frame, 50 for 10 frames) remov
 a factor 3 of it, the default band (4 x 12 wave vectors, 96 coefficients for the whole
 sequence) a factor 10-60 in a linear least-squares probe.
 
-Protocol: :func:`band_waves` builds the band ``Waves (B,)`` (zero amplitude) for a camera;
-:func:`summary` turns fitted band waves into a :class:`LongWaveBand` (what the band absorbed).
+Protocol: :func:`view_diameter` gives a camera's view diameter ``D``; :func:`band_waves`
+builds the band ``Waves (B,)`` (zero amplitude) for it; :func:`summary` turns fitted band
+waves into a :class:`LongWaveBand` (what the band absorbed).
 Lengths in metres, angles in radians, frequencies in rad/s.
 """
 
@@ -69,11 +70,11 @@ def view_diameter(camera) -> float:
     return float(max(np.hypot(*np.ptp(xy, axis=0)), 1e-6))
 
 
-def band_waves(camera, dtype, *, n_wavelengths: int = N_WAVELENGTHS, n_directions: int = N_DIRECTIONS,
+def band_waves(diameter: float, dtype, *, n_wavelengths: int = N_WAVELENGTHS, n_directions: int = N_DIRECTIONS,
                shortest: float = SHORTEST, longest: float = LONGEST) -> Waves:
-    """The band's ``n_wavelengths x n_directions`` waves (zero amplitude) for ``camera``."""
-    d = view_diameter(camera)
-    lam = np.geomspace(shortest * d, longest * d, n_wavelengths)
+    """The band's ``n_wavelengths x n_directions`` waves (zero amplitude) for a view of
+    ``diameter`` [m] (:func:`view_diameter`)."""
+    lam = np.geomspace(shortest * diameter, longest * diameter, n_wavelengths)
     om = np.sqrt(GRAVITY * 2 * math.pi / lam)
     th = np.linspace(-math.pi, math.pi, n_directions, endpoint=False) + math.pi / n_directions
     O, Th = np.meshgrid(om, th, indexing="ij")
@@ -81,12 +82,12 @@ def band_waves(camera, dtype, *, n_wavelengths: int = N_WAVELENGTHS, n_direction
     return Waves(zero, jnp.asarray(O.ravel(), dtype), jnp.asarray(Th.ravel(), dtype), zero)
 
 
-def summary(band: Waves, normals_of_band, weight, camera) -> LongWaveBand:
+def summary(band: Waves, normals_of_band, weight, diameter: float) -> LongWaveBand:
     """:class:`LongWaveBand` of fitted band waves; ``normals_of_band (T, H, W, 3)`` are the
     band's own normals (the forward model of ``band`` alone), ``weight (T, H, W)`` the valid
-    sea pixel-frames."""
+    sea pixel-frames, ``diameter`` [m] the view diameter the band was built for."""
     nxy = normals_of_band[..., :2]
     wsum = jnp.maximum(jnp.sum(weight, axis=(1, 2)), 1.0)  # (T,)
     var = jnp.sum(jnp.sum(nxy * nxy, -1) * weight) / jnp.maximum(jnp.sum(weight), 1.0)
     tilt = jnp.sum(nxy * weight[..., None], axis=(1, 2)) / wsum[:, None]
-    return LongWaveBand(band, var, tilt, jnp.asarray(view_diameter(camera), nxy.dtype))
+    return LongWaveBand(band, var, tilt, jnp.asarray(diameter, nxy.dtype))

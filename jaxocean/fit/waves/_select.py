@@ -29,7 +29,7 @@ from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAM
                                     maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle
-from jaxocean.fit.waves._band import band_waves, summary as band_summary
+from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
 from jaxocean.waves import GRAVITY, Waves, validate
@@ -318,7 +318,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     total_steps = 0
 
     # the long-wave band (fitted amplitudes carried from one accepted model to the next)
-    band = band_waves(camera, dtype) if long_waves else None
+    diameter = view_diameter(camera) if long_waves else None
+    band = band_waves(diameter, dtype) if long_waves else None
     n_band = 0 if band is None else band.omega.shape[0]
 
     def with_band(w: Waves, band_: Waves | None):
@@ -598,7 +599,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     absorbed = None
     if best["band"] is not None:
         band_normals, _ = predict_jit(best["band"], camera, times, n_min, n_max)
-        absorbed = band_summary(best["band"], band_normals, valid_weights(normals, camera), camera)
+        absorbed = band_summary(best["band"], band_normals, valid_weights(normals, camera), diameter)
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
                              success=jnp.asarray(result.success) & (not capped) & (not unexplained),
                              determined=separable(result.waves, camera, times, n_max=n_max), long_waves=absorbed)
