@@ -420,7 +420,9 @@ def long_wave_sea():
 def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     c = ortho()
     truth = long_wave_sea()
-    normals, rough = fw.predict(truth, c, TIMES)
+    # the sea as a camera sees it: the normals at each pixel's hit on the displaced surface
+    # (the swell moves the hits); the default fit switches to that model
+    normals, rough = fw.predict(truth, c, TIMES, refine=_model.HITS)
     resolvable = fw.resolvable(truth, c)
     assert resolvable.tolist() == [True, True, True, False, False]
     fit = fw.waves(normals, rough, c, TIMES)
@@ -431,12 +433,53 @@ def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     assert int(fit.n_waves) <= 1.5 * resolvable.sum()
     assert np.max(m.abs_error.amplitude) < 2e-3 and np.max(m.abs_error.omega) < 2e-2
     # the band absorbed the long waves: its slope variance over the window is theirs
-    long_normals, _ = fw.predict(jax.tree.map(lambda x: x[3:], truth), c, TIMES)
+    long_normals, _ = fw.predict(jax.tree.map(lambda x: x[3:], truth), c, TIMES, refine=_model.HITS)
     long_var = float(jnp.mean(jnp.sum(long_normals[..., :2] ** 2, -1)))
     assert fit.long_waves is not None
     assert float(fit.long_waves.slope_variance) == pytest.approx(long_var, rel=0.1)
     assert fit.long_waves.frame_slope.shape == (TIMES.size, 2)
     assert fit.determined[m.fit_index].all()
+    # the rows-path model cannot explain what the hits show: forced onto it, the same fit
+    # leaves several times the error (and would need more waves)
+    rows = fw.refine(normals, rough, c, TIMES, truth, max_steps=1, surface="rows")
+    hits = fw.refine(normals, rough, c, TIMES, truth, max_steps=1, surface="hits")
+    assert float(hits.normal_error) < 1e-5 < 1e-4 < float(rows.normal_error)
+
+
+def test_the_moving_hit_jacobian_is_the_derivative_of_the_hits_model(x64):
+    # the structured Jacobian on the hits path (the hit moves with the waves, implicit
+    # function theorem) against forward-mode autodiff through render's converged hits
+    c = persp()
+    truth = Waves(*(jnp.asarray(x, jnp.float64) for x in long_wave_sea()))
+    times = jnp.asarray(TIMES[:2], jnp.float64)
+    n = truth.omega.shape[0]
+    y = _model.pack(truth)
+    pred = _model.predict_jit(truth, c, times, 1.0, 1.5, _model.HITS)
+    wt = pred.converged.astype(jnp.float64)
+    smp = _inputs.all_samples(jnp.zeros(pred.xy.shape, jnp.float64), wt, times, c, 1.0, pred.xy)
+    _, J = _model.jacobian(y.reshape(4, n), jnp.ones(n), smp, 1.0, 1.5, moving=True)
+    _, J_still = _model.jacobian(y.reshape(4, n), jnp.ones(n), smp, 1.0, 1.5)
+
+    def normals_xy(yy):
+        p = _model.predict_jit(_model.to_waves(yy, n), c, times, 1.0, 1.5, _model.HITS)
+        return (p.normal[..., :2] * wt[..., None]).reshape(-1)
+
+    J_ad = np.asarray(jax.jacfwd(normals_xy)(y))
+    scale = np.abs(J_ad).max(0)
+    assert np.abs(np.asarray(J) - J_ad).max(0).max() <= 1e-9 * scale.max()
+    # holding the hits still is off by a tenth or more of the largest derivative
+    assert (np.abs(np.asarray(J_still) - J_ad).max(0) / scale).max() > 0.1
+
+
+def test_surface_is_checked():
+    c, truth = ortho(), few_waves()
+    normals, rough = fw.predict(truth, c, TIMES)
+    with pytest.raises(ValueError, match="surface must be one of"):
+        fw.waves(normals, rough, c, TIMES, surface="displaced")
+    with pytest.raises(ValueError, match="needs solver='structured'"):
+        fw.waves(normals, rough, c, TIMES, surface="hits", solver="lm", long_waves=False)
+    with pytest.raises(ValueError, match="needs solver='structured'"):
+        fw.refine(normals, rough, c, TIMES, truth, surface="hits", solver="lm")
 
 
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):

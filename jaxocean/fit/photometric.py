@@ -415,7 +415,7 @@ def _frame_jacobian(y, i, d: _Data, st: _Static):
     hit = cam.intersect_sea(d.camera)
     samples = Samples(t=jnp.full((S,), t, dtype), xy=hit.xy.reshape(S, 2),
                       fp=jnp.broadcast_to(hit.footprint[:, W // 2][:, None], (H, W)).reshape(S),
-                      target=jnp.zeros((S, 2), dtype), sw=jnp.ones((S,), dtype))
+                      target=jnp.zeros((S, 2), dtype), sw=jnp.ones((S,), dtype), ray=jnp.zeros((S, 2), dtype))
     _, jn = wave_jacobian(y[:4 * n].reshape(4, n), jnp.ones(n, dtype), samples, hierarchy.DEFAULT_N_MIN,
                           hierarchy.DEFAULT_N_MAX)
     jn = jn.reshape(H, W, 2, 4 * n) * hit.mask[..., None, None]

@@ -125,25 +125,33 @@ def plane_hits(camera):
 
 class Samples(NamedTuple):
     """Pixel-frames as flat samples ``(M, ...)``: time, rest position, row footprint,
-    observed normal x, y (or residual slopes), and the sqrt of the residual weight."""
+    observed normal x, y (or residual slopes), the sqrt of the residual weight, and the
+    pixel ray's horizontal run per unit height ``(M, 2)`` (what moves a hit with the surface)."""
 
     t: jax.Array
     xy: jax.Array
     fp: jax.Array
     target: jax.Array
     sw: jax.Array
+    ray: jax.Array
 
 
-def all_samples(normals_xy, weight, times, camera, scale=1.0) -> Samples:
-    """Every pixel-frame as a sample; ``normals_xy (T, H, W, 2)``."""
+def all_samples(normals_xy, weight, times, camera, scale=1.0, positions=None) -> Samples:
+    """Every pixel-frame as a sample; ``normals_xy (T, H, W, 2)``; ``positions (T, H, W, 2)``
+    the rest position each pixel-frame sees (None: the plane hits, the rows path's)."""
     T, H, W = weight.shape
     xy, fp_row, _ = plane_hits(camera)
+    xy = jnp.broadcast_to(xy[None], (T, H, W, 2)) if positions is None else positions
+    hit = cam.intersect_sea(camera)
+    down = jnp.minimum(hit.direction[..., 2:], -1e-6)  # sky rays carry no weight
+    run = jnp.where(hit.mask[..., None], hit.direction[..., :2] / down, 0.0)
     return Samples(
         t=jnp.broadcast_to(times[:, None, None], (T, H, W)).reshape(-1),
-        xy=jnp.broadcast_to(xy[None], (T, H, W, 2)).reshape(-1, 2),
+        xy=xy.reshape(-1, 2),
         fp=jnp.broadcast_to(fp_row[None, :, None], (T, H, W)).reshape(-1),
         target=normals_xy.reshape(-1, 2),
         sw=jnp.sqrt(weight * scale).reshape(-1),
+        ray=jnp.broadcast_to(run[None], (T, H, W, 2)).reshape(-1, 2),
     )
 
 
@@ -172,5 +180,5 @@ def chunked(s: Samples, size: int) -> Samples:
         return x.reshape((c, size) + x.shape[1:])
 
     # padding: zero weight, a unit footprint (nothing divides by zero)
-    return Samples(rs(s.t, 0.0), rs(s.xy, 0.0), rs(s.fp, 1.0), rs(s.target, 0.0), rs(s.sw, 0.0))
+    return Samples(rs(s.t, 0.0), rs(s.xy, 0.0), rs(s.fp, 1.0), rs(s.target, 0.0), rs(s.sw, 0.0), rs(s.ray, 0.0))
 

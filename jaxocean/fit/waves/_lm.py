@@ -23,8 +23,8 @@ from jaxocean._math import safe_sqrt
 from jaxocean.errors import is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chunked, clean_inputs, subsample,
                                         valid_weights)
-from jaxocean.fit.waves._model import (bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
-                                       rough_data, rough_residual, to_waves, unpack)
+from jaxocean.fit.waves._model import (ROWS, bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
+                                       rough_data, rough_residual, surface_refine, to_waves, unpack)
 from jaxocean.waves import GRAVITY, Waves, validate
 
 
@@ -88,14 +88,14 @@ def _chunk_size(n_pad):
     return int(max(64, min(8192, _CHUNK_FLOATS // (30 * max(n_pad, 1)))))
 
 
-def _gauss_newton(y, active, chunks: Samples, n_min, n_max):
-    """``J^T J`` over the (sub)sampled chunks."""
+def _gauss_newton(y, active, chunks: Samples, n_min, n_max, moving=False):
+    """``J^T J`` over the (sub)sampled chunks (``moving``: at hits that move with the waves)."""
     n = active.shape[0]
     P = unpack(y, n)
     act = active.astype(y.dtype)
 
     def body(jtj, ch):
-        _, J = jacobian(P, act, ch, n_min, n_max)
+        _, J = jacobian(P, act, ch, n_min, n_max, moving)
         return jtj + J.T @ J, None
 
     jtj, _ = jax.lax.scan(body, jnp.zeros((4 * n, 4 * n), y.dtype), chunks)
@@ -114,12 +114,12 @@ class _LMOut(NamedTuple):
     history: jax.Array
 
 
-def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max):
+def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max, refine):
     """``0.5 |r|^2`` through ``render.geometry`` (normals) plus the roughness rows."""
     n = active.shape[0]
     w = to_waves(y, n)
     w = w._replace(amplitude=w.amplitude * active)
-    n_pred, _ = predict_jit(w, camera, times, n_min, n_max)
+    n_pred = predict_jit(w, camera, times, n_min, n_max, refine).normal
     d = (n_pred[..., :2] - normals[..., :2])
     half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
     rr = rough_residual(y, active, rough, tail_rows, n_min, n_max)
@@ -133,7 +133,7 @@ def _hessian_samples(n_pad: int, m_total: int) -> int:
 
 
 def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
-                   max_steps, rtol, atol, hessian_samples, history_len, xtol=1e-7):
+                   max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, xtol=1e-7):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
@@ -141,21 +141,31 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     accept test uses the exact loss through ``render.geometry``, so an approximate
     ``J^T J`` only slows convergence near the optimum, it does not move it. ``held (N,)``:
     waves whose ``log omega`` and ``theta`` stay fixed (only their ``a, b`` are fitted).
+    ``refine``: the forward model's path (``ROWS`` or ``HITS``); on the hits path ``J^T J``
+    is taken at the current hits, with their motion (:func:`jacobian`'s ``moving``).
     """
     n = active.shape[0]
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
     size = _chunk_size(n)
     sub = subsample(samples, hessian_samples)
-    sub_chunks = chunked(sub, size)
     ratio = jnp.sum(samples.sw ** 2) / jnp.maximum(jnp.sum(sub.sw ** 2), 1e-30)
+
+    def hessian_chunks(y):
+        if refine == ROWS:
+            return chunked(sub, size)
+        w = to_waves(y, n)
+        xy = predict_jit(w._replace(amplitude=w.amplitude * active), camera, times, n_min, n_max, refine).xy
+        return chunked(subsample(all_samples(normals[..., :2], weight, times, camera, scale, xy), hessian_samples),
+                       size)
     act4 = jnp.concatenate([active, active, active & ~held, active & ~held])
     dtype = y0.dtype
 
     def normal_eq(y):
         # the exact gradient of the very loss the accept test uses (reverse mode through
-        # render.geometry's rank-N rows path), J^T J from the structured subsample
+        # render.geometry: the rank-N rows path, or the converged hits with their implicit
+        # derivative), J^T J from the structured subsample
         jtr = jax.grad(f)(y)
-        jtj = _gauss_newton(y, active, sub_chunks, n_min, n_max) * ratio
+        jtj = _gauss_newton(y, active, hessian_chunks(y), n_min, n_max, refine != ROWS) * ratio
         _, jr = jax.linearize(lambda yy: rough_residual(yy, active, rough, tail_rows, n_min, n_max), y)
         Jr = jax.vmap(jr, out_axes=1)(jnp.eye(4 * n, dtype=dtype))  # (H, 4N)
         jtj = jtj + Jr.T @ Jr + jnp.diag(jnp.concatenate([ridge, ridge, jnp.zeros_like(ridge), jnp.zeros_like(ridge)]))
@@ -175,7 +185,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         return 0.5 * jnp.sum(ridge * (P[0] ** 2 + P[1] ** 2))
 
     def f(y):
-        return _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max) + prior(y)
+        return (_ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max, refine)
+                + prior(y))
 
     f0 = f(y0)
     jtj0, jtr0 = normal_eq(y0)
@@ -239,9 +250,11 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
 
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
-                  max_steps, roughness_weight, hessian_samples=None, history=False, held=None):
+                  max_steps, roughness_weight, hessian_samples=None, history=False, held=None, refine=ROWS):
     """The structured LM on packed parameters ``y0 (4N,)``; ``active (N,)`` marks real waves,
-    ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed."""
+    ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed; ``refine``
+    the forward model's path (``ROWS``; ``HITS``: the pixel-frames whose hit under ``y0``
+    does not converge are left out of the whole refinement). Returns ``(out, n_valid)``."""
     held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
@@ -250,20 +263,25 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
     return _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol,
                        jnp.asarray(max_steps, jnp.int32), n_min=n_min, n_max=n_max,
                        roughness_weight=roughness_weight, hessian_samples=int(hessian_samples),
-                       history_len=int(max_steps) + 1 if history else 1)
+                       history_len=int(max_steps) + 1 if history else 1, refine=int(refine))
 
 
-@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len"))
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len",
+                                             "refine"))
 def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, *, n_min,
-                n_max, roughness_weight, hessian_samples, history_len):
+                n_max, roughness_weight, hessian_samples, history_len, refine):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
+    if refine != ROWS:
+        w0 = to_waves(y0, active.shape[0])
+        start = predict_jit(w0._replace(amplitude=w0.amplitude * active), camera, times, n_min, n_max, refine)
+        weight = weight * start.converged
     n_valid = jnp.maximum(jnp.sum(weight), 1.0)
     scale = 1.0 / n_valid
     rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
     out = _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
                          n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
-                         history_len=history_len)
+                         history_len=history_len, refine=refine)
     return out, n_valid
 
 
@@ -285,7 +303,7 @@ def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *,
     def residual(y, args):
         w = to_waves(y, n)
         w = w._replace(amplitude=w.amplitude * active)
-        n_pred, _ = predict_jit(w, camera, times, n_min, n_max)
+        n_pred = predict_jit(w, camera, times, n_min, n_max).normal
         r_n = ((n_pred[..., :2] - normals[..., :2]) * sw).ravel()
         return jnp.concatenate([r_n, rough_residual(y, active, rough, tail_rows, n_min, n_max)])
 
@@ -341,7 +359,7 @@ def _uncertainty(y, jtj, active, half_rss, n_obs):
 def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "structured", max_steps: int = 50,
            rtol=1e-6, atol=0.0, roughness_weight: float = 1.0, n_min=hierarchy.DEFAULT_N_MIN,
            n_max=hierarchy.DEFAULT_N_MAX, history: bool = False, options=None, tail_rows=None,
-           throw: bool = False) -> WaveFit:
+           throw: bool = False, surface: str = "rows") -> WaveFit:
     """Refine ``init`` waves (fixed count) against observed geometry; returns a :class:`WaveFit`.
 
     Pure and traceable for every solver but ``"scipy"``: ``jax.vmap`` over scenes (batched
@@ -352,6 +370,10 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
     row for waves outside the fitted set; without it the roughness term assumes that
     ``init`` holds every wave (pass ``roughness_weight=0`` otherwise). ``throw``: raise
     :class:`jaxocean.fit.solvers.FitError` (eagerly) when the solver did not converge.
+    ``surface``: the forward model -- ``"rows"`` (default: the geometry at each pixel's plane
+    hit), ``"hits"`` (at its converged hit on the displaced surface, as ``render`` draws waves
+    that move the hits; about 10x the cost; ``"structured"`` solver only) or ``"auto"`` (the
+    renderer's choice for ``init``; eager only).
     """
     t0 = time.perf_counter()
     normals, roughness, times = check_inputs(normals, roughness, camera, times)
@@ -360,6 +382,11 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         raise ValueError(f"init must have leaves (N,); got {init.omega.shape} (vmap batches of scenes)")
     if solver not in SOLVER_NAMES:
         raise ValueError(f"unknown solver {solver!r}; expected one of {SOLVER_NAMES}")
+    if surface == "auto" and not is_concrete(init, camera):
+        raise ValueError("surface='auto' chooses the model eagerly; under jit/vmap pass 'rows' or 'hits'")
+    refine_ = surface_refine(surface, init if surface == "auto" else None, camera, n_min=n_min, n_max=n_max)
+    if refine_ != ROWS and solver != "structured":
+        raise ValueError(f"surface='hits' needs solver='structured'; got {solver!r}")
     if throw and not is_concrete(normals, init, roughness, times, camera):
         raise ValueError("fit.refine under jit/vmap cannot raise on failure: pass throw=False and read .success")
     dtype = normals.dtype
@@ -376,11 +403,12 @@ def refine(normals, roughness, camera, times, init: Waves, *, solver: str = "str
         padded, active = pad_waves(init, n_pad)
         out, n_valid = refine_kernel(pack(padded), active, normals, roughness, times, camera, tail_rows,
                                      jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                                     max_steps=max_steps, roughness_weight=float(roughness_weight), history=history)
+                                     max_steps=max_steps, roughness_weight=float(roughness_weight), history=history,
+                                     refine=refine_)
         y, steps, success, jtj, hist = out.y, out.steps, out.success, out.jtj, out.history
         half = out.loss
         res = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success,
-                         hist if history else None, roughness_weight, n_min, n_max, t0)
+                         hist if history else None, roughness_weight, n_min, n_max, t0, refine_)
         if n_pad != n:
             cut = lambda w: Waves(*[x[:n] for x in w])  # noqa: E731
             res = res._replace(waves=cut(res.waves), uncertainty=cut(res.uncertainty), n_waves=jnp.asarray(n))
@@ -438,11 +466,11 @@ def dense_jtj(residual, y):
 
 
 def fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success, hist,
-               roughness_weight, n_min, n_max, t0):
+               roughness_weight, n_min, n_max, t0, refine=ROWS):
     n = active.shape[0]
     w = to_waves(y, n)
     unc = _uncertainty(y, jtj, active, half, 2.0 * n_valid)
-    lval, nerr, rerr = metrics(w, normals, roughness, camera, times, roughness_weight, n_min, n_max)
+    lval, nerr, rerr = metrics(w, normals, roughness, camera, times, roughness_weight, n_min, n_max, refine)
     elapsed = time.perf_counter() - t0 if is_concrete(y) else float("nan")
     return WaveFit(waves=w, uncertainty=unc, loss=lval, normal_error=nerr, roughness_error=rerr,
                    steps=jnp.asarray(steps, jnp.int32), success=jnp.asarray(success), n_waves=jnp.asarray(n),

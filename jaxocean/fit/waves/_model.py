@@ -2,9 +2,11 @@
 
 Protocol: parameters are ``y (4N,)`` = ``(a, b, log omega, theta)`` per wave with ``(a, b) =
 h (cos phi, sin phi)`` (:func:`pack` / :func:`to_waves`); :func:`predict` is the forward
-model (``render.geometry``'s rows path with every wave evaluated: normals ``(T, H, W, 3)``,
-roughness ``(T, H, W)``); :func:`jacobian` is its hand-written residual Jacobian on flat
-samples; :func:`roughness_rows` the model's sub-pixel roughness per image row; :func:`loss`
+model (``render.geometry`` with every wave evaluated, on the rows path or, where the waves
+move a pixel's hit, the hits path: :class:`Predicted`); :func:`jacobian` is the hand-written
+residual Jacobian of the normals at fixed rest positions on flat samples (exact on the rows
+path; on the hits path it omits the motion of the hit, an approximation the solver only
+uses for its curvature); :func:`roughness_rows` the model's sub-pixel roughness per image row; :func:`loss`
 the paper's loss (eq. 5-7) and :func:`metrics` the loss, mean normal angle [rad] and mean
 absolute roughness difference of a fit.
 """
@@ -77,36 +79,82 @@ def pad_waves(w: Waves, n_pad: int):
 # =============================================================================== forward model
 
 
-def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX):
-    """Normals ``(T, H, W, 3)`` and roughness ``(T, H, W)`` of ``waves_`` at ``times``: the
-    fit's forward model (``render.geometry``'s rows path with every wave evaluated)."""
+#: ``refine`` of the fit's two forward models: the rows path (geometry at each pixel's
+#: mean-sea-plane hit) and the hits path (at its converged hit on the displaced surface)
+ROWS = 0
+HITS = render.MAX_REFINE_ITERATIONS
+
+
+SURFACES = ("auto", "rows", "hits")
+
+
+def surface_refine(surface: str, waves_: Waves | None, camera, *, n_min=hierarchy.DEFAULT_N_MIN,
+                   n_max=hierarchy.DEFAULT_N_MAX) -> int:
+    """``refine`` of the forward model for ``surface``: ``"rows"`` -> ``ROWS``, ``"hits"`` ->
+    ``HITS``, ``"auto"`` -> what ``render.geometry(plan="auto")`` picks for ``waves_`` (the hits
+    path where they move some pixel's hit by half a footprint or more; ``ROWS`` without waves)."""
+    if surface not in SURFACES:
+        raise ValueError(f"surface must be one of {SURFACES}; got {surface!r}")
+    if surface != "auto":
+        return ROWS if surface == "rows" else HITS
+    if waves_ is None or waves_.omega.shape[0] == 0:
+        return ROWS
+    return HITS if bool(render.needs_refinement(waves_, camera, n_min=n_min, n_max=n_max)) else ROWS
+
+
+class Predicted(NamedTuple):
+    """The model's geometry of a sequence: ``normal (T, H, W, 3)``, ``roughness (T, H, W)``,
+    ``xy (T, H, W, 2)`` the rest position [m] each pixel sees (the plane hit on the rows path,
+    the converged hit's on the hits path) and ``converged (T, H, W)`` (False where a hit did
+    not converge: no exact value there, see :class:`jaxocean.render.Geometry`)."""
+
+    normal: jax.Array
+    roughness: jax.Array
+    xy: jax.Array
+    converged: jax.Array
+
+
+def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
+            refine: int = ROWS):
+    """The fit's forward model: normals ``(T, H, W, 3)`` and roughness ``(T, H, W)`` of
+    ``waves_`` at ``times`` (``render.geometry`` with every wave evaluated, on the rows path,
+    ``refine=ROWS``, or the hits path, ``refine=HITS``)."""
     validate(waves_, max_steepness=None)
     times = jnp.atleast_1d(jnp.asarray(times, waves_.omega.dtype))
-    return predict_jit(waves_, camera, times, n_min, n_max)
+    p = predict_jit(waves_, camera, times, n_min, n_max, int(refine))
+    return p.normal, p.roughness
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4))
-def predict_jit(waves_, camera, times, n_min, n_max):
-    plan = render.full_plan(waves_.omega.shape[-1])
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def predict_jit(waves_, camera, times, n_min, n_max, refine=ROWS) -> Predicted:
+    plan = render.full_plan(waves_.omega.shape[-1], refine)
 
     def one(t):
         g = render.geometry(waves_, camera, t, plan=plan, n_min=n_min, n_max=n_max)
-        return g.normal, g.roughness
+        return Predicted(g.normal, g.roughness, g.xy, g.converged & g.mask)
 
-    return jax.lax.map(one, times)
+    if refine == ROWS:
+        return jax.lax.map(one, times)
+    # frame by frame: the hit loop inside a scan runs ~3x slower on XLA:CPU (io.dataset)
+    return jax.tree.map(lambda *a: jnp.stack(a), *[one(times[i]) for i in range(times.shape[0])])
 
 
 def _nxy(sums):
     return normal_from_sums(sums[0], sums[1], sums[2], sums[3], sums[4])[:2]
 
 
-def jacobian(P, act, s: Samples, n_min, n_max):
+def jacobian(P, act, s: Samples, n_min, n_max, moving: bool = False):
     """Residual ``r (S*2,)`` and its Jacobian ``J (S*2, 4N)`` for samples ``s`` (hand-written
     chain rule: each wave's parameters touch only its own sine and cosine).
 
     Model per wave: C = w k (a cos psi0 - b sin psi0), S = w k (a sin psi0 + b cos psi0),
     sums (A_xx, A_xy, A_yy, B_x, B_y) = sum (c^2 C, c s C, s^2 C, c S, s S), normal from the
     sums; ``P = (a, b, log omega, theta) (4, N)``.
+
+    ``moving``: the samples' rest positions are hits (the hits path) and move with the
+    parameters: the hit X solves X = F(X) = o + (d_z(X) - o_z) s - d_xy(X) with s the ray's
+    horizontal run per unit height (``s.ray``), so dX/dp = (I - dF/dX)^-1 dF/dp (implicit
+    function theorem) and the normals gain (dn/dX) dX/dp. Exact at a converged hit.
     """
     a, b, u, th = P[0], P[1], P[2], P[3]
     om = jnp.exp(u)
@@ -142,8 +190,43 @@ def jacobian(P, act, s: Samples, n_min, n_max):
     j_b = e(wk) * (beta * e(cp) - alpha * e(sp))
     j_u = alpha * e(dwk_du * cn - S * dpsi_du) + beta * e(dwk_du * snn + C * dpsi_du)
     j_t = (beta * e(C) - alpha * e(S)) * e(dpsi_dth) + alpha_t * e(C) + beta_t * e(S)
-    J = jnp.stack([j_a, j_b, j_u, j_t], axis=2) * s.sw[:, None, None, None]  # (S, 2, 4, N)
+    J = jnp.stack([j_a, j_b, j_u, j_t], axis=2)  # (S, 2, 4, N)
+    if moving:
+        J = J + _hit_motion(G, C, S, w, k, c, sn, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth, s.ray)
+    J = J * s.sw[:, None, None, None]
     return r, J.reshape(r.shape[0], -1)
+
+
+def _hit_motion(G, C, S, w, k, c, sn, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth, ray):
+    """``(dn_xy/dX) dX/dp (S, 2, 4, N)``: the normals' change through the motion of the hit
+    (see :func:`jacobian`). Displacement per wave: d_z = w h cos(psi), d_xy = w h sin(psi)
+    (cos theta, sin theta), with h cos(psi) = a cos psi0 - b sin psi0 =: cn and h sin(psi) =: snn."""
+    # d(sums)/dX (S, 5, 2): dC/dX = k S khat, dS/dX = -k C khat
+    kS, kC = S * k, C * k
+    cc, cs, ss = c * c, c * sn, sn * sn
+    dsums = jnp.stack([jnp.stack([kS @ (cc * c), kS @ (cc * sn)], -1),
+                       jnp.stack([kS @ (cs * c), kS @ (cs * sn)], -1),
+                       jnp.stack([kS @ (ss * c), kS @ (ss * sn)], -1),
+                       jnp.stack([-(kC @ (c * c)), -(kC @ (c * sn))], -1),
+                       jnp.stack([-(kC @ (sn * c)), -(kC @ (sn * sn))], -1)], axis=1)
+    dn_dX = jnp.einsum("sij,sjk->sik", G, dsums)  # (S, 2, 2)
+    # dF/dX = s (grad d_z)^T - d(d_xy)/dX, grad d_z = (B_x, B_y), -d(d_xy)/dX = A
+    b = jnp.stack([S @ c, S @ sn], -1)  # (S, 2)
+    a_xx, a_xy, a_yy = C @ cc, C @ cs, C @ ss
+    A = jnp.stack([jnp.stack([a_xx, a_xy], -1), jnp.stack([a_xy, a_yy], -1)], -2)
+    dF_dX = ray[:, :, None] * b[:, None, :] + A
+    eye = jnp.eye(2, dtype=A.dtype)
+    move = jnp.einsum("sij,sjk->sik", dn_dX, jnp.linalg.inv(eye - dF_dX))  # (S, 2, 2)
+    # dF/dp per wave: s d(d_z)/dp - d(d_xy)/dp, with d(d_xy) = khat d(w snn) (+ theta's turn)
+    dz = jnp.stack([w * cp, -w * sp, dw_du * cn - w * snn * dpsi_du, -w * snn * dpsi_dth], 1)  # (S, 4, N)
+    dh = jnp.stack([w * sp, w * cp, dw_du * snn + w * cn * dpsi_du, w * cn * dpsi_dth], 1)  # along khat
+    turn = w * snn  # d(khat)/dtheta = (-sin, cos)
+    dF_x = ray[:, 0, None, None] * dz - c * dh
+    dF_y = ray[:, 1, None, None] * dz - sn * dh
+    dF_x = dF_x.at[:, 3].add(sn * turn)
+    dF_y = dF_y.at[:, 3].add(-c * turn)
+    dF = jnp.stack([dF_x, dF_y], 1)  # (S, 2, 4, N)
+    return jnp.einsum("sij,sjpn->sipn", move, dF)
 
 
 def roughness_rows(y, active, fp_row, n_min, n_max):
@@ -182,19 +265,22 @@ def rough_residual(y, active, rough: RoughRows, tail_rows, n_min, n_max):
 
 
 def loss(waves_: Waves, normals, roughness, camera, times, *, roughness_weight=1.0,
-         n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX):
+         n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX, refine: int = ROWS):
     """The paper's loss (eq. 5-7) of ``waves_`` against observed geometry: mean ``1 - cos``
     of the normal angle plus ``roughness_weight`` times the mean squared roughness
-    difference, over valid sea pixel-frames. Differentiable in the waves and the data."""
+    difference, over valid sea pixel-frames (and, on the hits path, converged hits).
+    Differentiable in the waves and the data."""
     normals, roughness, times = check_inputs(normals, roughness, camera, times)
     validate(waves_, max_steepness=None)
-    return metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max)[0]
+    return metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max, refine)[0]
 
 
-def metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max):
+def metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, n_max, refine=ROWS):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
-    n_pred, r_pred = predict_jit(waves_, camera, times, n_min, n_max)
+    pred = predict_jit(waves_, camera, times, n_min, n_max, refine)
+    n_pred, r_pred = pred.normal, pred.roughness
+    weight = weight * pred.converged
     n_valid = jnp.maximum(jnp.sum(weight), 1.0)
     cos = jnp.clip(jnp.sum(n_pred * normals, -1), -1.0, 1.0)
     one_minus = jnp.sum((1.0 - cos) * weight) / n_valid
@@ -202,4 +288,3 @@ def metrics(waves_, normals, roughness, camera, times, roughness_weight, n_min, 
     angle = angle_between(n_pred, normals)
     return (one_minus + roughness_weight * rough, jnp.sum(angle * weight) / n_valid,
             jnp.sum(jnp.abs(r_pred - roughness) * weight) / n_valid)
-

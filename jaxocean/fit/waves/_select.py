@@ -28,7 +28,8 @@ from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clea
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj, fit_result,
                                     maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
-from jaxocean.fit.waves._model import bucket_size, pack, pad_waves, predict_jit, to_waves, wrap_angle
+from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
+                                       surface_refine, to_waves, wrap_angle)
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
@@ -184,12 +185,15 @@ def _joint_ab(omega, theta, valid, s: Samples, n_min, n_max):
     return x[:B], x[B:], partial
 
 
-@functools.partial(jax.jit, static_argnums=(4, 5))
-def _residual_slopes(waves_, normals, camera, times, n_min, n_max):
+@functools.partial(jax.jit, static_argnums=(4, 5, 6))
+def _residual_slopes(waves_, normals, camera, times, n_min, n_max, refine):
+    """Residual slopes ``(T, H, W, 2)`` of the model ``waves_``, their weight (valid sea
+    pixel-frames whose model hit converged) and the rest positions ``(T, H, W, 2)`` the
+    model's pixels see."""
     weight = valid_weights(normals, camera)
     normals, _ = clean_inputs(normals, None, weight)
-    pred, _ = predict_jit(waves_, camera, times, n_min, n_max)
-    return slope_field(normals) - slope_field(pred), weight
+    pred = predict_jit(waves_, camera, times, n_min, n_max, refine)
+    return slope_field(normals) - slope_field(pred.normal), weight * pred.converged, pred.xy
 
 
 def _long_wave_grid(omega_lo, omega_hi, n_omega, n_theta, dtype):
@@ -231,7 +235,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
-          n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
+          surface: str = "auto", n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
           throw: bool = False, history: bool = False, return_selection: bool = False, verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
 
@@ -265,6 +269,13 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       candidate may become a wave (closer than 0.7 of the whole image's wave-vector
       resolution to a model wave excepted), no band.
     * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
+    * ``surface``: the forward model. ``"rows"``: the geometry at each pixel's mean-sea-plane
+      hit (``render``'s rows path). ``"hits"``: at the pixel's converged hit on the displaced
+      surface (its hits path: what ``render``, ``jaxocean simulate`` and a camera see when
+      the waves move the hits; about 10x the cost per step; ``solver="structured"`` only).
+      ``"auto"`` (default): the rows path until the fitted model (waves and band) moves some
+      pixel's hit by half a footprint (``render.needs_refinement``), the hits path from then
+      on; with a registry solver ``"auto"`` stays on the rows path.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). ``atol`` None: ``noise_floor^2 / 1000`` (or
       ``noise^2 / 1000``), a mean squared normal residual per component a thousandth of the
@@ -297,6 +308,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"long_waves=True (the long-wave band) needs solver='structured'; got {solver!r} "
                          "(pass long_waves=False to refine with a registry solver)")
     check_values(np.asarray(separation) >= 0, "separation must be >= 0 (Rayleigh limits)", separation)
+    if surface not in SURFACES:
+        raise ValueError(f"surface must be one of {SURFACES}; got {surface!r}")
+    if surface == "hits" and solver != "structured":
+        raise ValueError(f"surface='hits' needs solver='structured'; got {solver!r}")
     dtype = normals.dtype
     floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
     if atol is None:
@@ -322,6 +337,20 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     band = band_waves(diameter, dtype) if long_waves else None
     n_band = 0 if band is None else band.omega.shape[0]
 
+    # the forward model's path: fixed by `surface`, or (auto) switched to the hits path for
+    # good once the model moves the hits (the waves that do are the strongest, found first)
+    state = dict(refine=HITS if surface == "hits" else ROWS)
+
+    def update_surface(w: Waves, band_: Waves | None) -> bool:
+        """Switch to the hits path when the model moves the hits; True when it switched."""
+        if surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]:
+            state["refine"] = surface_refine("auto", with_band(w, band_)[0], camera, n_min=n_min, n_max=n_max)
+            if state["refine"] != ROWS:
+                if verbose:
+                    print("  the model moves the hits: fitting on the hits path from here on", flush=True)
+                return True
+        return False
+
     def with_band(w: Waves, band_: Waves | None):
         # the model's waves: the resolved ones first, then the band; and the held mask
         n = w.omega.shape[0]
@@ -345,7 +374,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         wp, active = pad_waves(full, n_pad)
         out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                               max_steps=steps, roughness_weight=0.0, held=held)
+                               max_steps=steps, roughness_weight=0.0, held=held, refine=state["refine"])
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
@@ -355,9 +384,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     def score_of(w: Waves, band_: Waves | None, out):
         if holdout:
-            pred, _ = predict_jit(with_band(w, band_)[0], camera, times[-1:], n_min, n_max)
-            wt = valid_weights(normals[-1:], camera)
-            d = pred[..., :2] - normals[-1:, ..., :2]
+            pred = predict_jit(with_band(w, band_)[0], camera, times[-1:], n_min, n_max, state["refine"])
+            wt = valid_weights(normals[-1:], camera) * pred.converged
+            d = pred.normal[..., :2] - normals[-1:, ..., :2]
             return float(jnp.sum(d * d * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
         return _criterion_value(criterion, rss_of(out), m_obs, w.omega.shape[0], noise, floor2)
 
@@ -384,6 +413,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     baseline = float(np.max(np.linalg.norm(sea_xy - sea_xy.mean(0), axis=1))) * 2.0
     k_res = 2 * math.pi / max(baseline, 1e-6)
 
+    update_surface(current, band)
     if current.omega.shape[0] > 0:
         current, band, best_out = run_lm(current, band, inner_steps if limit > current.omega.shape[0] else max_steps)
         total_steps += int(best_out.steps)
@@ -409,12 +439,15 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     while current.omega.shape[0] < limit:
         n_cur = current.omega.shape[0]
         t_a = time.perf_counter()
+        positions = None
         if n_cur > 0:
-            resid, wt = _residual_slopes(with_band(current, band)[0], fit_n, camera, fit_t, n_min, n_max)
+            resid, wt, xy = _residual_slopes(with_band(current, band)[0], fit_n, camera, fit_t, n_min, n_max,
+                                             state["refine"])
+            positions = None if state["refine"] == ROWS else xy
         else:
             wt = weight
             resid = slope_field(clean_inputs(fit_n, None, wt)[0])
-        smp = all_samples(resid, wt, fit_t, camera)
+        smp = all_samples(resid, wt, fit_t, camera, positions=positions)
         smp_score = subsample(smp, score_samples)
         est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16)
         c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
@@ -518,6 +551,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                   + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()) + ")", flush=True)
         if accepted:
             current, band, best_score = trial, trial_band, sc
+            if update_surface(current, band):
+                # the accepted model refitted under the hits path: later trials are scored
+                # against it under the same model
+                current, band, out = run_lm(current, band, max_steps)
+                total_steps += int(out.steps)
+                best_score = score_of(current, band, out)
             if n_waves is None and not holdout and rss_of(out) / m_obs <= floor2:
                 break  # explained to the noise floor: nothing left to find
         elif cur_batch > 1:
@@ -546,7 +585,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             out, n_valid = refine_kernel(pack(wp), active, normals, roughness, times, camera, tail,
                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
-                                         else 0.0, history=history, held=held)
+                                         else 0.0, history=history, held=held, refine=state["refine"])
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
                         active=active, n_valid=n_valid, n_pad=n_pad, band=split(out.y, w.omega.shape[0], n_pad)[1])
         active = jnp.ones(w.omega.shape[0], bool)
@@ -563,6 +602,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         return _criterion_value(criterion if criterion != "holdout" else "bic", float(fit_["half"]) * m_all, m_all,
                                 n, noise, floor2)
 
+    update_surface(current, band)
     best = final_fit(current, band)
     total_steps += int(best["steps"])
     if n_waves is None and prune:
@@ -587,7 +627,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     active, n_valid = best["active"], best["n_valid"]
     rw = rw if rough_info else 0.0
     result = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, total_steps, success,
-                        hist if history else None, rw, n_min, n_max, t0)
+                        hist if history else None, rw, n_min, n_max, t0, state["refine"])
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
     # the loop ran into the cap, not into the criterion: the count was not selected
@@ -598,7 +638,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     unexplained = not float(result.normal_error) <= bound
     absorbed = None
     if best["band"] is not None:
-        band_normals, _ = predict_jit(best["band"], camera, times, n_min, n_max)
+        band_normals = predict_jit(best["band"], camera, times, n_min, n_max, state["refine"]).normal
         absorbed = band_summary(best["band"], band_normals, valid_weights(normals, camera), diameter)
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
                              success=jnp.asarray(result.success) & (not capped) & (not unexplained),
