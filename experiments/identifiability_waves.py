@@ -85,7 +85,7 @@ def perturbed_truth(truth: Waves, delta: float, rng) -> Waves:
 
 
 def one_scene(seed: int, resolution: int, deltas, saved: dict) -> dict:
-    scene, geo = wave_fit.dataset_scene(seed, resolution)
+    scene, geo = wave_fit.dataset_scene(seed, resolution, plan=None)
     truth = scene.waves
     ok = np.asarray(fw.resolvable(truth, scene.camera))
     sep = fw.separable(truth, scene.camera, scene.times)

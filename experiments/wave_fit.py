@@ -17,7 +17,7 @@ hierarchical normal and roughness maps, 10 frames):
    fitted waves ``fit.waves`` marks determined, whether the fit succeeded and stopped by
    its criterion (below the 96-wave cap), what the long-wave band absorbed, Hs / Tp / mean
    direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
-   time (target 2 minutes). Geometry on the rows path (:func:`dataset_scene`).
+   time (target 2 minutes). Geometry as the dataset writes it (:func:`dataset_scene`).
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
    ``adam``) from the same perturbed start; loss and parameter errors against step and
@@ -65,16 +65,16 @@ def save(out: dict, args) -> None:
     benchutil.save(NAME, out, meta=dict(quick=args.quick, paper_table2=PAPER, targets=TARGET))
 
 
-def dataset_scene(seed: int, resolution: int, n_frames: int = 10):
-    """A dataset scene and its geometry on the rows path (``plan=None``): the fit's own model,
-    so that the truth explains the data to float32 rounding. The dataset's default
-    (``plan="auto"``) renders these scenes on the hits path, whose normals at the refined
-    surface points the rows-path model of ``fit.waves`` does not reproduce (the 60 true
-    waves leave 2e-3 to 0.14 rad on seeds 0-3)."""
+def dataset_scene(seed: int, resolution: int, n_frames: int = 10, plan="auto"):
+    """A dataset scene and its geometry as ``jaxocean simulate`` writes it (``plan="auto"``: the
+    hits path wherever the waves move the pixels' hits, which these scenes do), with the
+    pixels whose hit did not converge set to NaN (a fit leaves them out); ``plan=None``
+    renders the rows path instead."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the sampler's steepness clamp warning
         scene = dataset.sample_scene(jax.random.key(seed), resolution=(resolution, resolution), n_frames=n_frames)
-    _, geo = dataset.render_scene(scene, plan=None)
+    _, geo = dataset.render_scene(scene, plan=plan)
+    geo = geo._replace(normal=jnp.where(geo.converged[..., None], geo.normal, jnp.nan))
     return scene, geo
 
 

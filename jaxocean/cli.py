@@ -759,6 +759,8 @@ def _read_geometry_frames(scene_dir: Path, frames, resolution):
 
     fit.waves models the scalar roughness (its sub-pixel term), which every frame stores
     exactly; the anisotropic slope variance, when a frame has it, is not part of that model.
+    Pixels whose stored ``converged`` flag is 0 (no exact ray-surface hit) are set to NaN:
+    the fit leaves them out.
     """
     from tqdm.auto import tqdm
 
@@ -771,7 +773,10 @@ def _read_geometry_frames(scene_dir: Path, frames, resolution):
         if frame.normal is None:
             raise ValueError(f"{scene_dir / frame_name(f)}: the frame has no normal / roughness channels; "
                              f"fit-waves needs the geometry frames")
-        normals.append(frame.normal)
+        normal = np.asarray(frame.normal, np.float32)
+        if getattr(frame, "converged", None) is not None:
+            normal = np.where(np.asarray(frame.converged, bool)[..., None], normal, np.nan)
+        normals.append(normal)
         roughness.append(frame.roughness)
     return np.stack(normals), np.stack(roughness)
 

@@ -92,7 +92,8 @@ def waves_stage(out: Path, *, n_waves: int = 4, seed: int = 0, resolution: int =
     truth = _swell(n_waves, seed)
     camera = cam.make_camera(height=20.0, pitch=1.2, fov=0.9, resolution=(resolution, resolution))
     times = np.arange(frames) * 0.12
-    normals, roughness = waves_fit.predict(truth, camera, times)
+    # the sea as render draws it (the hits path where the swell moves the pixels' hits)
+    normals, roughness = waves_fit.predict(truth, camera, times, surface="auto")
     t0 = time.perf_counter()
     # prune: drop waves the Wald statistic calls insignificant (refit, kept if the BIC agrees)
     result = fit.waves(normals, roughness, camera, times, prune=True)

@@ -422,7 +422,7 @@ def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     truth = long_wave_sea()
     # the sea as a camera sees it: the normals at each pixel's hit on the displaced surface
     # (the swell moves the hits); the default fit switches to that model
-    normals, rough = fw.predict(truth, c, TIMES, refine=_model.HITS)
+    normals, rough = fw.predict(truth, c, TIMES, surface="hits")
     resolvable = fw.resolvable(truth, c)
     assert resolvable.tolist() == [True, True, True, False, False]
     fit = fw.waves(normals, rough, c, TIMES)
@@ -433,7 +433,7 @@ def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     assert int(fit.n_waves) <= 1.5 * resolvable.sum()
     assert np.max(m.abs_error.amplitude) < 2e-3 and np.max(m.abs_error.omega) < 2e-2
     # the band absorbed the long waves: its slope variance over the window is theirs
-    long_normals, _ = fw.predict(jax.tree.map(lambda x: x[3:], truth), c, TIMES, refine=_model.HITS)
+    long_normals, _ = fw.predict(jax.tree.map(lambda x: x[3:], truth), c, TIMES, surface="hits")
     long_var = float(jnp.mean(jnp.sum(long_normals[..., :2] ** 2, -1)))
     assert fit.long_waves is not None
     assert float(fit.long_waves.slope_variance) == pytest.approx(long_var, rel=0.1)

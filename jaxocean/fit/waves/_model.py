@@ -23,6 +23,7 @@ import jax.numpy as jnp
 from jaxocean import hierarchy, render, shading
 from jaxocean._math import angle_between, safe_sqrt, sincos
 from jaxocean._roughness import row_roughness
+from jaxocean.errors import is_concrete
 from jaxocean.fit.waves._inputs import (Samples, check_inputs, clean_inputs, plane_hits, valid_weights)
 from jaxocean.surface import normal_from_sums
 from jaxocean.waves import GRAVITY, Waves, validate
@@ -115,13 +116,18 @@ class Predicted(NamedTuple):
 
 
 def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
-            refine: int = ROWS):
+            surface: str = "rows"):
     """The fit's forward model: normals ``(T, H, W, 3)`` and roughness ``(T, H, W)`` of
-    ``waves_`` at ``times`` (``render.geometry`` with every wave evaluated, on the rows path,
-    ``refine=ROWS``, or the hits path, ``refine=HITS``)."""
+    ``waves_`` at ``times`` (``render.geometry`` with every wave evaluated). ``surface``:
+    ``"rows"`` (the geometry at each pixel's mean-sea-plane hit), ``"hits"`` (at its converged
+    hit on the displaced surface: what a camera sees) or ``"auto"`` (``render``'s choice for
+    ``waves_``: the sea as ``render`` and ``jaxocean simulate`` draw it; eager only)."""
     validate(waves_, max_steepness=None)
+    if surface == "auto" and not is_concrete(waves_, camera):
+        raise ValueError("surface='auto' chooses the model eagerly; under jit/vmap pass 'rows' or 'hits'")
+    refine = surface_refine(surface, waves_, camera, n_min=n_min, n_max=n_max)
     times = jnp.atleast_1d(jnp.asarray(times, waves_.omega.dtype))
-    p = predict_jit(waves_, camera, times, n_min, n_max, int(refine))
+    p = predict_jit(waves_, camera, times, n_min, n_max, refine)
     return p.normal, p.roughness
 
 

@@ -554,7 +554,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             if update_surface(current, band):
                 # the accepted model refitted under the hits path: later trials are scored
                 # against it under the same model
-                current, band, out = run_lm(current, band, max_steps)
+                current, band, out = run_lm(current, band, 4 * inner_steps)
                 total_steps += int(out.steps)
                 best_score = score_of(current, band, out)
             if n_waves is None and not holdout and rss_of(out) / m_obs <= floor2:
