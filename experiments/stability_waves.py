@@ -4,7 +4,8 @@ Each axis varies one thing around a base problem: a JONSWAP sea (Hs 0.6 m, Tp 4 
 3.3, s_max 15) of ``N`` waves, seen from a perspective camera 10 m high, 0.8 rad below the
 horizon, fov 0.8 rad, 10 frames 0.15 s apart, 64^2 pixels, noise-free normals and roughness.
 The fit is the full pipeline ``fit.waves`` (spectral start, greedy BIC order selection,
-structured LM). Scored against the true waves the image *resolves*
+structured LM) on the geometry as `render` draws it (`fit.waves.predict(..., surface="auto")`: the hits
+path where the waves move the hits). Scored against the true waves the image *resolves*
 (:func:`jaxocean.fit.waves.resolvable`): the fraction found (one-to-one match within 10%),
 the mean absolute errors (h, omega, theta) of the matched pairs, spurious waves, success.
 
@@ -85,7 +86,7 @@ def problem(seed, *, n=15, frames=10, res=64, noise=0.0):
     truth = sampled(seed, n)
     camera = base_camera(res)
     times = np.arange(frames) * 0.15
-    normals, rough = fw.predict(truth, camera, times)
+    normals, rough = fw.predict(truth, camera, times, surface="auto")  # as render draws it
     return score(truth, camera, add_noise(normals, noise, seed), rough, times, noise=noise or None)
 
 
@@ -99,7 +100,7 @@ def nyquist_problem(seed, ratio, res):
     rng = np.random.default_rng(seed)
     truth = make_waves([0.2 / k], [om], [rng.uniform(-np.pi, np.pi)], [rng.uniform(0, 2 * np.pi)])
     times = np.arange(10) * 0.05
-    normals, rough = fw.predict(truth, camera, times)
+    normals, rough = fw.predict(truth, camera, times, surface="auto")  # as render draws it
     row = score(truth, camera, normals, rough, times)
     row["wavelength_px"] = ratio
     return row

@@ -353,12 +353,14 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
 # ----------------------------------------------------------------------------- stages 2-5
 
 def geometry_stage(seq: Sequence, *, model=None):
-    """Stage 2: per-frame geometry from the geometry network (``model`` None: the shipped
-    one). Success: every sea pixel got a finite normal and roughness."""
+    """Stage 2: per-frame geometry from the geometry network (``model``: a
+    :class:`~jaxocean.nn.geometry.GeometryModel`, a model file, a shipped model's name --
+    ``"cpu"``, ``"gpu"`` -- or None, the default shipped one). Success: every sea pixel got a
+    finite normal and roughness."""
     from jaxocean.nn import geometry as geo_net
 
     def run():
-        m = geo_net.load() if model is None else model
+        m = model if isinstance(model, geo_net.GeometryModel) else geo_net.load(model)
         pred = geo_net.predict(m, seq.images[..., 0] if seq.gray else seq.images, seq.camera)
         sea = np.asarray(pred.mask)
         finite = np.isfinite(pred.normal).all(-1) & np.isfinite(pred.roughness)
@@ -624,13 +626,14 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
                 gamma: float = 2.2, step: int = 1, max_frames: int | None = None, height: float | None = None,
                 wave_frames: int | None = 16, max_waves: int = 24, overcast: bool | None = None,
                 refine: bool = True, refine_steps: int | None = None, refine_rounds: int | None = None,
-                progress: bool = True) -> Reconstruction:
+                geometry_model=None, progress: bool = True) -> Reconstruction:
     """Run every stage (module docstring) and, with ``out``, write ``result.json``, the
     report and its figures there (:mod:`jaxocean.report`). A stage that fails does not stop
     the pipeline while its output exists; its flag says what the later numbers rest on.
     ``refine=False`` skips stage 5 (the two-step method of the paper); ``refine_steps`` /
     ``refine_rounds``: its Levenberg-Marquardt steps per IRLS round and its rounds (None:
-    :func:`jaxocean.fit.photometric`'s defaults)."""
+    :func:`jaxocean.fit.photometric`'s defaults). ``geometry_model``: stage 2's network
+    (:func:`geometry_stage`; None: the default shipped model)."""
     stages = {}
 
     def say(report):
@@ -642,7 +645,7 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     seq, rep = load_sequence(frames, camera_path, width=width, response=response, gamma=gamma, step=step,
                              max_frames=max_frames, height=height)
     say(rep)
-    geometry, rep = geometry_stage(seq)
+    geometry, rep = geometry_stage(seq, model=geometry_model)
     say(rep)
     light, rep = lighting_stage(seq, geometry, overcast=overcast)
     say(rep)

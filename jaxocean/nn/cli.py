@@ -2,7 +2,7 @@
 ``eval-geometry`` and ``train-waves``. :func:`register` adds them to the main parser (``jaxocean.cli``),
 which owns error handling and exit codes; each command returns an exit code.
 
-* ``train-geometry DATASET --config {cpu,paper} --out RUN``: train (or resume: rerun the
+* ``train-geometry DATASET --config {cpu,gpu,paper} --out RUN``: train (or resume: rerun the
   same command) a geometry model; ``RUN/model.npz`` is the best one, ``RUN/curves.png`` and
   ``RUN/history.json`` the curves.
 * ``predict-geometry FRAMES... --out DIR``: per frame an EXR (the input as linear ``R G B``
@@ -65,7 +65,8 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "(linear RGB + normal, roughness, slope_variance, mask) and PNG previews.")
     p.add_argument("frames", nargs="+", help="image files (PNG, JPEG, EXR) or one video file")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--model", help="model file (default: the shipped pretrained model)")
+    p.add_argument("--model", help="model file, or a shipped model: cpu (the default) or gpu (larger, more "
+                                   "accurate, ~2.5x the time per frame)")
     p.add_argument("--scene", help="scene directory or scene.json holding the camera")
     p.add_argument("--space", choices=("srgb", "bruneton", "linear"), default="srgb",
                    help="tone curve of display-referred inputs (PNG, JPEG, video; default srgb)")
@@ -77,7 +78,8 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "angle errors, slope skill along and across the view, roughness and image "
                                    "errors, frames per second.")
     p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
-    p.add_argument("--model", help="model file (default: the shipped pretrained model)")
+    p.add_argument("--model", help="model file, or a shipped model: cpu (the default) or gpu (larger, more "
+                                   "accurate, ~2.5x the time per frame)")
     p.add_argument("--split", default="test", help="split to score (default test)")
     p.add_argument("--max-frames", type=int, help="score at most this many frames")
     p.add_argument("--out", help="JSON file for the scores (with per-scene rows)")
