@@ -140,12 +140,14 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
-from jaxocean._math import angle_between, safe_normalize
-from jaxocean.errors import InvalidValueError, is_concrete
+from jaxocean._math import angle_between
+from jaxocean.errors import is_concrete
 from jaxocean.files import json_safe
+from jaxocean.fit import _geometry_error as geometry_error
 from jaxocean.fit import _image_inputs as inp
 from jaxocean.fit import _photometry as ph
 from jaxocean.fit import _plausibility, solvers
+from jaxocean.fit._geometry_error import GEOMETRY_SAMPLES
 from jaxocean.fit._image_inputs import tonemap_weights
 from jaxocean.fit._photometry import COLOR_FIELDS, nnls_small, pq_to_direction, pq_to_sun, sun_to_pq
 from jaxocean.fit.solvers import FitError
@@ -191,8 +193,6 @@ DETERMINED_SUN_DEG = 0.5
 #: a fitted colour is determined when every channel's standard deviation is below this
 #: fraction of the colour's brightest channel
 DETERMINED_COLOR_REL = 0.1
-#: draws of the stated normal error (``normal_noise``) the fit propagates through the shading
-GEOMETRY_SAMPLES = 32
 
 
 class LightingFit(NamedTuple):
@@ -457,89 +457,6 @@ def _plain_bound(fit: tuple, log_colors: bool):
     return solvers.dense_jacobian(fn)
 
 
-def _tilt_fields(key, shape, length: float, dtype):
-    """``(GEOMETRY_SAMPLES, 2, H, W)`` standard normal tilt fields (two tangent axes),
-    independent per pixel (``length = 0``) or correlated as ``exp(-d^2 / (2 length^2))`` over
-    ``d`` pixels: white noise on a larger grid through a Gaussian filter of ``length /
-    sqrt(2)`` pixels, normalised to unit variance (stationary up to the image's edges)."""
-    H, W = shape
-    if length <= 0:
-        return jax.random.normal(key, (GEOMETRY_SAMPLES, 2, H, W), dtype)
-    width = length / math.sqrt(2.0)
-    radius = int(math.ceil(4.0 * width))
-    x = np.arange(-radius, radius + 1, dtype=np.float64)
-    kernel = np.exp(-0.5 * (x / width) ** 2)
-    kernel = jnp.asarray(kernel / np.sqrt(np.sum(kernel**2)), dtype)  # unit variance per axis
-    white = jax.random.normal(key, (GEOMETRY_SAMPLES, 2, H + 2 * radius, W + 2 * radius), dtype)
-    rows = sum(kernel[k] * white[:, :, k:k + H, :] for k in range(2 * radius + 1))
-    return sum(kernel[k] * rows[:, :, :, k:k + W] for k in range(2 * radius + 1))
-
-
-def _widen_glitter(data: ph.Data, normal_noise):
-    """``data`` whose sun glitter has its slope pdf widened by the stated normal error
-    (``normal_noise (H, W)`` [rad], variance added per axis): the mean glitter of normals
-    known to that accuracy, whose sun-direction Jacobian measures how far a glint can move.
-    The glitter lobes of resolved pixels are far narrower than a network's normal error,
-    and the sharp lobe's Jacobian barely sees a glint moved by more than its width. The
-    sky and sea terms are the fit's own: they are linear in their colours, and the colours'
-    sensitivity must be the one the fit used."""
-    sigma2 = jax.lax.stop_gradient(normal_noise) ** 2
-    sx2, sy2 = data.sx2 + sigma2, data.sy2 + sigma2
-    lambda_view = shading.smith_lambda(data.z_view, shading.projected_variance(data.view, data.normal, sx2, sy2))
-    return data._replace(sx2=sx2, sy2=sy2, lambda_view=lambda_view, pdf_norm=1.0 / (2.0 * jnp.pi * jnp.sqrt(sx2 * sy2)))
-
-
-def _geometry_effect(prepare_at, normal, weight, used, pq, colors, normal_noise, st: _Static):
-    """What the stated normal error does to the fit at the answer ``(pq, colors)``:
-    ``(geometry_loss (), shifts (GEOMETRY_SAMPLES, P))``.
-
-    The error is propagated by sampling, not by derivatives: the normals are tilted about
-    their tangent axes by ``GEOMETRY_SAMPLES`` fixed draws (key 0: the result is a
-    deterministic function of the inputs) of Gaussian fields of standard deviation
-    ``normal_noise (H, W)`` [rad per axis], correlated over ``st.correlation`` pixels.
-
-    * ``geometry_loss``: the mean square, over the draws, of the change of the model image
-      at the answer, in the reported loss's residual (the linear one, or with
-      ``space="display"`` the tone-mapped one over the used pixels): the residual a right
-      lighting leaves when the normals are off by the stated error.
-    * ``shifts``: for each draw, how far the fitted fields (the layout of
-      :func:`_plain_layout`) move when the model image at the given normals is fitted on
-      the tilted normals (one Gauss-Newton step, :func:`_plausibility.gauss_newton_step`:
-      exact for the colours, which are linear; the glitter widened by the error,
-      :func:`_widen_glitter`). This emulates the fit's own situation -- data from one set of
-      normals, the model on normals off by the error -- bias included: normals with an
-      error are rougher than the truth, and Fresnel and the sky reflection are strongly
-      curved at grazing views, so the colours' error is mostly a bias, which a symmetric
-      spread around the given normals does not show."""
-    sigma = jax.lax.stop_gradient(normal_noise)
-    normal = safe_normalize(normal)
-    direction = pq_to_direction(pq)
-    t_x, t_y = shading.tangent_frame(normal)
-    fields = _tilt_fields(jax.random.PRNGKey(0), normal.shape[:2], st.correlation, normal.dtype)
-    base = ph.model(prepare_at(normal), direction, colors)
-
-    stated = (sigma > 0)[..., None]
-
-    def sample(ab):
-        tilted = normal + sigma[..., None] * (ab[0][..., None] * t_x + ab[1][..., None] * t_y)
-        data = prepare_at(tilted)
-        # pixels without a stated error change by exactly 0 (not by the rounding of a second
-        # evaluation): normal_noise=0 is the plain fit's bound and std, bit for bit
-        model = jnp.where(stated, ph.model(data, direction, colors), base)
-        if st.space == "display":
-            shown = used * (shading.tonemap(model, st.exposure, st.tonemap)
-                            - shading.tonemap(base, st.exposure, st.tonemap))
-            loss = jnp.sum(shown * shown) / jnp.sum(used)
-        else:
-            loss = jnp.sum((weight * (model - base)) ** 2) / jnp.sum(weight * weight)
-        jtj, jtr = _normal_equations(_widen_glitter(data._replace(target=jnp.where(stated, base, model)), sigma), pq,
-                                     colors, st)
-        return loss, _plausibility.gauss_newton_step(jtj, jtr)
-
-    losses, shifts = jax.lax.map(sample, fields)
-    return jax.lax.stop_gradient(jnp.mean(losses)), jax.lax.stop_gradient(shifts)
-
-
 def _normal_equations(data: ph.Data, pq, colors, st: _Static):
     """``(J^T J (P, P), J^T r (P,))`` of the linear-colour residual of the fitted fields at
     ``(pq, colors)`` (layout of :func:`_plain_layout`; built column by column, ``O(pixels)``
@@ -563,7 +480,7 @@ def _normal_equations(data: ph.Data, pq, colors, st: _Static):
 def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise, shifts=None):
     """``(std, determined)`` dicts of the answer (see :class:`LightingFit`): Gauss-Newton
     standard deviations from ``J^T J`` of the linear-colour residual of the fitted fields at
-    the stated noise; with ``shifts`` (:func:`_geometry_effect`) the RMS shift of each field
+    the stated noise; with ``shifts`` (:func:`jaxocean.fit._geometry_error.effect`) the RMS shift of each field
     under the stated normal error is added in quadrature, so that ``std`` is the RMS error
     the image noise and the geometry's error allow together."""
     dtype = data.target.dtype
@@ -597,7 +514,9 @@ def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient
         def prepare_at(n):
             return ph.prepare(image, n, slope_var, camera, weight, horizon_gradient)
 
-        geometry_loss, shifts = _geometry_effect(prepare_at, normal, weight, used, pq, colors, normal_noise, st)
+        geometry_loss, shifts = geometry_error.effect(
+            prepare_at, functools.partial(_normal_equations, st=st), normal, weight, used, pq, colors, normal_noise,
+            correlation=st.correlation, space=st.space, exposure=st.exposure, tonemap=st.tonemap)
     else:
         geometry_loss, shifts = None, None
     if st.space == "display":  # the reported loss is the display-space MSE over the used pixels
@@ -767,7 +686,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     if not isinstance(grid, int) or grid < 0 or not isinstance(n_starts, int) or n_starts < 1:
         raise ValueError(f"grid must be an int >= 0 and n_starts an int >= 1; got {grid!r}, {n_starts!r}")
     normal, slope_var, geo_mask = _geometry_fields(geometry, image.shape[:2], dtype)
-    normal_noise_map = _normal_noise_map(normal_noise, image.shape[:2], dtype)
+    normal_noise_map = geometry_error.normal_noise_map(normal_noise, image.shape[:2], dtype)
     if space not in ("linear", "display"):
         raise ValueError(f"space must be 'linear' or 'display'; got {space!r}")
     weight = inp.pixel_weights(weights, mask, image.shape[:2], dtype, image, exposure, tonemap, saturation)
@@ -813,25 +732,6 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
         raise FitError(failure_message(result, solver=solver, structure=structure, noise=noise,
                                        normal_noise=normal_noise), result)
     return result
-
-
-def _normal_noise_map(normal_noise, resolution, dtype):
-    """``normal_noise`` (None, a number or an ``(H, W)`` map) as an ``(H, W)`` array (zeros
-    for None, which the fit does not read); values are checked when concrete."""
-    H, W = resolution
-    if normal_noise is None:
-        return jnp.zeros((H, W), dtype)
-    sigma = jnp.asarray(normal_noise, dtype)
-    if sigma.ndim == 0:
-        sigma = jnp.full((H, W), sigma, dtype)
-    if sigma.shape != (H, W):
-        raise ValueError(f"normal_noise must be a number or an (H, W) = {(H, W)} map; got shape {sigma.shape}")
-    if is_concrete(sigma):
-        s = np.asarray(sigma)
-        if not np.all(np.isfinite(s)) or np.any(s < 0):
-            raise InvalidValueError(f"normal_noise must be finite and >= 0 [rad]; got values in "
-                                    f"[{np.nanmin(s):g}, {np.nanmax(s):g}]")
-    return sigma
 
 
 def _noise_text(noise, normal_noise) -> str:
