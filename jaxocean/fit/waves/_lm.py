@@ -38,6 +38,11 @@ NORMAL_ERROR_FLOOR = 1e-3
 #: ridge weight on the slope amplitudes of held (long-wave band) waves, relative to the mean
 #: squared normal residual of the loss
 BAND_RIDGE = 1e-3
+#: a refinement has converged when a full Gauss-Newton step could lower chi^2 (the residual in
+#: units of the stated noise variance) by less than this: the parameters are then within a
+#: tenth of their 1-sigma uncertainty of the optimum, and further steps change nothing the
+#: data can tell (used where a noise variance is given, ``sigma2 > 0``)
+CHI2_TOL = 0.01
 _CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
 
 
@@ -133,7 +138,7 @@ def _hessian_samples(n_pad: int, m_total: int) -> int:
 
 
 def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
-                   max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, xtol=1e-7):
+                   max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, sigma2=0.0, xtol=1e-7):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
@@ -143,6 +148,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     waves whose ``log omega`` and ``theta`` stay fixed (only their ``a, b`` are fitted).
     ``refine``: the forward model's path (``ROWS`` or ``HITS``); on the hits path ``J^T J``
     is taken at the current hits, with their motion (:func:`jacobian`'s ``moving``).
+    ``sigma2 > 0``: the noise variance per normal component; an accepted step after which a
+    full Gauss-Newton step could lower chi^2 by less than :data:`CHI2_TOL` also converges.
     """
     n = active.shape[0]
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
@@ -238,7 +245,13 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         small = jnp.max(jnp.abs(step) / (jnp.abs(s.y) + 1.0)) < xtol
         floor = fv - prior(y) <= atol  # the data term: the ridge is no misfit
         stalled = lam > 1e12
-        conv = (accept & rel) | small | floor | stalled
+        # the Gauss-Newton decrement at the new point, in chi^2 units (residuals are scaled
+        # by sqrt(scale)): negative or non-finite (an ill-conditioned solve) never converges
+        g_step = jnp.linalg.solve(jtj + 1e-9 * jnp.max(jnp.diag(jtj)) * jnp.eye(jtj.shape[0], dtype=dtype), jtr)
+        decrement = 0.5 * (jtr @ g_step)
+        chi2_gain = 2.0 * decrement / (scale * jnp.where(sigma2 > 0, sigma2, 1.0))
+        insignificant = (sigma2 > 0) & jnp.isfinite(chi2_gain) & (chi2_gain >= 0) & (chi2_gain <= CHI2_TOL)
+        conv = (accept & (rel | insignificant)) | small | floor | stalled
         hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
         return S(y, fv, jtj, jtr, lam, nu, s.k + 1, conv | ~jnp.isfinite(fv), conv & jnp.isfinite(fv), hist)
 
@@ -250,26 +263,28 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
 
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
-                  max_steps, roughness_weight, hessian_samples=None, history=False, held=None, refine=ROWS):
+                  max_steps, roughness_weight, hessian_samples=None, history=False, held=None, refine=ROWS,
+                  sigma2=0.0):
     """The structured LM on packed parameters ``y0 (4N,)``; ``active (N,)`` marks real waves,
     ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed; ``refine``
     the forward model's path (``ROWS``; ``HITS``: the pixel-frames whose hit under ``y0``
-    does not converge are left out of the whole refinement). Returns ``(out, n_valid)``."""
+    does not converge are left out of the whole refinement); ``sigma2``: the noise variance
+    of the chi^2 convergence test (0: off). Returns ``(out, n_valid)``."""
     held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
     # max_steps is traced (one compilation serves every step budget); the history's length
     # is static and only as long as asked for
     return _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol,
-                       jnp.asarray(max_steps, jnp.int32), n_min=n_min, n_max=n_max,
+                       jnp.asarray(max_steps, jnp.int32), jnp.asarray(sigma2, y0.dtype), n_min=n_min, n_max=n_max,
                        roughness_weight=roughness_weight, hessian_samples=int(hessian_samples),
                        history_len=int(max_steps) + 1 if history else 1, refine=int(refine))
 
 
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len",
                                              "refine"))
-def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, *, n_min,
-                n_max, roughness_weight, hessian_samples, history_len, refine):
+def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, sigma2, *,
+                n_min, n_max, roughness_weight, hessian_samples, history_len, refine):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     if refine != ROWS:
@@ -281,7 +296,7 @@ def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, 
     rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
     out = _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
                          n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
-                         history_len=history_len, refine=refine)
+                         history_len=history_len, refine=refine, sigma2=sigma2)
     return out, n_valid
 
 

@@ -277,7 +277,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       pixel's hit by half a footprint (``render.needs_refinement``), the hits path from then
       on; with a registry solver ``"auto"`` stays on the rows path.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
-      loss on an accepted step; absolute loss). ``atol`` None: ``noise_floor^2 / 1000`` (or
+      loss on an accepted step; absolute loss). A refinement also converges when a full
+      Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
+      ``noise_floor^2`` without ``noise``) by less than ``CHI2_TOL`` = 0.01: the parameters
+      are then within a tenth of their 1-sigma uncertainty of the optimum. ``atol`` None: ``noise_floor^2 / 1000`` (or
       ``noise^2 / 1000``), a mean squared normal residual per component a thousandth of the
       noise the criterion believes in: past it the fit explains the data 30 times better
       than asked, and the long-wave band's nearly collinear amplitudes would keep a
@@ -317,6 +320,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     if atol is None:
         # the loss 0.5 mean |dn_xy|^2 is the per-component mean square residual
         atol = (floor2 if noise is None else float(noise) ** 2) / 1000.0
+    # the noise variance of the refinements' chi^2 convergence test: the stated noise, or the
+    # floor that noise-free data are held to
+    sigma2 = floor2 if noise is None else float(noise) ** 2
     H = camera.resolution[0]
     tail_rows = jnp.zeros(H, dtype)
     rw = 0.0 if roughness is None else float(roughness_weight)
@@ -374,7 +380,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         wp, active = pad_waves(full, n_pad)
         out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
-                               max_steps=steps, roughness_weight=0.0, held=held, refine=state["refine"])
+                               max_steps=steps, roughness_weight=0.0, held=held, refine=state["refine"],
+                               sigma2=sigma2)
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
@@ -585,7 +592,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             out, n_valid = refine_kernel(pack(wp), active, normals, roughness, times, camera, tail,
                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
-                                         else 0.0, history=history, held=held, refine=state["refine"])
+                                         else 0.0, history=history, held=held, refine=state["refine"],
+                                         sigma2=sigma2)
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
                         active=active, n_valid=n_valid, n_pad=n_pad, band=split(out.y, w.omega.shape[0], n_pad)[1])
         active = jnp.ones(w.omega.shape[0], bool)
