@@ -47,7 +47,8 @@ sys.path.insert(0, __file__.rsplit("/", 1)[0])
 import benchutil  # noqa: E402
 
 from jaxocean import camera as cam  # noqa: E402
-from jaxocean import fit  # noqa: E402
+from jaxocean import fit, render  # noqa: E402
+from jaxocean.errors import InvalidValueError  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
 from jaxocean.io import dataset  # noqa: E402
 from jaxocean.waves import make_waves  # noqa: E402
@@ -132,14 +133,23 @@ def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
                                                       * 2 * np.pi / lam[long_true]) ** 2) / 2))
     # the fitted waves themselves, for experiments/forecast.py and --rescore
     row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
+    row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
+    row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
     row.update(score_sea(result.waves, scene, geo))
+    # the same estimator on the determined (separable) waves only
+    try:
+        det = score_sea(result.waves, scene, geo, reliable=np.asarray(result.determined, bool))
+        row.update({"determined_" + k: v for k, v in det.items() if not k.startswith("oracle")})
+    except InvalidValueError as e:  # too few determined waves for a spectrum
+        row["determined_sea_error"] = str(e)
     return row
 
 
-def score_sea(fitted, scene, geo) -> dict:
-    """Sea state from the fitted waves (``fit.spectrum`` with the roughness) and, as the
-    reference of what any estimate from waves can reach, from the 60 true waves."""
-    sea = fit.spectrum(fitted, camera=scene.camera, roughness=geo.roughness)
+def score_sea(fitted, scene, geo, reliable=None) -> dict:
+    """Sea state from the fitted waves (``fit.spectrum`` with the roughness; ``reliable``: the
+    waves it trusts, default the resolvable ones) and, as the reference of what any estimate
+    from waves can reach, from the 60 true waves."""
+    sea = fit.spectrum(fitted, camera=scene.camera, roughness=geo.roughness, reliable=reliable)
     oracle = fit.spectrum(scene.waves)
     hs, tp, th = float(scene.spectrum.hs), float(scene.spectrum.tp), float(scene.spectrum.theta_mean)
     return dict(fit_hs=float(sea.spectrum.hs), fit_tp=float(sea.spectrum.tp),

@@ -836,7 +836,7 @@ def cmd_fit_waves(args):
               "loss": json_safe(float(result.loss)),
               "normal_error_deg": json_safe(math.degrees(float(result.normal_error))),
               "roughness_error": json_safe(float(result.roughness_error)), "steps": int(result.steps),
-              "success": success, "time_s": json_safe(float(result.time_s)),
+              "success": success, "converged": bool(result.converged), "time_s": json_safe(float(result.time_s)),
               "uncertainty": {name: json_safe(np.ravel(leaf)) for name, leaf in zip(w._fields, result.uncertainty)}}
     print(f"  {report['n_waves']} wave(s); loss {float(result.loss):.3e}, mean normal error "
           f"{float(np.degrees(result.normal_error)):.3g} deg, roughness error {float(result.roughness_error):.3g}; "
@@ -856,7 +856,14 @@ def cmd_fit_waves(args):
                                         times=all_times, extra={"wave_fit": report}))
     print(f"-> {args.out}")
     if not success:
-        print("jaxocean: the wave fit did not converge; see extra.wave_fit in the JSON", file=sys.stderr)
+        from jaxocean.fit.waves import normal_error_bound
+
+        bound = normal_error_bound(args.noise)
+        why = ("non-finite waves" if not finite else
+               f"stopped at --max-waves {args.max_waves}" if args.n_waves is None and result.n_waves >= args.max_waves
+               else f"the waves leave a mean normal error of {float(result.normal_error):.3g} rad, above "
+                    f"{bound:.3g} rad for the stated noise")
+        print(f"jaxocean: the wave fit failed: {why}; see extra.wave_fit in the JSON", file=sys.stderr)
         return EXIT_PROBLEMS
     return EXIT_OK
 

@@ -128,6 +128,20 @@ def test_a_fit_that_fails_says_so(ortho_scene):
     assert info.value.result is not None and not bool(info.value.result.success)
 
 
+def test_success_is_explaining_the_data_and_converged_is_the_step_budget(ortho_scene):
+    # one step of final refinement and no tolerance it can meet: not converged; but the
+    # selection's trials already explain these noise-free data far within the bound -- a
+    # success, with converged=False
+    c, truth, normals, rough = ortho_scene
+    fit = fw.waves(normals, rough, c, TIMES, max_steps=1, rtol=0.0, atol=0.0)
+    assert not bool(fit.converged)
+    assert float(fit.normal_error) < 0.1 * fw.normal_error_bound() and bool(fit.success)
+    # a fit that cannot explain the data (one wave for three) fails however well it converged
+    one = fw.waves(normals, rough, c, TIMES, n_waves=1)
+    assert bool(one.converged) and not bool(one.success)
+    assert float(one.normal_error) > fw.normal_error_bound()
+
+
 def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     # three waves, room for two: the count was not selected, so the fit must not claim success
     c, truth, normals, rough = ortho_scene

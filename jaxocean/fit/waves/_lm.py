@@ -57,11 +57,13 @@ class WaveFit(NamedTuple):
     * ``roughness_error`` mean absolute roughness difference.
     * ``steps``        solver steps of the final refinement (``waves``: summed over the whole
       pipeline).
-    * ``success``      the solver converged to its tolerances with a finite loss (and, when
-      :func:`waves` selects the count, the selection stopped by itself: a fit stopped by
-      ``max_waves`` is reported failed -- the sea holds more than the cap allows; and
-      :func:`waves` leaves a mean normal error within :func:`normal_error_bound` of its
-      ``noise``: a converged fit that does not explain the data is reported failed).
+    * ``success``      :func:`refine`: the solver converged to its tolerances with a finite
+      loss (a converged fit can still be a local minimum: read ``normal_error``).
+      :func:`waves`: the fitted waves are finite and explain the data -- they leave a mean
+      normal error within :func:`normal_error_bound` of its ``noise`` -- and, when it selects
+      the count, the selection stopped by its criterion (a fit stopped by ``max_waves`` is
+      reported failed: the sea holds more than the cap allows). Whether the final
+      refinement also met its tolerances is ``converged``.
     * ``n_waves``      number of fitted waves.
     * ``time_s``       wall time [s] of the eager call (NaN under tracing).
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
@@ -69,6 +71,9 @@ class WaveFit(NamedTuple):
       :func:`separable` -- resolved by the image and separated from every other fitted wave
       by the observation window, so its parameters are measured; the others stand in for
       what the view cannot separate (waves longer than the view, close pairs).
+    * ``converged``    the (final) refinement met its convergence tolerances (a fit that
+      explains its data to well within the noise can still be creeping along the
+      ill-conditioned directions of close or long waves when its step budget ends).
     * ``long_waves``   (:func:`waves` with ``long_waves=True`` only, else None) the
       :class:`~jaxocean.fit.waves._band.LongWaveBand`: what the long-wave nuisance band
       absorbed (its fitted stand-in waves, the slope variance they explain, their mean tilt
@@ -87,6 +92,7 @@ class WaveFit(NamedTuple):
     history: jax.Array | None = None
     determined: np.ndarray | None = None
     long_waves: object | None = None
+    converged: jax.Array | None = None
 
 
 def _chunk_size(n_pad):
@@ -489,5 +495,5 @@ def fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times,
     elapsed = time.perf_counter() - t0 if is_concrete(y) else float("nan")
     return WaveFit(waves=w, uncertainty=unc, loss=lval, normal_error=nerr, roughness_error=rerr,
                    steps=jnp.asarray(steps, jnp.int32), success=jnp.asarray(success), n_waves=jnp.asarray(n),
-                   time_s=jnp.asarray(elapsed, y.dtype), history=hist)
+                   time_s=jnp.asarray(elapsed, y.dtype), history=hist, converged=jnp.asarray(success))
 
