@@ -19,7 +19,7 @@ the frames and the camera alone (:func:`jaxocean.reconstruct.reconstruct`, respo
   the photometric refinement), with the paper's Table 2 row; Hs, Tp and direction errors.
 * The time of every stage; a chart of wave accuracy against total time per stage set.
 
-Writes ``experiments/results/reconstruct.json`` and ``.png``. CPU heavy: about 5-10 minutes
+Writes ``experiments/results/NAME.json`` and ``.png`` (``--name``, default ``reconstruct``). CPU heavy: about 5-10 minutes
 per run on this 2-core machine.
 """
 
@@ -174,10 +174,11 @@ def main(argv=None):
     ap.add_argument("--dt", type=float, default=0.25)
     ap.add_argument("--work", default="out/reconstruct_experiment")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--name", default="reconstruct", help="results file stem (finished runs in it are kept)")
     args = ap.parse_args(argv)
     splits = json.loads((Path(args.dataset) / "splits.json").read_text())
     scenes = splits["test"][: args.scenes]
-    out_json = RESULTS / "reconstruct.json"
+    out_json = RESULTS / f"{args.name}.json"
     rows = []
     if out_json.exists():  # resume: keep finished runs
         rows = json.loads(out_json.read_text()).get("rows", [])
@@ -191,7 +192,7 @@ def main(argv=None):
                                 seed=args.seed))
             RESULTS.mkdir(exist_ok=True)
             out_json.write_text(json.dumps(dict(paper_table2=PAPER_TABLE2, rows=rows), indent=1))
-    _chart(rows, RESULTS / "reconstruct.png")
+    _chart(rows, RESULTS / f"{args.name}.png")
     print(json.dumps(rows, indent=1))
 
 

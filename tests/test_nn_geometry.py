@@ -254,44 +254,40 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
     assert _cli("train-geometry", tiny_dataset, "--out", tmp_path / "r", "--losses", "image+nonsense") == 2
 
 
-@pytest.mark.skipif(not geo.PRETRAINED_PATH.exists(), reason="the pretrained model is not built yet")
-def test_the_shipped_model_loads_and_beats_flat(key):
+def _ratios_to_flat(model):
+    """1 - cos of ``model`` over flat's on a dataset-range scene (seed 2, 64^2, 2 frames):
+    on the linear frames and through an 8-bit Bruneton round trip with display noise 0.03."""
     from jaxocean import radiometry
     from jaxocean.nn import augment
 
-    model = geo.load()
-    # a dataset-range scene where the model measured 0.52x flat's 1 - cos on the linear
-    # frames and 0.62x through an 8-bit Bruneton round trip with display noise 0.03 (the
-    # model trained without augmentation: 0.53x and 0.83x; an untrained or broken model
-    # scores >= 1x; across scenes the ratio is 0.5-1.0, NETS.md)
     scene = dataset.sample_scene(jax.random.key(2), dataset.SceneRanges(), (64, 64), 2)
     images, g = dataset.render_scene(scene)
     mask = np.asarray(g.mask, bool)
     cos_flat = np.mean((1 - np.asarray(g.normal)[..., 2])[mask])
     noisy = augment.display_roundtrip(jax.random.key(0), images, radiometry.Response("bruneton"), 1.3, 0.03)
-    for frames, bound in ((images, 0.75), (noisy, 0.7)):
+    ratios = []
+    for frames in (images, noisy):
         pred = geo.predict(model, np.asarray(frames), scene.camera)
-        cos_model = np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask])
-        assert cos_model < bound * cos_flat, (bound, cos_model, cos_flat)
+        ratios.append(np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask]) / cos_flat)
+    return ratios
+
+
+@pytest.mark.skipif(not geo.PRETRAINED_PATH.exists(), reason="the pretrained model is not built yet")
+def test_the_shipped_model_loads_and_beats_flat():
+    # measured 0.52x flat's 1 - cos on the linear frames and 0.62x through the round trip
+    # (the model trained without augmentation: 0.53x and 0.83x; an untrained or broken model
+    # scores >= 1x; across scenes the ratio is 0.5-1.0, NETS.md)
+    linear, display = _ratios_to_flat(geo.load())
+    assert linear < 0.75 and display < 0.7, (linear, display)
     assert geo.model_info()["train_config"]["augment"]["bits"] == 8
 
 
 def test_the_shipped_gpu_model_loads_by_name_and_beats_flat():
-    from jaxocean import radiometry
-    from jaxocean.nn import augment
     from jaxocean.nn.geometry_train import CONFIGS
 
     model = geo.load("gpu")
     assert model.config == CONFIGS["gpu"].model  # the config that trains it
     assert geo.model_info("gpu")["config"]["widths"] == [32, 64, 128, 256]
-    # the scene of the test above: measured 0.35x flat's 1 - cos on the linear frames and
-    # 0.61x through the 8-bit round trip (the cpu model: 0.52x and 0.62x)
-    scene = dataset.sample_scene(jax.random.key(2), dataset.SceneRanges(), (64, 64), 2)
-    images, g = dataset.render_scene(scene)
-    mask = np.asarray(g.mask, bool)
-    cos_flat = np.mean((1 - np.asarray(g.normal)[..., 2])[mask])
-    noisy = augment.display_roundtrip(jax.random.key(0), images, radiometry.Response("bruneton"), 1.3, 0.03)
-    for frames, bound in ((images, 0.5), (noisy, 0.7)):
-        pred = geo.predict(model, np.asarray(frames), scene.camera)
-        cos_model = np.mean((1 - np.sum(pred.normal * np.asarray(g.normal), -1))[mask])
-        assert cos_model < bound * cos_flat, (bound, cos_model, cos_flat)
+    # measured 0.35x and 0.61x (the cpu model: 0.52x and 0.62x)
+    linear, display = _ratios_to_flat(model)
+    assert linear < 0.5 and display < 0.7, (linear, display)
