@@ -11,10 +11,15 @@ Inputs describe one scene (map batches of scenes with ``jax.vmap`` through :func
   (``camera.resolution == (H, W)``);
 * ``times``     ``(T,)`` frame times [s], strictly increasing, ``T >= 2``.
 
-The model is the renderer's own: :func:`jaxocean.render.geometry` on its rows fast path
-(no hit refinement, Nyquist weights per image row), so a fitted wave that is partly
-sub-pixel is modelled exactly as it was rendered. Sky pixels and pixels whose normal is
-not finite or faces down carry no weight.
+The model is the renderer's own: :func:`jaxocean.render.geometry` with every wave
+evaluated, so a fitted wave that is partly sub-pixel is modelled exactly as it was
+rendered. ``surface=`` picks the path: ``"rows"`` (the geometry at each pixel's
+mean-sea-plane hit, Nyquist weights per image row: GEMM speed), ``"hits"`` (at the pixel's
+converged hit on the displaced surface: what a camera sees and ``render`` draws when the
+waves move the hits) or ``"auto"`` (:func:`waves`' default: the rows path until the model
+moves the hits by ``render``'s rule, then the hits path). Sky pixels, pixels whose normal
+is not finite or faces down, and on the hits path pixels whose model hit does not converge
+carry no weight (set pixels whose observed hit did not converge to NaN).
 
 Loss (the paper's eq. 5-7)::
 
@@ -53,15 +58,17 @@ Pipeline of :func:`waves`:
    batch is kept while it lowers the information criterion (``"bic"``:
    ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
    ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, by default the
-   noise whose mean normal angle is the success bound of noise-free data). Optionally the final set is pruned by each wave's Wald
+   noise whose mean normal angle is the success bound of noise-free data). Optionally the
+   final set is pruned by each wave's Wald
    statistic against the same penalty. The final refinement adds the roughness term with
    the sub-pixel tail of waves outside the set fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
    ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling) whose
    normal equations ``J^T J`` are accumulated frame by frame and row block by row block
-   from per-wave forward-mode Jacobians (a wave's parameters touch only its own sines,
-   so ``J`` is built in ``O(pixels x waves)`` and reduced by one matrix product); trial
-   losses go through ``render.geometry``. Any name of :mod:`jaxocean.fit.solvers` is
+   from a hand-written per-wave Jacobian (a wave's parameters touch only its own sines,
+   so ``J`` is built in ``O(pixels x waves)`` and reduced by one matrix product; on the
+   hits path it adds the motion of the hit, ``dX/dp = (I - dF/dX)^-1 dF/dp``); trial
+   losses and the gradient go through ``render.geometry``. Any name of :mod:`jaxocean.fit.solvers` is
    also accepted (``"lm"``, ``"gauss_newton"``, ``"dogleg"``, ``"bfgs"``, ``"lbfgsb"``,
    ``"adam"``, ``"scipy"``); they see the same residual but materialise the dense
    Jacobian, which is 20-40x slower at 128^2 x 10 frames x 60 waves.

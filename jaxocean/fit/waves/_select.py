@@ -280,8 +280,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
       ``noise_floor^2`` without ``noise``) by less than ``CHI2_TOL`` = 0.01: the parameters
-      are then within a tenth of their 1-sigma uncertainty of the optimum. ``atol`` None: ``noise_floor^2 / 1000`` (or
-      ``noise^2 / 1000``), a mean squared normal residual per component a thousandth of the
+      are then within a tenth of their 1-sigma uncertainty of the optimum. ``atol`` None:
+      ``noise_floor^2 / 1000`` (or ``noise^2 / 1000``), a mean squared normal residual per
+      component a thousandth of the
       noise the criterion believes in: past it the fit explains the data 30 times better
       than asked, and the long-wave band's nearly collinear amplitudes would keep a
       float32 refinement crawling for hundreds of steps.
