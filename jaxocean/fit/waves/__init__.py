@@ -59,9 +59,9 @@ Pipeline of :func:`waves`:
    ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
    ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, by default the
    noise whose mean normal angle is the success bound of noise-free data). Optionally the
-   final set is pruned by each wave's Wald
-   statistic against the same penalty. The final refinement adds the roughness term with
-   the sub-pixel tail of waves outside the set fitted by non-negative least squares.
+   final set is pruned by each wave's Wald statistic against the same penalty. The final
+   refinement adds the roughness term with the sub-pixel tail of waves outside the set
+   fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
    ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling) whose
    normal equations ``J^T J`` are accumulated frame by frame and row block by row block
