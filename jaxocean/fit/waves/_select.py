@@ -21,7 +21,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
-from jaxocean._math import sincos, smoothstep
+from jaxocean._math import angle_between, sincos, smoothstep
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
@@ -37,6 +37,9 @@ from jaxocean.waves import GRAVITY, Waves, validate
 
 
 _CRITERIA = ("bic", "aic", "holdout")
+#: ``surface="auto"`` fits on the hits path once the model's rows-path and hits-path normals
+#: differ by more than this fraction of the success bound (:func:`normal_error_bound`)
+SURFACE_TOLERANCE = 0.1
 #: the criterion's default noise floor: the per-component sigma of the normals whose mean
 #: angle ``sqrt(pi/2) sigma`` times ``NOISE_FACTOR`` is the success bound of noise-free data
 DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2))
@@ -196,6 +199,15 @@ def _residual_slopes(waves_, normals, camera, times, n_min, n_max, refine):
     return slope_field(normals) - slope_field(pred.normal), weight * pred.converged, pred.xy
 
 
+def _surface_gap(model: Waves, camera, times, weight, n_min, n_max) -> float:
+    """Mean angle [rad] between the rows path's and the hits path's normals of ``model`` over
+    the valid pixel-frames whose hit converges."""
+    rows = predict_jit(model, camera, times, n_min, n_max, ROWS)
+    hits = predict_jit(model, camera, times, n_min, n_max, HITS)
+    wt = weight * hits.converged
+    return float(jnp.sum(angle_between(rows.normal, hits.normal) * wt) / jnp.maximum(jnp.sum(wt), 1.0))
+
+
 def _long_wave_grid(omega_lo, omega_hi, n_omega, n_theta, dtype):
     om = np.geomspace(omega_lo, omega_hi, n_omega)
     th = np.linspace(-np.pi, np.pi, n_theta, endpoint=False)
@@ -274,8 +286,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       surface (its hits path: what ``render``, ``jaxocean simulate`` and a camera see when
       the waves move the hits; about 10x the cost per step; ``solver="structured"`` only).
       ``"auto"`` (default): the rows path until the fitted model (waves and band) moves some
-      pixel's hit by half a footprint (``render.needs_refinement``), the hits path from then
-      on; with a registry solver ``"auto"`` stays on the rows path.
+      pixel's hit by half a footprint (``render.needs_refinement``) and its normals on the
+      two paths differ by more than ``SURFACE_TOLERANCE`` (0.1) of the success bound --
+      a difference the data can see at their noise -- the hits path from then on; with a
+      registry solver ``"auto"`` stays on the rows path.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
@@ -350,14 +364,22 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     state = dict(refine=HITS if surface == "hits" else ROWS)
 
     def update_surface(w: Waves, band_: Waves | None) -> bool:
-        """Switch to the hits path when the model moves the hits; True when it switched."""
-        if surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]:
-            state["refine"] = surface_refine("auto", with_band(w, band_)[0], camera, n_min=n_min, n_max=n_max)
-            if state["refine"] != ROWS:
-                if verbose:
-                    print("  the model moves the hits: fitting on the hits path from here on", flush=True)
-                return True
-        return False
+        """Switch to the hits path when the model moves the hits and the two paths' normals
+        differ by more than ``SURFACE_TOLERANCE`` of the success bound (below that the
+        data cannot tell them apart); True when it switched."""
+        if not (surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]):
+            return False
+        model = with_band(w, band_)[0]
+        if surface_refine("auto", model, camera, n_min=n_min, n_max=n_max) == ROWS:
+            return False
+        gap = _surface_gap(model, camera, fit_t, weight, n_min, n_max)
+        if not gap > SURFACE_TOLERANCE * normal_error_bound(noise):
+            return False
+        state["refine"] = HITS
+        if verbose:
+            print(f"  the model moves the hits (rows and hits paths differ by {gap:.2e} rad): fitting on the "
+                  "hits path from here on", flush=True)
+        return True
 
     def with_band(w: Waves, band_: Waves | None):
         # the model's waves: the resolved ones first, then the band; and the held mask
