@@ -369,7 +369,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         data cannot tell them apart); True when it switched."""
         if not (surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]):
             return False
-        model = with_band(w, band_)[0]
+        model = model_of(w, band_)
         if surface_refine("auto", model, camera, n_min=n_min, n_max=n_max) == ROWS:
             return False
         gap = _surface_gap(model, camera, fit_t, weight, n_min, n_max)
@@ -380,6 +380,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             print(f"  the model moves the hits (rows and hits paths differ by {gap:.2e} rad): fitting on the "
                   "hits path from here on", flush=True)
         return True
+
+    def model_of(w: Waves, band_: Waves | None) -> Waves:
+        # the model's waves padded to a bucket size with zero-amplitude waves: every
+        # prediction of a size class shares one compiled program (a long process fitting
+        # many scenes would otherwise compile one per wave count, and the hits path's
+        # programs are large enough to exhaust the JIT's code memory)
+        full = with_band(w, band_)[0]
+        return pad_waves(full, bucket_size(full.omega.shape[0]))[0]
 
     def with_band(w: Waves, band_: Waves | None):
         # the model's waves: the resolved ones first, then the band; and the held mask
@@ -415,7 +423,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     def score_of(w: Waves, band_: Waves | None, out):
         if holdout:
-            pred = predict_jit(with_band(w, band_)[0], camera, times[-1:], n_min, n_max, state["refine"])
+            pred = predict_jit(model_of(w, band_), camera, times[-1:], n_min, n_max, state["refine"])
             wt = valid_weights(normals[-1:], camera) * pred.converged
             d = pred.normal[..., :2] - normals[-1:, ..., :2]
             return float(jnp.sum(d * d * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
@@ -472,7 +480,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         t_a = time.perf_counter()
         positions = None
         if n_cur > 0:
-            resid, wt, xy = _residual_slopes(with_band(current, band)[0], fit_n, camera, fit_t, n_min, n_max,
+            resid, wt, xy = _residual_slopes(model_of(current, band), fit_n, camera, fit_t, n_min, n_max,
                                              state["refine"])
             positions = None if state["refine"] == ROWS else xy
         else:
