@@ -201,7 +201,10 @@ def _residual_slopes(waves_, normals, camera, times, n_min, n_max, refine):
 
 def _surface_gap(model: Waves, camera, times, weight, n_min, n_max) -> float:
     """Mean angle [rad] between the rows path's and the hits path's normals of ``model`` over
-    the valid pixel-frames whose hit converges."""
+    the valid pixels whose hit converges, on the first and the last frame (two frames keep
+    the compiled hits program small; the gap is a property of the sea, not of the time)."""
+    pick = np.asarray([0, times.shape[0] - 1])
+    times, weight = times[pick], weight[pick]
     rows = predict_jit(model, camera, times, n_min, n_max, ROWS)
     hits = predict_jit(model, camera, times, n_min, n_max, HITS)
     wt = weight * hits.converged
