@@ -579,6 +579,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         t_c = time.perf_counter()
         timing["refine"] += t_c - t_b
         trial, trial_band, out = run_lm(trial, band, inner_steps)
+        jax.block_until_ready(out.loss)  # dispatch is asynchronous: time the work, not the call
         timing["lm"] += time.perf_counter() - t_c
         total_steps += int(out.steps)
         sc = score_of(trial, trial_band, out)
