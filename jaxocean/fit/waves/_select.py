@@ -39,7 +39,7 @@ from jaxocean.waves import GRAVITY, Waves, validate
 _CRITERIA = ("bic", "aic", "holdout")
 #: ``surface="auto"`` fits on the hits path once the model's rows-path and hits-path normals
 #: differ by more than this fraction of the success bound (:func:`normal_error_bound`)
-SURFACE_TOLERANCE = 0.1
+SURFACE_TOLERANCE = 0.5
 #: the criterion's default noise floor: the per-component sigma of the normals whose mean
 #: angle ``sqrt(pi/2) sigma`` times ``NOISE_FACTOR`` is the success bound of noise-free data
 DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2))
@@ -290,7 +290,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       the waves move the hits; about 10x the cost per step; ``solver="structured"`` only).
       ``"auto"`` (default): the rows path until the fitted model (waves and band) moves some
       pixel's hit by half a footprint (``render.needs_refinement``) and its normals on the
-      two paths differ by more than ``SURFACE_TOLERANCE`` (0.1) of the success bound --
+      two paths differ by more than ``SURFACE_TOLERANCE`` (0.5) of the success bound --
       a difference the data can see at their noise -- the hits path from then on; with a
       registry solver ``"auto"`` stays on the rows path.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
