@@ -112,10 +112,11 @@ def slope_field(normals):
     return slope_from_normal(normals, MIN_NZ)
 
 
-def plane_hits(camera):
+def plane_hits(camera, hit=None):
     """Plane hits ``xy (H, W, 2)``, per-row footprint ``(H,)`` (the centre column, as the
-    renderer's rows path uses) and the sea mask."""
-    hit = cam.intersect_sea(camera)
+    renderer's rows path uses) and the sea mask; ``hit``: the camera's
+    ``intersect_sea``, when the caller has it."""
+    hit = cam.intersect_sea(camera) if hit is None else hit
     W = camera.resolution[1]
     return hit.xy, hit.footprint[:, W // 2], hit.mask
 
@@ -140,9 +141,9 @@ def all_samples(normals_xy, weight, times, camera, scale=1.0, positions=None) ->
     """Every pixel-frame as a sample; ``normals_xy (T, H, W, 2)``; ``positions (T, H, W, 2)``
     the rest position each pixel-frame sees (None: the plane hits, the rows path's)."""
     T, H, W = weight.shape
-    xy, fp_row, _ = plane_hits(camera)
-    xy = jnp.broadcast_to(xy[None], (T, H, W, 2)) if positions is None else positions
     hit = cam.intersect_sea(camera)
+    xy, fp_row, _ = plane_hits(camera, hit)
+    xy = jnp.broadcast_to(xy[None], (T, H, W, 2)) if positions is None else positions
     down = jnp.minimum(hit.direction[..., 2:], -1e-6)  # sky rays carry no weight
     run = jnp.where(hit.mask[..., None], hit.direction[..., :2] / down, 0.0)
     return Samples(

@@ -23,7 +23,7 @@ from jaxocean._math import safe_sqrt
 from jaxocean.errors import is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chunked, clean_inputs, subsample,
                                         valid_weights)
-from jaxocean.fit.waves._model import (ROWS, bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
+from jaxocean.fit.waves._model import (ROWS, active_waves, bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
                                        rough_data, rough_residual, surface_refine, to_waves, unpack)
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -126,15 +126,13 @@ class _LMOut(NamedTuple):
 
 
 def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max, refine):
-    """``0.5 |r|^2`` through ``render.geometry`` (normals) plus the roughness rows."""
-    n = active.shape[0]
-    w = to_waves(y, n)
-    w = w._replace(amplitude=w.amplitude * active)
-    n_pred = predict_jit(w, camera, times, n_min, n_max, refine).normal
-    d = (n_pred[..., :2] - normals[..., :2])
+    """``(0.5 |r|^2, xy)``: the loss through ``render.geometry`` (normals) plus the roughness
+    rows, and the rest positions ``(T, H, W, 2)`` the model's pixels see (its hits)."""
+    pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine)
+    d = (pred.normal[..., :2] - normals[..., :2])
     half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
     rr = rough_residual(y, active, rough, tail_rows, n_min, n_max)
-    return half + 0.5 * jnp.sum(rr * rr)
+    return half + 0.5 * jnp.sum(rr * rr), pred.xy
 
 
 def _hessian_samples(n_pad: int, m_total: int) -> int:
@@ -163,11 +161,10 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     sub = subsample(samples, hessian_samples)
     ratio = jnp.sum(samples.sw ** 2) / jnp.maximum(jnp.sum(sub.sw ** 2), 1e-30)
 
-    def hessian_chunks(y):
+    def hessian_chunks(xy):
+        # the subsample at the model's current hits (the rows path's never move)
         if refine == ROWS:
             return chunked(sub, size)
-        w = to_waves(y, n)
-        xy = predict_jit(w._replace(amplitude=w.amplitude * active), camera, times, n_min, n_max, refine).xy
         return chunked(subsample(all_samples(normals[..., :2], weight, times, camera, scale, xy), hessian_samples),
                        size)
     act4 = jnp.concatenate([active, active, active & ~held, active & ~held])
@@ -177,8 +174,9 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         # the exact gradient of the very loss the accept test uses (reverse mode through
         # render.geometry: the rank-N rows path, or the converged hits with their implicit
         # derivative), J^T J from the structured subsample
-        jtr = jax.grad(f)(y)
-        jtj = _gauss_newton(y, active, hessian_chunks(y), n_min, n_max, refine != ROWS) * ratio
+        # the hits come with the gradient's own forward pass, not a second render
+        jtr, xy = jax.grad(f_and_hits, has_aux=True)(y)
+        jtj = _gauss_newton(y, active, hessian_chunks(xy), n_min, n_max, refine != ROWS) * ratio
         _, jr = jax.linearize(lambda yy: rough_residual(yy, active, rough, tail_rows, n_min, n_max), y)
         Jr = jax.vmap(jr, out_axes=1)(jnp.eye(4 * n, dtype=dtype))  # (H, 4N)
         jtj = jtj + Jr.T @ Jr + jnp.diag(jnp.concatenate([ridge, ridge, jnp.zeros_like(ridge), jnp.zeros_like(ridge)]))
@@ -197,9 +195,12 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         P = unpack(y, n)
         return 0.5 * jnp.sum(ridge * (P[0] ** 2 + P[1] ** 2))
 
+    def f_and_hits(y):
+        loss, xy = _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max, refine)
+        return loss + prior(y), xy
+
     def f(y):
-        return (_ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale, n_min, n_max, refine)
-                + prior(y))
+        return f_and_hits(y)[0]
 
     f0 = f(y0)
     jtj0, jtr0 = normal_eq(y0)
@@ -294,8 +295,7 @@ def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, 
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     if refine != ROWS:
-        w0 = to_waves(y0, active.shape[0])
-        start = predict_jit(w0._replace(amplitude=w0.amplitude * active), camera, times, n_min, n_max, refine)
+        start = predict_jit(active_waves(y0, active), camera, times, n_min, n_max, refine)
         weight = weight * start.converged
     n_valid = jnp.maximum(jnp.sum(weight), 1.0)
     scale = 1.0 / n_valid
@@ -318,13 +318,10 @@ def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *,
     n_valid = jnp.maximum(jnp.sum(weight), 1.0)
     scale = 1.0 / n_valid
     rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
-    n = active.shape[0]
     sw = jnp.sqrt(weight * scale)[..., None]
 
     def residual(y, args):
-        w = to_waves(y, n)
-        w = w._replace(amplitude=w.amplitude * active)
-        n_pred = predict_jit(w, camera, times, n_min, n_max).normal
+        n_pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max).normal
         r_n = ((n_pred[..., :2] - normals[..., :2]) * sw).ravel()
         return jnp.concatenate([r_n, rough_residual(y, active, rough, tail_rows, n_min, n_max)])
 

@@ -54,6 +54,12 @@ def to_waves(y, n) -> Waves:
     return Waves(safe_sqrt(r2), jnp.exp(u), wrap_angle(th), phase)
 
 
+def active_waves(y, active) -> Waves:
+    """The waves of packed parameters ``y (4N,)`` with the inactive (padding) ones silenced."""
+    w = to_waves(y, active.shape[0])
+    return w._replace(amplitude=w.amplitude * active)
+
+
 def wrap_angle(theta):
     return jnp.mod(theta + jnp.pi, 2 * jnp.pi) - jnp.pi
 
