@@ -104,6 +104,8 @@ def _check_inputs(waves: Waves, camera):
     validate(waves)
     if waves.omega.ndim != 1:
         raise ValueError(f"render functions take Waves with leaves (N,); got {waves.omega.shape} (vmap batches)")
+    if waves.omega.shape[0] == 0:
+        raise ValueError("render functions need at least one wave; a flat sea is one wave of zero amplitude")
     cam.validate_camera(camera)
 
 

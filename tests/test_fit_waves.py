@@ -118,6 +118,14 @@ def test_refine_from_the_spectral_start_in_perspective():
     assert float(fit.normal_error) < 1e-4
 
 
+def test_a_flat_sea_raises_no_wave_found():
+    # nothing to return: a sea without waves is an error of its own type, saying at what noise
+    c = ortho()
+    up = jnp.zeros((TIMES.size,) + RES + (3,)).at[..., 2].set(1.0)
+    with pytest.raises(fit_package.NoWaveFound, match=r"no wave found.*stated noise \(0.01 per normal"):
+        fw.waves(up, None, c, TIMES, noise=0.01)
+
+
 def test_a_fit_that_fails_says_so(ortho_scene):
     c, truth, normals, rough = ortho_scene
     bad = truth._replace(omega=truth.omega * 1.3, theta=truth.theta + 1.0)

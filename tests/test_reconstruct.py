@@ -4,7 +4,9 @@ the result file's contract, conventions and input errors; a 2-frame end-to-end r
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -140,3 +142,21 @@ def test_lighting_stage_states_the_network_error_and_says_why_it_fails(tmp_path)
     # the sun is behind the camera (azimuth 2.5 rad): its direction cannot be determined, and
     # the stage says so in the fit's own words
     assert not rep.success and "sun direction undetermined" in rep.message
+
+
+def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
+    # the waves stage on geometry that shows no wave at the stated noise: a failed stage that
+    # says why, and a flat sea (one wave of zero amplitude) the later stages can render
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    shape = (len(seq.times),) + tuple(seq.camera.resolution)
+    up = np.zeros(shape + (3,), np.float32)
+    up[..., 2] = 1.0
+    flat = SimpleNamespace(normal=jnp.asarray(up), roughness=jnp.full(shape, 1e-3, jnp.float32))
+    wfit, rep = rc.waves_stage(seq, flat, frames=None, max_waves=4)
+    assert not rep.success and "no wave found" in rep.message
+    assert rep.details["n_waves"] == 0 and rep.details["normal_error_rad"] == pytest.approx(0.0, abs=1e-6)
+    assert float(jnp.max(wfit.waves.amplitude)) == 0.0 and not bool(wfit.success)
+    g = render.geometry(wfit.waves, seq.camera, 0.0)
+    sea = np.asarray(g.mask)
+    np.testing.assert_allclose(np.asarray(g.normal)[sea][:, 2], 1.0, atol=1e-6)

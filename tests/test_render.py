@@ -250,3 +250,6 @@ def test_bad_inputs_raise_before_work():
         render.shade(normal, jnp.full((16, 12), 1e-3), c, light)
     with pytest.raises(ValueError, match="plan must be"):
         render.geometry(waves, c, 0.0, plan="fast")
+    no_waves = jax.tree.map(lambda x: x[:0], waves)
+    with pytest.raises(ValueError, match="at least one wave; a flat sea is one wave of zero amplitude"):
+        render.render(no_waves, c, light, 0.0)

@@ -58,6 +58,7 @@ from jaxocean.fit.photometric import PhotometricFit, photometric
 from jaxocean.fit.reedit import StyleTransfer, edit_camera, edit_lighting, reedit, reedit_scene, style_transfer
 from jaxocean.fit.spectrum import SeaState, SpectrumFit, correct_amplitudes, sea_state, spectrum, tail_waves
 from jaxocean.fit.waves import (
+    NoWaveFound,
     OrderSelection,
     SpectralEstimate,
     WaveFit,
@@ -121,6 +122,7 @@ __all__ = [
     "style_transfer",
     # waves
     "WaveFit",
+    "NoWaveFound",
     "OrderSelection",
     "SpectralEstimate",
     "WaveMatch",

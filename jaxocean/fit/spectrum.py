@@ -99,6 +99,13 @@ class SpectrumFit(NamedTuple):
     * ``misfit_bound``   the largest ``misfit`` a right answer leaves for the stated noise.
     * ``roughness_misfit`` RMS relative roughness residual over the informative rows (NaN
       when no roughness was fitted); ``roughness_bound`` its bound.
+    * ``hs_std``, ``tp_std`` [m, s], ``gamma_std``: 1-sigma of the fitted values from the
+      scatter of the data about the answer (sandwich covariance of the least-squares fit,
+      the per-bin energy errors independent: :func:`spectrum`); NaN for a value that was
+      held (``tp_std`` when the peak is not observed and Tp is pinned: it is a bound;
+      ``gamma_std`` when ``gamma`` was given).
+    * ``theta_std`` [rad], ``s_max_std``: 1-sigma of the direction fit (sandwich covariance
+      of the weighted maximum likelihood); NaN where the likelihood has no interior maximum.
     """
 
     spectrum: spec.Spectrum
@@ -114,6 +121,11 @@ class SpectrumFit(NamedTuple):
     misfit_bound: float = float("nan")
     roughness_misfit: float = float("nan")
     roughness_bound: float = float("nan")
+    hs_std: float = float("nan")
+    tp_std: float = float("nan")
+    gamma_std: float = float("nan")
+    theta_std: float = float("nan")
+    s_max_std: float = float("nan")
 
 
 class SeaState(NamedTuple):
@@ -215,6 +227,17 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     answer's RMS residuals within ``sqrt(NOISE_FACTOR noise^2 + ENERGY_FLOOR^2)`` and
     ``sqrt(NOISE_FACTOR roughness_noise^2 + ROUGHNESS_FLOOR^2)``: a spectrum that leaves
     more does not explain the waves, however well the solver converged.
+
+    Uncertainties (``hs_std`` ... ``s_max_std``) describe how far the answer moves with the
+    scatter the data show about it. The fit minimises the *cumulative* energy residual, whose
+    entries share every bin's error; with the per-bin errors independent of variance
+    ``s^2`` (estimated from the differenced residual, ``n - p`` degrees of freedom) the
+    covariance of the parameters is the sandwich ``A^-1 J^T Sigma J A^-1``, ``A = J^T J``,
+    ``Sigma = s^2 L L^T`` (``L`` the cumulative sum), the roughness rows with their own
+    variance. The direction's is the sandwich of the weighted likelihood, ``H^-1 (sum w^2 g
+    g^T) H^-1`` over the waves' score ``g`` and the Hessian ``H``. Neither counts the
+    model's own error (a sea that is not one JONSWAP / Mitsuyasu spectrum): ``success``
+    says whether the answer explains the data.
     Eager (the wave selection is data dependent)."""
     from jaxocean.fit import solvers
     from jaxocean.fit.waves import resolvable
@@ -344,8 +367,14 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     hs_fit, tp_fit = math.exp(y[0]), math.exp(y[1])
     g_fit = float(y[2])
     wp = 2 * math.pi / tp_fit
+    std_y = _least_squares_std(lambda y_: residual(y_, None), y_solver, free, len(om))
+    hs_std, tp_std = hs_fit * std_y[0], tp_fit * std_y[1]
+    if gamma is not None:
+        gamma_std = float("nan")
+    else:  # unbounded solvers fit z with gamma = 1 + z^2
+        gamma_std = std_y[2] if bounded else 2.0 * abs(float(y_solver[2])) * std_y[2]
 
-    theta_mean, s_max = _direction_mle(om, th, wp, weight=h * h)
+    theta_mean, s_max, theta_std, s_max_std = _direction_mle(om, th, wp, weight=h * h)
     fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
                            gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
                            s_max=jnp.asarray(s_max, dtype))
@@ -362,22 +391,58 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     return SpectrumFit(spectrum=fitted, loss=float(out.loss), success=bool(out.success) and explained,
                        steps=int(out.steps), n_waves=int(len(om)), omega_band=(float(edges[0]), float(edges[-1])),
                        peak_observed=peak_observed, alpha=float(alpha), time_s=time.perf_counter() - t0,
-                       misfit=misfit, misfit_bound=bound, roughness_misfit=rough_misfit, roughness_bound=rough_bound)
+                       misfit=misfit, misfit_bound=bound, roughness_misfit=rough_misfit, roughness_bound=rough_bound,
+                       hs_std=float(hs_std), tp_std=float(tp_std), gamma_std=float(gamma_std),
+                       theta_std=theta_std, s_max_std=s_max_std)
+
+
+def _least_squares_std(residual, y, free, n_energy: int) -> np.ndarray:
+    """1-sigma of every entry of ``y`` (NaN where not ``free``) from the sandwich covariance
+    of the least-squares fit of ``residual`` (:func:`spectrum`'s docstring): its first
+    ``n_energy`` entries are cumulative energies (independent per-bin errors), the rest
+    roughness rows (independent)."""
+    idx = np.flatnonzero(free)
+    y = jnp.asarray(y)
+    idx_j = jnp.asarray(idx)
+    r_free = lambda yf: residual(y.at[idx_j].set(yf))  # noqa: E731
+    J = np.asarray(jax.jacfwd(r_free)(y[idx_j]), np.float64)
+    r = np.asarray(r_free(y[idx_j]), np.float64)
+    p = idx.size
+    per_bin = np.diff(r[:n_energy], prepend=0.0)
+    s2 = float(np.sum(per_bin ** 2)) / max(n_energy - p, 1)
+    L = np.tril(np.ones((n_energy, n_energy)))
+    sigma = np.zeros((r.size, r.size))
+    sigma[:n_energy, :n_energy] = s2 * (L @ L.T)
+    n_rough = r.size - n_energy
+    if n_rough:
+        sigma[n_energy:, n_energy:] = np.eye(n_rough) * float(np.sum(r[n_energy:] ** 2)) / max(n_rough - p, 1)
+    a_inv = np.linalg.pinv(J.T @ J)
+    cov = a_inv @ (J.T @ sigma @ J) @ a_inv
+    std = np.full(np.shape(free), np.nan)
+    std[idx] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return std
+
+
+def _spreading_loglik(theta_mean, s_max, om, th, wp):
+    """Per-wave log-likelihood of the directions ``th`` under the Mitsuyasu spreading of
+    their frequencies ``om``; ``theta_mean``, ``s_max`` broadcast against a trailing wave axis."""
+    x = om / wp
+    s = s_max * np.where(x > 1, x ** -2.5, x ** 5)  # s / s_max per wave
+    log_q = _lgamma(s + 1) - _lgamma(s + 0.5) - math.log(2 * math.sqrt(math.pi))
+    c2 = 0.5 * (1 + np.cos(th - theta_mean))
+    return log_q + s * np.log(np.maximum(c2, 1e-300))
 
 
 def _direction_mle(om, th, wp, weight=None):
-    """Maximum-likelihood (theta_mean, s_max) of directions under Mitsuyasu spreading, each
-    wave's log-likelihood scaled by ``weight`` (normalised to mean 1; default 1)."""
+    """Maximum-likelihood ``(theta_mean, s_max, theta_std, s_max_std)`` of directions under
+    Mitsuyasu spreading, each wave's log-likelihood scaled by ``weight`` (normalised to mean
+    1; default 1); the standard deviations from the sandwich covariance (NaN at the edge of
+    the ``s_max`` grid or without an interior maximum)."""
     weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
     weight = weight * (weight.size / max(float(np.sum(weight)), 1e-300))
     th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
     s_grid = np.geomspace(0.5, 150.0, 48)
-    x = om / wp
-    shape = np.where(x > 1, x ** -2.5, x ** 5)  # s / s_max per wave
-    s = s_grid[:, None] * shape[None, :]  # (S, n)
-    log_q = _lgamma(s + 1) - _lgamma(s + 0.5) - math.log(2 * math.sqrt(math.pi))
-    c2 = 0.5 * (1 + np.cos(th[None, None, :] - th_grid[:, None, None]))  # (T, 1, n)
-    ll = np.sum(weight * (log_q[None] + s[None] * np.log(np.maximum(c2, 1e-300))), axis=-1)  # (T, S)
+    ll = np.sum(weight * _spreading_loglik(th_grid[:, None, None], s_grid[None, :, None], om, th, wp), -1)  # (T, S)
     i, j = np.unravel_index(np.argmax(ll), ll.shape)
 
     def parabola(f_m, f_0, f_p):
@@ -391,7 +456,23 @@ def _direction_mle(om, th, wp, weight=None):
         s_best = math.exp(ls[j] + (ls[1] - ls[0]) * parabola(ll[i, j - 1], ll[i, j], ll[i, j + 1]))
     else:
         s_best = float(s_grid[j])
-    return float(np.mod(theta + np.pi, 2 * np.pi) - np.pi), s_best
+    theta = float(np.mod(theta + np.pi, 2 * np.pi) - np.pi)
+    if not 0 < j < len(s_grid) - 1:
+        return theta, s_best, float("nan"), float("nan")
+    # sandwich covariance in (theta, log s_max) from per-wave central differences
+    eps = 1e-3
+    f = lambda dt_, dl: _spreading_loglik(theta + dt_, s_best * math.exp(dl), om, th, wp)  # noqa: E731
+    f0 = f(0.0, 0.0)
+    g = np.stack([(f(eps, 0) - f(-eps, 0)) / (2 * eps), (f(0, eps) - f(0, -eps)) / (2 * eps)], -1)  # (n, 2)
+    h_tt = (f(eps, 0) - 2 * f0 + f(-eps, 0)) / eps ** 2
+    h_ll = (f(0, eps) - 2 * f0 + f(0, -eps)) / eps ** 2
+    h_tl = (f(eps, eps) - f(eps, -eps) - f(-eps, eps) + f(-eps, -eps)) / (4 * eps * eps)
+    hess = np.array([[np.sum(weight * h_tt), np.sum(weight * h_tl)], [np.sum(weight * h_tl), np.sum(weight * h_ll)]])
+    if not np.all(np.linalg.eigvalsh(hess) < 0):
+        return theta, s_best, float("nan"), float("nan")
+    h_inv = np.linalg.inv(hess)
+    cov = h_inv @ ((weight[:, None] * g).T @ (weight[:, None] * g)) @ h_inv
+    return theta, s_best, float(np.sqrt(cov[0, 0])), float(s_best * np.sqrt(cov[1, 1]))
 
 
 def _lgamma(x):

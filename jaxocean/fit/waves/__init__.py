@@ -93,13 +93,14 @@ from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAM
                                     refine)
 from jaxocean.fit.waves._match import WaveMatch, match, rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._model import loss, predict
-from jaxocean.fit.waves._select import OrderSelection, waves
+from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
 
 __all__ = [
     "WaveFit",
     "SpectralEstimate",
     "OrderSelection",
+    "NoWaveFound",
     "WaveMatch",
     "LongWaveBand",
     "SOLVER_NAMES",

@@ -45,6 +45,11 @@ SURFACE_TOLERANCE = 0.5
 DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2))
 
 
+class NoWaveFound(InvalidValueError):
+    """:func:`waves` found no wave that explains more of the data than the criterion's
+    penalty at the noise (a flat sea, or geometry whose waves are below its stated noise)."""
+
+
 class OrderSelection(NamedTuple):
     """The path of the greedy model-order selection: one entry per tried wave count."""
 
@@ -308,6 +313,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       normal error above :func:`normal_error_bound` of ``noise``, or the waves are not
       finite; the message says which. Otherwise read ``success`` (and ``converged``, whether
       the final refinement met its tolerances).
+
+    Raises :class:`NoWaveFound` (an :class:`~jaxocean.errors.InvalidValueError`) when no
+    candidate pays the criterion's penalty at the noise: there is no wave to return.
 
     Eager only (data-dependent wave counts); returns a :class:`WaveFit` with waves sorted by
     frequency, or ``(WaveFit, OrderSelection)`` with ``return_selection=True``. For a fixed
@@ -610,7 +618,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     # ---- final refinement on every frame, then pruning by the Wald statistic: a pruned
     # model is refitted and kept only if the criterion does not get worse
     if current.omega.shape[0] == 0:
-        raise InvalidValueError("no wave found in the data (the normals show a flat sea)")
+        level = (f"the stated noise ({float(noise):.3g} per normal component)" if noise is not None
+                 else f"the noise floor ({math.sqrt(floor2):.3g} per normal component)")
+        raise NoWaveFound(f"no wave found: no candidate explains more of the normals than the {criterion} "
+                          f"criterion asks at {level}; the geometry shows a flat sea at that noise")
 
     rough_info = roughness is not None and rw > 0 and _roughness_informative(roughness, camera)
 
