@@ -558,19 +558,25 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         state = fit.sea_state(waves)
         n_reliable = int(np.sum(fit.resolvable(waves, seq.camera)))
         sf = None
+        hs_std_waves = _hs_uncertainty(waves, std)
+        nan = math.nan
         if n_reliable >= fit.spectrum_fit.MIN_WAVES:
             sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
             s = sf.spectrum
             hs, tp, theta, spread, gam = (float(x) for x in (s.hs, s.tp, s.theta_mean, s.s_max, s.gamma))
             observed = bool(sf.peak_observed)
+            # the spectrum fit's scatter and the waves' own amplitude errors, independent
+            hs_std = math.hypot(sf.hs_std, hs_std_waves) if math.isfinite(hs_std_waves) else sf.hs_std
+            tp_std, theta_std, spread_std, gam_std = sf.tp_std, sf.theta_std, sf.s_max_std, sf.gamma_std
         else:  # too few resolved waves for a spectrum: the waves' own bulk numbers, marked as bounds
-            hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), math.nan, math.nan
+            hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), nan, nan
             observed = False
+            hs_std, tp_std, theta_std, spread_std, gam_std = hs_std_waves, nan, nan, nan, nan
         sea = dict(
-            hs_m=hs, hs_std_m=_hs_uncertainty(waves, std), tp_s=tp,
-            direction_deg=direction_deg(theta, seq.compass),
+            hs_m=hs, hs_std_m=hs_std, tp_s=tp, tp_std_s=tp_std,
+            direction_deg=direction_deg(theta, seq.compass), direction_std_deg=math.degrees(theta_std),
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
-            spreading_s_max=spread, gamma=gam, peak_observed=observed,
+            spreading_s_max=spread, spreading_std=spread_std, gamma=gam, gamma_std=gam_std, peak_observed=observed,
             bound=None if observed else ("Hs and Tp are bounds: the spectral peak lies outside the observed band"
                                          if sf is not None else "Hs and Tp are those of the fitted waves alone "
                                          "(too few resolved waves for a spectrum)"),

@@ -575,9 +575,34 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     # the peak is pinned at the band's long edge: Tp and Hs come out low, not drifting off
     np.testing.assert_allclose(float(fit.spectrum.tp), 2 * np.pi / fit.omega_band[0], rtol=1e-5)
     assert float(fit.spectrum.tp) < 5.0 and float(fit.spectrum.hs) < 1.2
+    # a pinned Tp is a bound: it has no standard deviation; Hs (refitted) has one
+    assert np.isnan(fit.tp_std) and np.isfinite(fit.hs_std) and fit.hs_std > 0
     # the Phillips level of the tail is still right
     alpha_true = float(spectrum.jonswap_normalisation(3.3)) * 5 / 16 * 1.2 ** 2 * (2 * np.pi / 5.0) ** 4 / GRAVITY ** 2
     assert abs(fit.alpha / alpha_true - 1) < 0.15
+
+
+def test_spectrum_uncertainties_describe_the_scatter_of_the_answer():
+    # seas drawn from known spectra, 40 waves with 10% amplitude noise, fitted back: the
+    # errors in units of the reported standard deviations have an RMS near 1 (measured over
+    # 30 draws: Hs 0.96, Tp 1.09, theta 1.23, s_max 1.46 for 60 waves); a standard deviation
+    # 3x too small or too large fails
+    rng = np.random.default_rng(1)
+    z = []
+    for d in range(8):
+        true = dict(hs=rng.uniform(0.5, 2.5), tp=rng.uniform(4, 9), gamma=rng.uniform(1, 5),
+                    theta_mean=rng.uniform(-3, 3), s_max=rng.uniform(5, 40))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+            w = spectrum.sample_waves(jax.random.key(d), spectrum.Spectrum(**true), 40).waves
+        w = w._replace(amplitude=w.amplitude * jnp.asarray(1 + 0.1 * rng.standard_normal(40), w.amplitude.dtype))
+        fit = fit_spectrum.spectrum(w)
+        assert fit.peak_observed
+        d_theta = (float(fit.spectrum.theta_mean) - true["theta_mean"] + np.pi) % (2 * np.pi) - np.pi
+        z.append([(float(fit.spectrum.hs) - true["hs"]) / fit.hs_std, (float(fit.spectrum.tp) - true["tp"]) / fit.tp_std,
+                  d_theta / fit.theta_std])
+    rms = np.sqrt(np.mean(np.square(z), axis=0))
+    assert np.all(np.isfinite(rms)) and np.all(rms > 0.33) and np.all(rms < 3.0), rms
 
 
 def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):

@@ -99,7 +99,7 @@ def test_reconstruct_command_end_to_end(tmp_path):
                      "--width", "32", "--response", "bruneton", "--max-waves", "4", "--wave-frames", "2"])
     assert code in (0, 1)
     data = json.loads((out / "result.json").read_text())
-    for key in ("hs_m", "tp_s", "direction_deg", "peak_observed"):
+    for key in ("hs_m", "tp_s", "direction_deg", "peak_observed", "hs_std_m", "tp_std_s", "direction_std_deg"):
         assert key in data["spectrum"]
     assert data["spectrum"]["success"] is data["stages"]["spectrum"]["success"]
     assert set(data["stages"]) == set(rc.STAGES)

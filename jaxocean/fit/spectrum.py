@@ -234,7 +234,9 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     ``s^2`` (estimated from the differenced residual, ``n - p`` degrees of freedom) the
     covariance of the parameters is the sandwich ``A^-1 J^T Sigma J A^-1``, ``A = J^T J``,
     ``Sigma = s^2 L L^T`` (``L`` the cumulative sum), the roughness rows with their own
-    variance. The direction's is the sandwich of the weighted likelihood, ``H^-1 (sum w^2 g
+    variance; errors in where the bins end (frequencies jittered inside their bins) do not
+    accumulate, so the same sandwich with independent cumulative errors is computed too
+    and the larger standard deviation kept. The direction's is the sandwich of the weighted likelihood, ``H^-1 (sum w^2 g
     g^T) H^-1`` over the waves' score ``g`` and the Hessian ``H``. Neither counts the
     model's own error (a sea that is not one JONSWAP / Mitsuyasu spectrum): ``success``
     says whether the answer explains the data.
@@ -399,8 +401,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
 def _least_squares_std(residual, y, free, n_energy: int) -> np.ndarray:
     """1-sigma of every entry of ``y`` (NaN where not ``free``) from the sandwich covariance
     of the least-squares fit of ``residual`` (:func:`spectrum`'s docstring): its first
-    ``n_energy`` entries are cumulative energies (independent per-bin errors), the rest
-    roughness rows (independent)."""
+    ``n_energy`` entries are cumulative energies, the rest roughness rows (independent)."""
     idx = np.flatnonzero(free)
     y = jnp.asarray(y)
     idx_j = jnp.asarray(idx)
@@ -408,18 +409,25 @@ def _least_squares_std(residual, y, free, n_energy: int) -> np.ndarray:
     J = np.asarray(jax.jacfwd(r_free)(y[idx_j]), np.float64)
     r = np.asarray(r_free(y[idx_j]), np.float64)
     p = idx.size
-    per_bin = np.diff(r[:n_energy], prepend=0.0)
-    s2 = float(np.sum(per_bin ** 2)) / max(n_energy - p, 1)
-    L = np.tril(np.ones((n_energy, n_energy)))
-    sigma = np.zeros((r.size, r.size))
-    sigma[:n_energy, :n_energy] = s2 * (L @ L.T)
-    n_rough = r.size - n_energy
-    if n_rough:
-        sigma[n_energy:, n_energy:] = np.eye(n_rough) * float(np.sum(r[n_energy:] ** 2)) / max(n_rough - p, 1)
+    dof = max(n_energy - p, 1)
     a_inv = np.linalg.pinv(J.T @ J)
-    cov = a_inv @ (J.T @ sigma @ J) @ a_inv
+    n_rough = r.size - n_energy
+
+    def sandwich(energy_cov):
+        sigma = np.zeros((r.size, r.size))
+        sigma[:n_energy, :n_energy] = energy_cov
+        if n_rough:
+            sigma[n_energy:, n_energy:] = np.eye(n_rough) * float(np.sum(r[n_energy:] ** 2)) / max(n_rough - p, 1)
+        return np.sqrt(np.maximum(np.diag(a_inv @ (J.T @ sigma @ J) @ a_inv), 0.0))
+
+    # errors of each bin's energy (an amplitude error) accumulate along the cumulative
+    # residual; errors of where a bin ends (a frequency jittered inside its bin) do not
+    L = np.tril(np.ones((n_energy, n_energy)))
+    per_bin = np.diff(r[:n_energy], prepend=0.0)
+    accumulating = sandwich(float(np.sum(per_bin ** 2)) / dof * (L @ L.T))
+    independent = sandwich(float(np.sum(r[:n_energy] ** 2)) / dof * np.eye(n_energy))
     std = np.full(np.shape(free), np.nan)
-    std[idx] = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    std[idx] = np.maximum(accumulating, independent)
     return std
 
 
