@@ -118,6 +118,20 @@ def test_refine_from_the_spectral_start_in_perspective():
     assert float(fit.normal_error) < 1e-4
 
 
+def test_waves_steeper_than_a_looping_crest_are_no_success(ortho_fit):
+    # k h = 1 is the steepest trochoid (render accepts it); beyond it the crest loops
+    k = np.array([0.5, 1.0, 2.0])
+    steep = Waves(jnp.asarray([1.0 / 0.5, 1.01 / 1.0, 0.5 / 2.0]), jnp.asarray(np.sqrt(GRAVITY * k)),
+                  jnp.zeros(3), jnp.zeros(3))
+    assert _lm.too_steep(steep).tolist() == [False, True, False]
+    render.geometry(jax.tree.map(lambda x: x[:1], steep), ortho(), 0.0)  # k h = 1 renders
+    # a failed fit holding such a wave says so when asked to throw
+    fit, _ = ortho_fit
+    failed = fit._replace(waves=steep, success=jnp.asarray(False))
+    with pytest.raises(FitError, match="1 of 3 fitted waves are steeper than k h = 1"):
+        _lm.maybe_throw(failed, True, 10)
+
+
 def test_a_flat_sea_raises_no_wave_found():
     # nothing to return: a sea without waves is an error of its own type, saying at what noise
     c = ortho()

@@ -62,8 +62,9 @@ class WaveFit(NamedTuple):
       :func:`waves`: the fitted waves are finite and explain the data -- they leave a mean
       normal error within :func:`normal_error_bound` of its ``noise`` -- and, when it selects
       the count, the selection stopped by its criterion (a fit stopped by ``max_waves`` is
-      reported failed: the sea holds more than the cap allows). Whether the final
-      refinement also met its tolerances is ``converged``.
+      reported failed: the sea holds more than the cap allows), and no wave is steeper
+      than ``k h = 1`` (a looping trochoid crest: no sea surface, and ``render`` refuses
+      it). Whether the final refinement also met its tolerances is ``converged``.
     * ``n_waves``      number of fitted waves.
     * ``time_s``       wall time [s] of the eager call (NaN under tracing).
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
@@ -455,10 +456,23 @@ def normal_error_bound(noise=None) -> float:
     return max(NOISE_FACTOR * math.sqrt(math.pi / 2) * sigma, NORMAL_ERROR_FLOOR)
 
 
+def too_steep(waves_: Waves) -> np.ndarray:
+    """bool ``(N,)``: waves steeper than ``k h = 1`` (looping crests; the tolerance of
+    :func:`jaxocean.waves.validate`, which ``render`` applies)."""
+    kh = np.asarray(waves_.omega, np.float64) ** 2 / GRAVITY * np.asarray(waves_.amplitude, np.float64)
+    return kh > 1.0 + 1e-5
+
+
 def maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False, unexplained_bound=None):
     if throw and is_concrete(res.success) and not bool(res.success):
         from jaxocean.fit.solvers import FitError
 
+        steep = too_steep(res.waves)
+        if steep.any():
+            raise FitError(f"{int(steep.sum())} of {steep.size} fitted waves are steeper than k h = 1 (looping "
+                           "crests: no sea surface, and render refuses them); the fit explains the data with waves "
+                           "that cannot exist (noisy geometry without noise=?); the result is attached as .result",
+                           res)
         if unexplained_bound is not None and not capped:
             raise FitError(f"wave fit leaves a mean normal error of {float(res.normal_error):.3e} rad, above "
                            f"{unexplained_bound:.1e} rad for its noise: the {int(res.n_waves)} waves do not explain "

@@ -26,7 +26,7 @@ from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj, fit_result,
-                                    maybe_throw, normal_error_bound, refine_kernel, registry_refine)
+                                    maybe_throw, too_steep, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
                                        surface_refine, to_waves, wrap_angle)
@@ -699,7 +699,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         band_normals = predict_jit(best["band"], camera, times, n_min, n_max, state["refine"]).normal
         absorbed = band_summary(best["band"], band_normals, valid_weights(normals, camera), diameter)
     result = result._replace(time_s=jnp.asarray(time.perf_counter() - t0, dtype),
-                             success=jnp.asarray(finite and not capped and not unexplained),
+                             success=jnp.asarray(finite and not capped and not unexplained
+                                                 and not too_steep(result.waves).any()),
                              converged=jnp.asarray(result.success),
                              determined=separable(result.waves, camera, times, n_max=n_max), long_waves=absorbed)
     maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
