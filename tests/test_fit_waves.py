@@ -132,6 +132,19 @@ def test_waves_steeper_than_a_looping_crest_are_no_success(ortho_fit):
         _lm.maybe_throw(failed, True, 10)
 
 
+def test_refinement_keeps_every_wave_a_sea_surface(ortho_scene):
+    # the structured LM is projected onto k h <= 1: a start steeper than a looping crest is
+    # brought back to the limit, and no step goes past it
+    c, truth, normals, rough = ortho_scene
+    k = np.asarray(truth.omega) ** 2 / GRAVITY
+    start = truth._replace(amplitude=jnp.asarray(1.5 / k, truth.amplitude.dtype))  # k h = 1.5
+    fit = fw.refine(normals, rough, c, TIMES, start, max_steps=3)
+    kh = np.asarray(fit.waves.omega) ** 2 / GRAVITY * np.asarray(fit.waves.amplitude)
+    assert np.all(kh <= 1.0 + 1e-5) and not _lm.too_steep(fit.waves).any()
+    assert float(fit.loss) < float(fw.loss(start._replace(amplitude=jnp.asarray(1.0 / k, start.amplitude.dtype)),
+                                           normals, rough, c, TIMES))
+
+
 def test_a_flat_sea_raises_no_wave_found():
     # nothing to return: a sea without waves is an error of its own type, saying at what noise
     c = ortho()

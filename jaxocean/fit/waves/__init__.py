@@ -63,7 +63,9 @@ Pipeline of :func:`waves`:
    refinement adds the roughness term with the sub-pixel tail of waves outside the set
    fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
-   ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling) whose
+   ``"structured"`` is a Levenberg-Marquardt (Nielsen damping, Marquardt scaling), projected
+   onto the waves that exist (a step or start that would make a wave steeper than ``k h =
+   1``, a looping trochoid crest, stops at that limit), whose
    normal equations ``J^T J`` are accumulated frame by frame and row block by row block
    from a hand-written per-wave Jacobian (a wave's parameters touch only its own sines,
    so ``J`` is built in ``O(pixels x waves)`` and reduced by one matrix product; on the
