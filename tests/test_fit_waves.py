@@ -150,13 +150,11 @@ def test_a_short_wave_the_rows_path_explains_stays_on_it():
     # footprint), so the data are the rows path's. The long-wave band, whose heights the
     # slopes barely fix, once moved the model's hits and sent the fit onto the hits path,
     # where it failed (0.0045 rad left, 4 waves): a sea the rows path explains stays on it
-    res, width = 32, 16.0
-    c = cam.make_orthographic(width, (res, res))
-    k = 2 * np.pi / (5.0 * width / res)
+    c = ortho()
+    k = 2 * np.pi / (5.0 * 12.0 / RES[0])
     truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [-0.43], [1.70])
-    times = np.arange(10) * 0.05
-    normals, rough = fw.predict(truth, c, times, surface="auto")
-    fit = fw.waves(normals, rough, c, times)
+    normals, rough = fw.predict(truth, c, TIMES, surface="auto")
+    fit = fw.waves(normals, rough, c, TIMES)
     assert bool(fit.success) and int(fit.n_waves) <= 2
     m = fw.match(fit.waves, truth)
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3

@@ -526,6 +526,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             if all(np.hypot(*(kc[j] - kc[i])) > 0.5 * max(c_res[i], c_res[j]) for i in picked):
                 picked.append(j)
         if not picked:
+            if verbose:
+                print("  stop: the residual's spectrum holds no candidate with positive energy", flush=True)
             break
         pj = np.asarray(picked)
         t_b = time.perf_counter()
@@ -574,6 +576,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                 continue
             chosen.append(j)
         if not chosen:
+            if verbose:
+                print("  stop: no candidate pays the criterion's penalty and is resolvable and separated from "
+                      "the model's waves", flush=True)
             break
         ch = np.asarray(chosen)
         # one joint linear solve of the chosen candidates: drop those whose share of the
