@@ -436,7 +436,7 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
                                max_waves=max_waves, noise=noise, **kw)
         except fit.NoWaveFound as error:
             # nothing to hand on but a flat sea: the later stages start from it and say so
-            flat = _flat_sea_fit(geometry.normal[idx], seq.camera)
+            flat = _flat_sea_fit(geometry.normal[idx], seq.camera, seq.times[idx])
             details = dict(n_waves=0, frames=len(idx), normal_error_rad=float(flat.normal_error), determined=0,
                            capped_waves=0)
             return flat, False, str(error), details
@@ -454,23 +454,17 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
     return _timed("waves", run)
 
 
-def _flat_sea_fit(normals, camera):
+def _flat_sea_fit(normals, camera, times):
     """The :class:`~jaxocean.fit.WaveFit` of a flat sea (one wave of zero amplitude, what
-    the renderer takes for no waves) and its mean normal angle to the ``normals``."""
-    from jaxocean.fit import WaveFit
+    the renderer takes for no waves), scored against ``normals`` as :func:`fit.refine`
+    scores any waves (no step taken), reported failed with no wave counted."""
+    from jaxocean import fit
 
-    n = jnp.asarray(normals)
-    nz = np.asarray(n[..., 2], np.float64)
-    usable = np.asarray(cam.intersect_sea(camera).mask)[None] & np.isfinite(nz) & (nz > 0)
-    cos = np.clip(nz[usable], -1.0, 1.0)
-    error = float(np.mean(np.arccos(cos))) if cos.size else float("nan")
-    one = lambda v: jnp.asarray([v], n.dtype)  # noqa: E731
+    dtype = jnp.asarray(normals).dtype
+    one = lambda v: jnp.asarray([v], dtype)  # noqa: E731
     flat = Waves(one(0.0), one(1.0), one(0.0), one(0.0))
-    nan = Waves(*(one(np.nan),) * 4)
-    return WaveFit(waves=flat, uncertainty=nan, loss=jnp.asarray(np.nan, n.dtype),
-                   normal_error=jnp.asarray(error, n.dtype), roughness_error=jnp.asarray(np.nan, n.dtype),
-                   steps=jnp.asarray(0), success=jnp.asarray(False), n_waves=jnp.asarray(0),
-                   time_s=jnp.asarray(0.0, n.dtype), determined=np.zeros(1, bool))
+    scored = fit.refine(normals, None, camera, times, flat, max_steps=0, roughness_weight=0.0)
+    return scored._replace(success=jnp.asarray(False), n_waves=jnp.asarray(0), determined=np.zeros(1, bool))
 
 
 def _cap_steepness(waves: Waves, why: list):

@@ -34,6 +34,8 @@ __all__ = [
     "period",
     "steepness",
     "total_steepness",
+    "too_steep",
+    "MAX_STEEPNESS",
     "validate",
     "n_waves",
 ]
@@ -66,7 +68,19 @@ def n_waves(waves: Waves) -> int:
     return waves.omega.shape[-1]
 
 
-def validate(waves: Waves, *, max_steepness: float | None = 1.0) -> Waves:
+#: the steepest trochoid: beyond k h = 1 the crest loops and the surface folds over itself
+MAX_STEEPNESS = 1.0
+
+
+def too_steep(waves: Waves, max_steepness: float = MAX_STEEPNESS) -> np.ndarray:
+    """bool ``(..., N)`` (NumPy, eager): waves with ``k h > max_steepness``, up to a relative
+    1e-5 so that waves clamped to the limit in float32 pass."""
+    # NumPy, not jnp: inside a trace even concrete inputs would become tracers
+    kh = np.asarray(waves.omega) ** 2 / GRAVITY * np.asarray(waves.amplitude)
+    return kh > max_steepness * (1 + 1e-5)
+
+
+def validate(waves: Waves, *, max_steepness: float | None = MAX_STEEPNESS) -> Waves:
     """Check structure (always) and values (when concrete). Returns ``waves`` unchanged.
 
     Structure: four leaves of one shape with at least one axis, floating dtype -> ``ValueError``.
@@ -90,11 +104,9 @@ def validate(waves: Waves, *, max_steepness: float | None = 1.0) -> Waves:
     check_values(np.asarray(waves.amplitude) >= 0, "Waves.amplitude must be >= 0 m", waves.amplitude)
     check_values(np.asarray(waves.omega) > 0, "Waves.omega must be > 0 rad/s", waves.omega)
     if max_steepness is not None:
-        # NumPy, not jnp: inside a trace even concrete inputs would become tracers
-        kh = np.asarray(waves.omega) ** 2 / GRAVITY * np.asarray(waves.amplitude)
-        # a relative tolerance so that waves clamped to k h = 1 in float32 still pass
-        check_values(kh <= max_steepness * (1 + 1e-5),
-                     f"wave steepness k*h must be <= {max_steepness} (no looping trochoid crests)", kh)
+        check_values(~too_steep(waves, max_steepness),
+                     f"wave steepness k*h must be <= {max_steepness} (no looping trochoid crests)",
+                     np.asarray(waves.omega) ** 2 / GRAVITY * np.asarray(waves.amplitude))
     return waves
 
 

@@ -25,7 +25,7 @@ from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chun
                                         valid_weights)
 from jaxocean.fit.waves._model import (ROWS, active_waves, bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
                                        rough_data, rough_residual, surface_refine, to_waves, unpack)
-from jaxocean.waves import GRAVITY, Waves, validate
+from jaxocean.waves import GRAVITY, MAX_STEEPNESS, Waves, too_steep, validate
 
 
 #: solver names accepted by :func:`waves` / :func:`refine`: ours first, then the registry's.
@@ -43,9 +43,6 @@ BAND_RIDGE = 1e-3
 #: tenth of their 1-sigma uncertainty of the optimum, and further steps change nothing the
 #: data can tell (used where a noise variance is given, ``sigma2 > 0``)
 CHI2_TOL = 0.01
-#: the steepest wave the structured LM admits (a projected Levenberg-Marquardt): k h = 1 is
-#: the steepest trochoid, beyond it the crest loops (``render`` refuses such waves)
-MAX_STEEPNESS = 1.0
 _CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
 
 
@@ -147,7 +144,8 @@ def _hessian_samples(n_pad: int, m_total: int) -> int:
 
 def _steepness_projection(y, n, max_steepness):
     """``y`` with every wave's amplitude lowered to at most ``max_steepness / k`` (phase kept):
-    the projection of a projected Levenberg-Marquardt onto the waves that exist."""
+    the projection of a projected Levenberg-Marquardt onto the waves that exist (the
+    structured LM projects onto :data:`jaxocean.waves.MAX_STEEPNESS`, what ``render`` accepts)."""
     a, b, u, th = unpack(y, n)
     k = jnp.exp(2.0 * u) / GRAVITY
     kh = k * jnp.sqrt(a * a + b * b)
@@ -156,8 +154,7 @@ def _steepness_projection(y, n, max_steepness):
 
 
 def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
-                   max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, sigma2=0.0, xtol=1e-7,
-                   max_steepness=None):
+                   max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, sigma2=0.0, xtol=1e-7):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
@@ -171,7 +168,6 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     full Gauss-Newton step could lower chi^2 by less than :data:`CHI2_TOL` also converges.
     """
     n = active.shape[0]
-    max_steepness = MAX_STEEPNESS if max_steepness is None else max_steepness
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
     size = _chunk_size(n)
     sub = subsample(samples, hessian_samples)
@@ -218,7 +214,6 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     def f(y):
         return f_and_hits(y)[0]
 
-    hist0 = jnp.full((history_len,), 0.0, dtype)
     eps = jnp.finfo(dtype).eps
 
     class S(NamedTuple):
@@ -244,8 +239,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         step = -jnp.linalg.solve(A, s.jtr)
         ok_step = jnp.all(jnp.isfinite(step))
         step = jnp.where(ok_step, step, 0.0)
-        # projected LM: a step that would make a wave steeper than max_steepness stops at it
-        y_try = _steepness_projection(s.y + step, n, max_steepness)
+        # projected LM: a step that would make a wave steeper than MAX_STEEPNESS stops at it
+        y_try = _steepness_projection(s.y + step, n, MAX_STEEPNESS)
         step = y_try - s.y
         f_try = f(y_try)
         pred = -(step @ s.jtr) - 0.5 * step @ (s.jtj @ step)
@@ -278,11 +273,11 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
         return S(y, fv, jtj, jtr, lam, nu, s.k + 1, conv | ~jnp.isfinite(fv), conv & jnp.isfinite(fv), hist)
 
-    y0 = _steepness_projection(y0, n, max_steepness)
+    y0 = _steepness_projection(y0, n, MAX_STEEPNESS)
     f0 = f(y0)
     jtj0, jtr0 = normal_eq(y0)
     s0 = S(y0, f0, jtj0, jtr0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32),
-           f0 - prior(y0) <= atol, f0 - prior(y0) <= atol, hist0 + f0)
+           f0 - prior(y0) <= atol, f0 - prior(y0) <= atol, jnp.full((history_len,), f0))
     s = jax.lax.while_loop(cond, body, s0)
     success = s.conv & jnp.isfinite(s.f) & jnp.all(jnp.isfinite(s.y))
     return _LMOut(s.y, s.f, s.k, success, s.jtj, s.hist)
@@ -472,13 +467,6 @@ def normal_error_bound(noise=None) -> float:
     (network predictions, real images) needs ``noise=`` or it is reported failed."""
     sigma = 0.0 if noise is None else float(noise)
     return max(NOISE_FACTOR * math.sqrt(math.pi / 2) * sigma, NORMAL_ERROR_FLOOR)
-
-
-def too_steep(waves_: Waves) -> np.ndarray:
-    """bool ``(N,)``: waves steeper than ``k h = 1`` (looping crests; the tolerance of
-    :func:`jaxocean.waves.validate`, which ``render`` applies)."""
-    kh = np.asarray(waves_.omega, np.float64) ** 2 / GRAVITY * np.asarray(waves_.amplitude, np.float64)
-    return kh > 1.0 + 1e-5
 
 
 def maybe_throw(res: WaveFit, throw: bool, max_steps, capped: bool = False, unexplained_bound=None):

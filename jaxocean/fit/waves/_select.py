@@ -26,14 +26,14 @@ from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj, fit_result,
-                                    maybe_throw, too_steep, normal_error_bound, refine_kernel, registry_refine)
+                                    maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
                                        surface_refine, to_waves, wrap_angle)
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
-from jaxocean.waves import GRAVITY, Waves, validate
+from jaxocean.waves import GRAVITY, Waves, too_steep, validate
 
 
 _CRITERIA = ("bic", "aic", "holdout")
@@ -623,7 +623,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                 total_steps += int(out.steps)
                 best_score = score_of(current, band, out)
                 rss_now = rss_of(out)
-            if n_waves is None and not holdout and rss_of(out) / m_obs <= floor2:
+            if n_waves is None and not holdout and rss_now / m_obs <= floor2:
                 break  # explained to the noise floor: nothing left to find
         elif cur_batch > 1:
             cur_batch = max(1, cur_batch // 2)
