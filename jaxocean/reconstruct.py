@@ -438,11 +438,12 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
             # nothing to hand on but a flat sea: the later stages start from it and say so
             flat = _flat_sea_fit(geometry.normal[idx], seq.camera, seq.times[idx])
             details = dict(n_waves=0, frames=len(idx), normal_error_rad=float(flat.normal_error), determined=0,
-                           capped_waves=0)
+                           capped_waves=0, surface="rows")
             return flat, False, str(error), details
         n = int(result.n_waves)
         details = dict(n_waves=n, frames=len(idx), normal_error_rad=float(result.normal_error),
-                       determined=int(np.sum(result.determined)) if result.determined is not None else None)
+                       determined=int(np.sum(result.determined)) if result.determined is not None else None,
+                       surface=result.surface)
         why = [] if result.success else [f"stopped at the cap of {max_waves} waves" if n >= max_waves
                                          else "the waves do not explain the geometry within its noise"]
         # a fit to noisy geometry can explain the noise with waves too steep to exist (looping

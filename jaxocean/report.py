@@ -140,6 +140,20 @@ def _banner(data) -> str:
             'message.</p>')
 
 
+_SURFACES = {"rows": "the plane-hit (rows) model", "hits": "the displaced-surface (hits) model"}
+
+
+def _stage_note(stage) -> str:
+    """A stage's message, with what a wave fit measured and on which surface model."""
+    d = stage.get("details") or {}
+    note = stage.get("message") or ""
+    if d.get("surface") in _SURFACES:
+        fitted = (f"{d.get('n_waves')} waves ({d.get('determined')} determined) fitted on "
+                  f"{_SURFACES[d['surface']]}")
+        note = fitted + (": " + note if note else "")
+    return note
+
+
 def _html(data, figures) -> str:
     s = data["spectrum"]
 
@@ -149,7 +163,7 @@ def _html(data, figures) -> str:
     rows = "".join(
         f"<tr><td>{html.escape(n)}</td><td class={'ok' if st['success'] else 'bad'}>"
         f"{'ok' if st['success'] else 'FAILED'}</td><td>{st['seconds']:.1f} s</td>"
-        f"<td>{html.escape(st.get('message') or '')}</td></tr>" for n, st in data["stages"].items())
+        f"<td>{html.escape(_stage_note(st))}</td></tr>" for n, st in data["stages"].items())
     bound = "" if s.get("peak_observed") else " (bound: the peak lies outside the observed band)"
     if not s.get("success"):
         bound += " <b class=bad>(not a measurement: the spectrum stage failed)</b>"

@@ -155,7 +155,7 @@ def test_a_short_wave_the_rows_path_explains_stays_on_it():
     truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [-0.43], [1.70])
     normals, rough = fw.predict(truth, c, TIMES, surface="auto")
     fit = fw.waves(normals, rough, c, TIMES)
-    assert bool(fit.success) and int(fit.n_waves) <= 2
+    assert bool(fit.success) and int(fit.n_waves) <= 2 and fit.surface == "rows"
     m = fw.match(fit.waves, truth)
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
 
@@ -492,6 +492,7 @@ def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     assert resolvable.tolist() == [True, True, True, False, False]
     fit = fw.waves(normals, rough, c, TIMES)
     assert bool(fit.success) and float(fit.normal_error) < fw.normal_error_bound()
+    assert fit.surface == "hits"
     # every resolvable wave found, no more than 1.5x as many fitted
     m = fw.match(fit.waves, jax.tree.map(lambda x: x[resolvable], truth))
     assert m.missed.size == 0

@@ -108,6 +108,9 @@ def test_reconstruct_command_end_to_end(tmp_path):
     assert code == (0 if all(s["success"] for s in data["stages"].values()) else 1)
     assert data["waves"] and all(w["omega_rad_s"] > 0 for w in data["waves"])
     page = (out / "report.html").read_text()
+    # which surface model the wave fit ended on, in the result and on the page
+    surface = data["stages"]["waves"]["details"]["surface"]
+    assert surface in ("rows", "hits") and f"({surface})" in page
     for figure in ("frames.png", "sea.png", "forecast.png"):
         assert (out / figure).stat().st_size > 0 and figure in page
 
@@ -156,6 +159,7 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     wfit, rep = rc.waves_stage(seq, flat, frames=None, max_waves=4)
     assert not rep.success and "no wave found" in rep.message
     assert rep.details["n_waves"] == 0 and rep.details["normal_error_rad"] == pytest.approx(0.0, abs=1e-6)
+    assert rep.details["surface"] == "rows"
     assert float(jnp.max(wfit.waves.amplitude)) == 0.0 and not bool(wfit.success)
     g = render.geometry(wfit.waves, seq.camera, 0.0)
     sea = np.asarray(g.mask)

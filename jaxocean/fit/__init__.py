@@ -7,6 +7,8 @@
   its waves, alone or jointly with the lighting
 * :mod:`jaxocean.fit.reedit`   re-render fitted scenes under a new camera or light; style
   transfer
+* :mod:`jaxocean.fit.heights`  surface heights from a normal map (perspective normal
+  integration: each pixel's hit on the surface, up to the window's mean level)
 * :mod:`jaxocean.fit.waves`    component waves from a geometry sequence (spectral start,
   greedy detection with order selection, structured Levenberg-Marquardt)
 * :mod:`jaxocean.fit.photometric` waves, lighting and exposure refined jointly against the
@@ -14,10 +16,10 @@
 * :mod:`jaxocean.fit.spectrum` sea state (Hs, Tp, gamma, direction, spreading) behind fitted
   waves and the roughness; the spectrum correction of unresolved amplitudes
 
-The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera``, ``fit.lighting`` and
-``fit.photometric`` shadow their modules' names on this package; the modules are
-re-exported as ``waves_fit``, ``spectrum_fit``, ``camera_fit``, ``lighting_fit`` and
-``photometric_fit``.
+The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera``, ``fit.lighting``,
+``fit.photometric`` and ``fit.heights`` shadow their modules' names on this package; the
+modules are re-exported as ``waves_fit``, ``spectrum_fit``, ``camera_fit``, ``lighting_fit``,
+``photometric_fit`` and ``heights_fit``.
 
 Usage::
 
@@ -29,6 +31,7 @@ Usage::
 """
 
 from jaxocean.fit import camera as camera_fit
+from jaxocean.fit import heights as heights_fit
 from jaxocean.fit import lighting as lighting_fit
 from jaxocean.fit import photometric as photometric_fit
 from jaxocean.fit import reedit as reedit_module
@@ -54,6 +57,7 @@ from jaxocean.fit.lighting import (
     sun_to_pq,
     tonemap_weights,
 )
+from jaxocean.fit.heights import HeightMap, heights
 from jaxocean.fit.photometric import PhotometricFit, photometric
 from jaxocean.fit.reedit import StyleTransfer, edit_camera, edit_lighting, reedit, reedit_scene, style_transfer
 from jaxocean.fit.spectrum import SeaState, SpectrumFit, correct_amplitudes, sea_state, spectrum, tail_waves
@@ -82,6 +86,7 @@ __all__ = [
     "reedit_module",
     "waves_fit",
     "spectrum_fit",
+    "heights_fit",
     # solvers
     "SOLVERS",
     "SOLVER_NAMES",
@@ -120,6 +125,9 @@ __all__ = [
     "reedit",
     "reedit_scene",
     "style_transfer",
+    # heights
+    "HeightMap",
+    "heights",
     # waves
     "WaveFit",
     "NoWaveFound",

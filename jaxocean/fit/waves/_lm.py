@@ -79,6 +79,9 @@ class WaveFit(NamedTuple):
       :class:`~jaxocean.fit.waves._band.LongWaveBand`: what the long-wave nuisance band
       absorbed (its fitted stand-in waves, the slope variance they explain, their mean tilt
       per frame). ``normal_error`` and ``loss`` are those of the waves and the band together.
+    * ``surface``      (:func:`waves` only, else None) the forward model the fit ended on:
+      ``"rows"`` (the geometry at each pixel's plane hit) or ``"hits"`` (at its converged hit
+      on the displaced surface, where the waves move the pixels' hits).
     """
 
     waves: Waves
@@ -94,6 +97,7 @@ class WaveFit(NamedTuple):
     determined: np.ndarray | None = None
     long_waves: object | None = None
     converged: jax.Array | None = None
+    surface: str | None = None
 
 
 def _chunk_size(n_pad):

@@ -717,7 +717,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                              success=jnp.asarray(finite and not capped and not unexplained
                                                  and not too_steep(result.waves).any()),
                              converged=jnp.asarray(result.success),
-                             determined=separable(result.waves, camera, times, n_max=n_max), long_waves=absorbed)
+                             determined=separable(result.waves, camera, times, n_max=n_max), long_waves=absorbed,
+                             surface="rows" if state["refine"] == ROWS else "hits")
     maybe_throw(result, throw, max_steps, capped, bound if unexplained else None)
     if return_selection:
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
