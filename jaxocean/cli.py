@@ -320,6 +320,8 @@ def build_parser():
                      help="no sun term (default: decided from the footage)")
     sky.add_argument("--sunny", dest="overcast", action="store_false", help="fit a sun term")
     p.add_argument("--no-refine", action="store_true", help="skip the photometric refinement (stage 5)")
+    p.add_argument("--per-frame-exposure", action="store_true",
+                   help="stage 5 fits one exposure per frame (a camera on automatic exposure)")
     p.add_argument("--geometry-model", default=None, help="stage 2's network: a model file, or a shipped model: cpu "
                    "(the default) or gpu (larger, more accurate, ~2.5x the time per frame)")
     from jaxocean.nn import cli as nn_cli
@@ -938,7 +940,7 @@ def cmd_reconstruct(args) -> int:
                                      gamma=args.gamma, step=args.step, max_frames=args.max_frames,
                                      height=args.camera_height, wave_frames=args.wave_frames,
                                      max_waves=args.max_waves, overcast=args.overcast, refine=not args.no_refine,
-                                     geometry_model=args.geometry_model)
+                                     per_frame_exposure=args.per_frame_exposure, geometry_model=args.geometry_model)
     failed = [n for n, r in result.stages.items() if not r.success]
     print(f"wrote {out / 'report.html'} and {out / 'result.json'}"
           + (f"; failed stages: {', '.join(failed)}" if failed else ""))

@@ -489,9 +489,10 @@ def _spread(n: int, k: int | None) -> np.ndarray:
 
 
 def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | None = 16, overcast: bool = False,
-                      max_steps: int | None = None, rounds: int | None = None):
+                      max_steps: int | None = None, rounds: int | None = None, per_frame_exposure: bool = False):
     """Stage 5: waves, lighting and exposure refined jointly against the images through the
-    renderer with a robust loss (:func:`jaxocean.fit.photometric`)."""
+    renderer with a robust loss (:func:`jaxocean.fit.photometric`); ``per_frame_exposure``:
+    one exposure per frame (a camera on automatic exposure)."""
     from jaxocean.fit import photometric_fit as ph
 
     idx = _spread(len(seq.times), frames)
@@ -500,7 +501,7 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
         kw = {k: v for k, v in (("max_steps", max_steps), ("rounds", rounds)) if v is not None}
         images = seq.images[idx][..., 0] if seq.gray else seq.images[idx]
         result = ph.photometric(images, seq.camera, seq.times[idx], waves, lighting, mask=seq.usable[idx],
-                                overcast=overcast, **kw)
+                                overcast=overcast, per_frame_exposure=per_frame_exposure, **kw)
         details = ph.fit_to_dict(result)
         details.update(frames=len(idx), times=[float(t) for t in seq.times[idx]])
         why = [str(result.message)] if result.message else []
@@ -653,13 +654,15 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
                 gamma: float = 2.2, step: int = 1, max_frames: int | None = None, height: float | None = None,
                 wave_frames: int | None = 16, max_waves: int = 24, overcast: bool | None = None,
                 refine: bool = True, refine_steps: int | None = None, refine_rounds: int | None = None,
-                geometry_model=None, progress: bool = True) -> Reconstruction:
+                per_frame_exposure: bool = False, geometry_model=None, progress: bool = True) -> Reconstruction:
     """Run every stage (module docstring) and, with ``out``, write ``result.json``, the
     report and its figures there (:mod:`jaxocean.report`). A stage that fails does not stop
     the pipeline while its output exists; its flag says what the later numbers rest on.
     ``refine=False`` skips stage 5 (the two-step method of the paper); ``refine_steps`` /
     ``refine_rounds``: its Levenberg-Marquardt steps per IRLS round and its rounds (None:
-    :func:`jaxocean.fit.photometric`'s defaults). ``geometry_model``: stage 2's network
+    :func:`jaxocean.fit.photometric`'s defaults); ``per_frame_exposure``: stage 5 fits one
+    exposure per frame (the forecast and re-edited views use their geometric mean).
+    ``geometry_model``: stage 2's network
     (:func:`geometry_stage`; None: the default shipped model)."""
     stages = {}
 
@@ -683,7 +686,8 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     photo = None
     if refine:
         photo, rep = photometric_stage(seq, waves, lighting, frames=wave_frames, overcast=over,
-                                       max_steps=refine_steps, rounds=refine_rounds)
+                                       max_steps=refine_steps, rounds=refine_rounds,
+                                       per_frame_exposure=per_frame_exposure)
         say(rep)
         if rep.success:
             waves, lighting = photo.waves, photo.lighting
@@ -692,7 +696,9 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
                                         stages["photometric"].success else None, waves_ok=waves_ok)
     say(rep)
     refined = photo is not None and stages["photometric"].success
-    outlook, rep = outlook_stage(seq, waves, lighting, exposure=float(photo.exposure) if refined else 1.0)
+    from jaxocean.fit.photometric import mean_exposure
+
+    outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0)
     say(rep)
     result = Reconstruction(seq, geometry, light, wfit, photo, dict(sea, waves=waves, check=check, spectrum_fit=sfit),
                             outlook, stages)

@@ -35,15 +35,18 @@ __all__ = ["write", "rerender"]
 
 def rerender(result, indices):
     """Linear frames ``(len(indices), H, W, 3)`` of the final waves and lighting at the
-    sequence's ``indices`` (times), times the fitted exposure when stage 5 ran."""
+    sequence's ``indices`` (times), times the fitted exposure when stage 5 ran (the
+    geometric mean of per-frame exposures)."""
     import jax
+
+    from jaxocean.fit.photometric import mean_exposure
 
     seq = result.sequence
     waves = result.sea["waves"]
     photo = result.photometric
     ok = photo is not None and result.stages["photometric"].success
     lighting = photo.lighting if ok else result.lighting.lighting
-    exposure = float(photo.exposure) if ok else 1.0
+    exposure = mean_exposure(photo) if ok else 1.0
     plan = render.full_plan(int(np.asarray(waves.omega).shape[0]))
     frames = jax.vmap(lambda t: render.render(waves, seq.camera, lighting, t, plan=plan))(
         np.asarray(seq.times[indices], np.asarray(waves.omega).dtype))

@@ -217,6 +217,37 @@ def test_bad_inputs_raise_clear_errors(scene):
             ph.photometric(*args, mask=np.zeros((N_FRAMES,) + RES, bool))
         with pytest.raises(ValueError, match="noise must be"):
             ph.photometric(*args, noise=-1.0)
+        with pytest.raises(ValueError, match="include 'exposure' in fit"):
+            ph.photometric(*args, fit=("waves",), per_frame_exposure=True)
+        with pytest.raises(ValueError, match="one per frame"):
+            ph.residual(*args, exposure=jnp.ones(N_FRAMES + 1))
+
+
+def test_per_frame_exposure_is_recovered_where_one_exposure_cannot_explain(scene):
+    # a camera on automatic exposure: each frame scaled by its own factor. One exposure for
+    # the sequence cannot explain the frames; one per frame recovers the factors' ratios
+    # (the overall scale is the gauge the exposure shares with the colours)
+    s = scene
+    gains = np.array([1.0, 1.35, 0.8])
+    images = s["images"] * gains[:, None, None, None]
+    with jax.enable_x64(True):
+        args = (images, s["camera"], s["times"], s["truth"], s["light"])
+        common = ph.photometric(*args, fit=("exposure",))
+        per = ph.photometric(*args, fit=("exposure",), per_frame_exposure=True)
+    assert np.asarray(per.exposure).shape == (N_FRAMES,) and np.ndim(common.exposure) == 0
+    ratio = np.asarray(per.exposure) / float(per.exposure[0])
+    np.testing.assert_allclose(ratio, gains / gains[0], rtol=1e-3)
+    assert per.success and float(per.loss) < 0.01 * float(common.loss)
+    assert not common.success
+    # the result's frames carry each frame's exposure; other times their geometric mean
+    with jax.enable_x64(True):
+        again = ph.rerender(per, s["camera"], s["times"])
+        np.testing.assert_allclose(np.asarray(again), images, rtol=2e-3, atol=1e-6)
+        later = ph.rerender(per, s["camera"], [1.0])
+        mean = float(np.exp(np.mean(np.log(np.asarray(per.exposure)))))
+        one = ph.rerender(per._replace(exposure=jnp.asarray(mean)), s["camera"], [1.0])
+        np.testing.assert_allclose(np.asarray(later), np.asarray(one), rtol=1e-12)
+    assert isinstance(ph.fit_to_dict(per)["exposure"], list)
 
 
 def test_package_exports():

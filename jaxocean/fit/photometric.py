@@ -40,7 +40,8 @@ Parameters (one vector, solved jointly):
 * colours: log factors on the start colours, one per channel (RGB) or one per colour (gray
   images see only each colour's luminance); the sun, sky and sea colours (sky and sea when
   overcast). A start channel at 0 is started at 1e-4 of the brightest start colour;
-* exposure: ``log exposure``.
+* exposure: ``log exposure``, or one per frame with ``per_frame_exposure=True`` (a camera
+  on automatic exposure); the gauge below then holds frame by frame.
 
 Exposure gauge: the image is linear in the colours, so a common factor of all colours is
 the exposure. With both ``"lighting"`` and ``"exposure"`` fitted the colour factors are
@@ -157,6 +158,7 @@ __all__ = [
     "residual",
     "rerender",
     "estimate_noise",
+    "mean_exposure",
     "fit_to_dict",
 ]
 
@@ -193,7 +195,8 @@ class PhotometricFit(NamedTuple):
 
     * ``waves``      fitted :class:`~jaxocean.waves.Waves` ``(N,)`` (start order).
     * ``lighting``   fitted :class:`~jaxocean.shading.Lighting` (sun colour 0 when overcast).
-    * ``exposure``   ``()`` the exposure: images ~ ``exposure * render(waves, lighting)``.
+    * ``exposure``   ``()`` the exposure: images ~ ``exposure * render(waves, lighting)``;
+      ``(T,)`` one per frame with ``per_frame_exposure=True``.
     * ``outliers``   ``(T, H, W)`` bool: used pixels the model cannot produce (final weight
       below :data:`OUTLIER_WEIGHT`).
     * ``weights``    ``(T, H, W)`` final IRLS weights (0 on unused pixels).
@@ -244,6 +247,7 @@ class _Static(NamedTuple):
     colors: tuple  # fitted colour names
     gray: bool
     fit_exposure: bool
+    n_exposure: int  # fitted log exposures: 1, or one per frame
     gauge: bool
     plan: render.RenderPlan
 
@@ -268,12 +272,19 @@ class _Data(NamedTuple):
 
 
 def _model_frames(waves_, light, exposure, camera, times, hg, gray, plan):
-    """``exposure * render`` of every frame, ``(T, H, W, C)`` (``C = 1`` gray)."""
-    def one(t):
-        img = exposure * render.render(waves_, camera, light, t, horizon_gradient=hg, plan=plan)
+    """``exposure * render`` of every frame, ``(T, H, W, C)`` (``C = 1`` gray); ``exposure``
+    ``()`` or one per frame ``(T,)``."""
+    def one(args):
+        t, e = args
+        img = e * render.render(waves_, camera, light, t, horizon_gradient=hg, plan=plan)
         return img @ jnp.asarray(LUMINANCE, img.dtype)[:, None] if gray else img
 
-    return jax.lax.map(one, times)
+    return jax.lax.map(one, (times, jnp.broadcast_to(exposure, times.shape)))
+
+
+def _frame_exposure(exposure, i):
+    """Frame ``i``'s exposure of a common ``()`` or per-frame ``(T,)`` exposure."""
+    return exposure[i] if exposure.ndim else exposure
 
 
 def _n_color_params(st: _Static) -> int:
@@ -284,7 +295,7 @@ def _layout(st: _Static):
     """Slices of the parameter vector: waves, sun (p, q), colour coordinates, log exposure."""
     sizes = [("waves", 4 * st.n_waves if st.fit_waves else 0), ("sun", 2 if st.fit_sun else 0),
              ("colors", (_n_color_params(st) - (1 if st.gauge else 0)) if st.colors else 0),
-             ("exposure", 1 if st.fit_exposure else 0)]
+             ("exposure", st.n_exposure if st.fit_exposure else 0)]
     out, i = {}, 0
     for name, n in sizes:
         out[name] = slice(i, i + n)
@@ -306,7 +317,11 @@ def _unpack(y, d: _Data, st: _Static):
         for j, name in enumerate(st.colors):
             i = _COLOR_NAMES.index(name)
             colors[i] = colors[i] * jnp.exp(s[j * per:(j + 1) * per])
-    exposure = jnp.exp(y[lay["exposure"]][0] if st.fit_exposure else d.log_exposure0)
+    if st.fit_exposure:
+        log_e = y[lay["exposure"]]
+        exposure = jnp.exp(log_e[0] if st.n_exposure == 1 else log_e)
+    else:
+        exposure = jnp.exp(d.log_exposure0)
     return waves_, Lighting(az, el, *colors), exposure
 
 
@@ -320,14 +335,15 @@ def _pack(d: _Data, st: _Static):
     if st.colors:
         parts.append(jnp.zeros(lay["colors"].stop - lay["colors"].start, d.target.dtype))
     if st.fit_exposure:
-        parts.append(d.log_exposure0[None])
+        parts.append(jnp.broadcast_to(d.log_exposure0, (st.n_exposure,)))
     return jnp.concatenate(parts).astype(d.target.dtype)
 
 
 def _frame_residual(y, i, d: _Data, st: _Static):
     """Comparison-space residual of frame ``i``, ``(H, W, C)`` (unweighted)."""
     waves_, light, exposure = _unpack(y, d, st)
-    img = exposure * render.render(waves_, d.camera, light, d.times[i], horizon_gradient=d.hg, plan=st.plan)
+    img = _frame_exposure(exposure, i) * render.render(waves_, d.camera, light, d.times[i], horizon_gradient=d.hg,
+                                                      plan=st.plan)
     if st.gray:
         img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
     return compress(img, d.scale) - d.target[i]
@@ -387,7 +403,8 @@ def _frame_jacobian(y, i, d: _Data, st: _Static):
     def shaded(args):
         nrm, var, z = args
         _, light, exposure = _unpack(z, d, st)
-        img = exposure * render.shade(nrm, None, d.camera, light, slope_variance=var, horizon_gradient=d.hg)
+        img = _frame_exposure(exposure, i) * render.shade(nrm, None, d.camera, light, slope_variance=var,
+                                                          horizon_gradient=d.hg)
         if st.gray:
             img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
         return compress(img, d.scale) - d.target[i]
@@ -702,7 +719,8 @@ def _used_pixels(images, camera, mask, sky: bool):
 def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=PHOTOMETRIC_FIELDS, mask=None,
                 robust: str | None = "cauchy", horizon_gradient=0.0, overcast: bool = False, noise: float | None = None,
                 max_steps: int = 20, rounds: int = 4, rtol: float | None = None, exposure: float = 1.0,
-                sky: bool = False, refine: int = 0, progress: bool = False, throw: bool = False) -> PhotometricFit:
+                per_frame_exposure: bool = False, sky: bool = False, refine: int = 0, progress: bool = False,
+                throw: bool = False) -> PhotometricFit:
     """Refine ``waves``, ``lighting`` and the exposure against an image sequence.
 
     Args:
@@ -725,6 +743,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
             ``robust=None``). rtol: relative loss decrease that ends a round (default 1e-6
             in float32, 1e-9 in float64).
         exposure: the start exposure (and the exposure used when it is not fitted).
+        per_frame_exposure: fit one exposure per frame (cameras on automatic exposure)
+            instead of one for the sequence; needs ``"exposure"`` in ``fit``.
         refine: 0 (default) the render's rows path; > 0 the hits path with at most that
             many hit iterations (slower; for waves tall enough to move a hit by a footprint).
         progress: print each round (scale, loss, steps, seconds).
@@ -755,6 +775,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         raise ValueError(f"exposure must be a finite number > 0; got {exposure!r}")
     if not (isinstance(refine, (int, np.integer)) and refine >= 0):
         raise ValueError(f"refine must be an int >= 0; got {refine!r}")
+    if per_frame_exposure and "exposure" not in fit:
+        raise ValueError("per_frame_exposure=True fits the exposure: include 'exposure' in fit")
     if not is_concrete(images, times, waves, lighting, camera):
         raise ValueError("fit.photometric runs eagerly (a host loop over IRLS rounds); call it outside jit/vmap")
 
@@ -791,7 +813,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     if rtol is None:
         rtol = 1e-9 if dtype == jnp.float64 else 1e-6
     st = _Static(n_waves=n, fit_waves="waves" in fit, fit_sun=fit_lighting and not overcast, colors=colors,
-                 gray=gray, fit_exposure=fit_exposure, gauge=gauge, plan=render.full_plan(n, int(refine)))
+                 gray=gray, fit_exposure=fit_exposure, n_exposure=int(times.shape[0]) if per_frame_exposure else 1,
+                 gauge=gauge, plan=render.full_plan(n, int(refine)))
 
     scale = _sea_median(images, used)
     target = compress(images, scale)
@@ -893,7 +916,8 @@ def _determined(y, jtj, sigma, used, channels, n):
 def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1.0, *, mask=None,
              horizon_gradient=0.0, sea_scale=None, sky: bool = False, refine: int = 0):
     """The comparison-space residual ``c(exposure * render) - c(image)`` ``(T, H, W, C)``
-    of :func:`photometric` (``C = 3``, or 1 for gray images), 0 on unused pixels.
+    of :func:`photometric` (``C = 3``, or 1 for gray images), 0 on unused pixels;
+    ``exposure`` ``()`` or one per frame ``(T,)``.
 
     ``sea_scale`` ``(C,)``: the ``s`` of ``c(I) = log1p(I / s)`` (default the images'
     per-channel sea median over the used pixels). Jittable and differentiable in every
@@ -901,6 +925,8 @@ def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1
     images, gray, times, mask = _check_images(images, camera, times, mask)
     validate(waves, max_steepness=None)
     shading.validate_lighting(lighting)
+    if jnp.ndim(exposure) not in (0, 1) or (jnp.ndim(exposure) == 1 and jnp.shape(exposure) != times.shape):
+        raise ValueError(f"exposure must be a scalar or one per frame {times.shape}; got shape {jnp.shape(exposure)}")
     dtype = images.dtype
     used = _used_pixels(images, camera, mask, sky)
     images = jnp.where(used[..., None] > 0, images, 0.0)
@@ -913,13 +939,24 @@ def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1
 def rerender(result: PhotometricFit, camera, times, *, horizon_gradient=0.0, gray: bool = False, refine: int = 0):
     """The fitted model's frames ``exposure * render(waves, camera, lighting, t)``: ``(T, H,
     W, 3)`` linear RGB, or ``(T, H, W)`` luminance with ``gray=True``. Any camera and times
-    (new views, forecasts); with the fit's own they are what the fit compared."""
+    (new views, forecasts); with the fit's own they are what the fit compared. Per-frame
+    exposures apply frame by frame when ``times`` has as many frames, else their geometric
+    mean."""
     times = jnp.atleast_1d(jnp.asarray(times, result.waves.omega.dtype))
     cam.validate_camera(camera)
-    out = _model_frames(result.waves, result.lighting, jnp.asarray(result.exposure), camera, times,
+    exposure = jnp.asarray(result.exposure)
+    if exposure.ndim and exposure.shape != times.shape:
+        exposure = jnp.asarray(mean_exposure(result), times.dtype)
+    out = _model_frames(result.waves, result.lighting, exposure, camera, times,
                         jnp.asarray(horizon_gradient, times.dtype), gray,
                         render.full_plan(result.waves.omega.shape[0], refine))
     return out[..., 0] if gray else out
+
+
+def mean_exposure(result: PhotometricFit) -> float:
+    """The fit's exposure as one number: itself, or the geometric mean of per-frame ones
+    (for frames and times the fit did not see)."""
+    return float(np.exp(np.mean(np.log(np.asarray(result.exposure, np.float64)))))
 
 
 def fit_to_dict(result: PhotometricFit) -> dict:
@@ -936,7 +973,8 @@ def fit_to_dict(result: PhotometricFit) -> dict:
         "waves": {name: [float(v) for v in np.asarray(getattr(w, name))] for name in Waves._fields},
         "n_waves": int(np.asarray(w.omega).shape[0]),
         "lighting": lighting_to_dict(result.lighting),
-        "exposure": f(result.exposure),
+        "exposure": (f(result.exposure) if np.ndim(result.exposure) == 0
+                     else [f(e) for e in np.asarray(result.exposure)]),
         "loss_init": f(result.loss_init),
         "loss": f(result.loss),
         "robust_scale": f(result.robust_scale),
