@@ -232,13 +232,16 @@ def test_per_frame_exposure_is_recovered_where_one_exposure_cannot_explain(scene
     images = s["images"] * gains[:, None, None, None]
     with jax.enable_x64(True):
         args = (images, s["camera"], s["times"], s["truth"], s["light"])
-        common = ph.photometric(*args, fit=("exposure",))
         per = ph.photometric(*args, fit=("exposure",), per_frame_exposure=True)
-    assert np.asarray(per.exposure).shape == (N_FRAMES,) and np.ndim(common.exposure) == 0
+        # the best single exposure is about the gains' geometric mean: it leaves each frame
+        # off by its gain's ratio to it, percents of radiance against a noise-free fit
+        common = ph.residual(*args, exposure=ph.mean_exposure(per))
+        own = ph.residual(*args, exposure=per.exposure)
+    assert np.asarray(per.exposure).shape == (N_FRAMES,)
     ratio = np.asarray(per.exposure) / float(per.exposure[0])
     np.testing.assert_allclose(ratio, gains / gains[0], rtol=1e-3)
-    assert per.success and float(per.loss) < 0.01 * float(common.loss)
-    assert not common.success
+    assert per.success
+    assert float(jnp.sqrt(jnp.mean(own ** 2))) < 0.01 * float(jnp.sqrt(jnp.mean(common ** 2)))
     # the result's frames carry each frame's exposure; other times their geometric mean
     with jax.enable_x64(True):
         again = ph.rerender(per, s["camera"], s["times"])

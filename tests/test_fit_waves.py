@@ -213,10 +213,10 @@ def test_a_converged_fit_that_does_not_explain_the_data_is_reported_failed():
     truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [rng.uniform(-np.pi, np.pi)],
                        [rng.uniform(0, 2 * np.pi)])
     normals, rough = fw.predict(truth, c, TIMES)
-    fit = fw.waves(normals, rough, c, TIMES)
-    assert float(fit.normal_error) > fw.normal_error_bound() and not bool(fit.success)
-    with pytest.raises(FitError, match="do not explain the data"):
+    with pytest.raises(FitError, match="do not explain the data") as raised:
         fw.waves(normals, rough, c, TIMES, throw=True)
+    fit = raised.value.result  # the failed fit the error carries
+    assert float(fit.normal_error) > fw.normal_error_bound() and not bool(fit.success)
     # the bound: 1 mrad without noise, 1.5 x the mean angle sqrt(pi/2) sigma of the noise
     assert fw.normal_error_bound() == fw.NORMAL_ERROR_FLOOR == 1e-3
     assert fw.normal_error_bound(0.01) == pytest.approx(1.5 * np.sqrt(np.pi / 2) * 0.01)

@@ -96,7 +96,7 @@ def test_reconstruct_command_end_to_end(tmp_path):
     files, scene_json, _, _ = _scene(tmp_path / "in")
     out = tmp_path / "out"
     code = cli.main(["reconstruct", *map(str, files), "--camera", str(scene_json), "--out", str(out),
-                     "--width", "32", "--response", "bruneton", "--max-waves", "4", "--wave-frames", "2"])
+                     "--width", "32", "--response", "bruneton", "--max-waves", "2", "--wave-frames", "2"])
     assert code in (0, 1)
     data = json.loads((out / "result.json").read_text())
     for key in ("hs_m", "tp_s", "direction_deg", "peak_observed", "hs_std_m", "tp_std_s", "direction_std_deg"):

@@ -32,6 +32,7 @@ mapped over). Heights and positions in metres, world frame (z up, the mean sea p
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import jax
@@ -103,8 +104,14 @@ def heights(normals, camera, *, tol: float | None = None, max_iter: int | None =
     lead = normals.shape[:-3]
     flat = normals.reshape((-1, H, W, 3))
     footprint = jnp.where(sea, jnp.asarray(hit.footprint, dtype), 1.0)
-    out = jax.vmap(lambda n: _integrate(n, sea, xy0, d, q, footprint, tol, int(max_iter)))(flat)
+    out = _integrate_frames(flat, sea, xy0, d, q, footprint, tol=float(tol), max_iter=int(max_iter))
     return jax.tree.map(lambda a: a.reshape(lead + a.shape[1:]), out)
+
+
+@functools.partial(jax.jit, static_argnames=("tol", "max_iter"))
+def _integrate_frames(normals, sea, xy0, d, q, footprint, *, tol, max_iter):
+    # one compiled solve per shape, eager or traced alike
+    return jax.vmap(lambda n: _integrate(n, sea, xy0, d, q, footprint, tol, max_iter))(normals)
 
 
 def _neighbour_pairs(ok, s, xy0, q, axis):
