@@ -160,6 +160,23 @@ def test_a_short_wave_the_rows_path_explains_stays_on_it():
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
 
 
+def test_integrated_heights_hold_the_model_without_changing_a_fit_they_agree_with():
+    # the same rows-path wave fitted with its integrated heights as a second observation:
+    # they agree with the normals, so the fit is the same one wave; a registry solver has
+    # no height term and says so
+    c = ortho()
+    k = 2 * np.pi / (5.0 * 12.0 / RES[0])
+    truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [-0.43], [1.70])
+    normals, rough = fw.predict(truth, c, TIMES, surface="auto")
+    fit = fw.waves(normals, rough, c, TIMES, heights=True)
+    assert bool(fit.success) and int(fit.n_waves) <= 2
+    m = fw.match(fit.waves, truth)
+    assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
+    assert float(np.max(m.abs_error.amplitude)) < 1e-3
+    with pytest.raises(ValueError, match="heights=True needs solver='structured'"):
+        fw.waves(normals, rough, c, TIMES, heights=True, solver="lm", long_waves=False)
+
+
 def test_a_flat_sea_raises_no_wave_found():
     # nothing to return: a sea without waves is an error of its own type, saying at what noise
     c = ortho()

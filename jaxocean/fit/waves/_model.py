@@ -119,6 +119,7 @@ class Predicted(NamedTuple):
     roughness: jax.Array
     xy: jax.Array
     converged: jax.Array
+    z: jax.Array  # (T, H, W) the height [m] of each pixel's hit (its point on the surface)
 
 
 def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
@@ -143,7 +144,7 @@ def predict_jit(waves_, camera, times, n_min, n_max, refine=ROWS) -> Predicted:
 
     def one(t):
         g = render.geometry(waves_, camera, t, plan=plan, n_min=n_min, n_max=n_max)
-        return Predicted(g.normal, g.roughness, g.xy, g.converged & g.mask)
+        return Predicted(g.normal, g.roughness, g.xy, g.converged & g.mask, g.position[..., 2])
 
     if refine == ROWS:
         return jax.lax.map(one, times)

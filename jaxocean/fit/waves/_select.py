@@ -25,8 +25,8 @@ from jaxocean._math import angle_between, sincos, smoothstep
 from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
-from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj, fit_result,
-                                    maybe_throw, normal_error_bound, refine_kernel, registry_refine)
+from jaxocean.fit.waves._lm import (HEIGHT_WEIGHT, NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj,
+                                    fit_result, maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
                                        surface_refine, to_waves, wrap_angle)
@@ -40,6 +40,9 @@ _CRITERIA = ("bic", "aic", "holdout")
 #: ``surface="auto"`` fits on the hits path once the model's rows-path and hits-path normals
 #: differ by more than this fraction of the success bound (:func:`normal_error_bound`)
 SURFACE_TOLERANCE = 0.5
+#: ``waves(heights=True)`` uses the integrated heights where a pixel's footprint is at most
+#: this [m] (``experiments/WAVES.md``, heights from normals: farther out they drift)
+HEIGHT_FOOTPRINT = 1.0
 #: the criterion's default noise floor: the per-component sigma of the normals whose mean
 #: angle ``sqrt(pi/2) sigma`` times ``NOISE_FACTOR`` is the success bound of noise-free data
 DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2))
@@ -255,8 +258,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
-          surface: str = "auto", n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
-          throw: bool = False, history: bool = False, return_selection: bool = False, verbose: bool = False):
+          surface: str = "auto", heights: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
+          n_max=hierarchy.DEFAULT_N_MAX, throw: bool = False, history: bool = False, return_selection: bool = False,
+          verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
 
     * ``n_waves``: fit exactly this many waves (no order selection); ``None`` selects the
@@ -299,6 +303,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       by more than ``SURFACE_TOLERANCE`` (0.5) of the success bound --
       a difference the data can see at their noise -- the hits path from then on; with a
       registry solver ``"auto"`` stays on the rows path.
+    * ``heights``: also hold the model to the normals' own integrated heights
+      (:func:`jaxocean.fit.heights`, where a pixel's footprint is at most
+      ``HEIGHT_FOOTPRINT`` = 1 m): the model's height at each pixel's hit against them,
+      each frame's level free, weighted ``HEIGHT_WEIGHT`` = 0.01 relative to the normals
+      ((1 mrad / 1 cm)^2). Slopes barely constrain the heights of long waves and of the
+      long-wave band, and on the hits path those heights move every pixel's hit; the
+      integrated heights pin them. Off by default while it is being validated (measured in
+      ``experiments/WAVES.md``). ``structured`` solver only.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
@@ -343,6 +355,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"surface must be one of {SURFACES}; got {surface!r}")
     if surface == "hits" and solver != "structured":
         raise ValueError(f"surface='hits' needs solver='structured'; got {solver!r}")
+    if heights and solver != "structured":
+        raise ValueError(f"heights=True needs solver='structured'; got {solver!r}")
     dtype = normals.dtype
     floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
     if atol is None:
@@ -360,6 +374,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     if holdout and T < 3:
         raise ValueError("criterion='holdout' needs at least 3 frames (one is held out)")
     fit_n, fit_t = (normals[:-1], times[:-1]) if holdout else (normals, times)
+    height_data = _height_data(normals, camera, dtype) if heights else None
+    fit_h = height_data if height_data is None or not holdout else tuple(
+        x[:-1] if x.ndim else x for x in height_data)
 
     weight = valid_weights(fit_n, camera)
     m_obs = 2.0 * float(jnp.sum(weight))
@@ -432,7 +449,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
                                max_steps=steps, roughness_weight=0.0, held=held, refine=state["refine"],
-                               sigma2=sigma2)
+                               sigma2=sigma2, heights=fit_h)
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
@@ -655,7 +672,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
                                          else 0.0, history=history, held=held, refine=state["refine"],
-                                         sigma2=sigma2)
+                                         sigma2=sigma2, heights=height_data)
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
                         active=active, n_valid=n_valid, n_pad=n_pad, band=split(out.y, w.omega.shape[0], n_pad)[1])
         active = jnp.ones(w.omega.shape[0], bool)
@@ -724,6 +741,19 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         sel = OrderSelection(np.asarray(path_n), np.asarray(path_c), np.asarray(path_rss), np.asarray(path_acc))
         return result, sel
     return result
+
+
+def _height_data(normals, camera, dtype):
+    """``(z, mask, weight)`` for :func:`refine_kernel`: the normals' integrated heights
+    ``(T, H, W)``, where they are used (valid, footprint at most :data:`HEIGHT_FOOTPRINT`:
+    farther out the pixels no longer sample the waves and the integration drifts), and
+    :data:`HEIGHT_WEIGHT`."""
+    from jaxocean.fit.heights import heights as integrate
+
+    hm = integrate(jnp.where(jnp.isfinite(normals), normals, jnp.nan), camera)
+    near = jnp.asarray(cam.intersect_sea(camera).footprint) <= HEIGHT_FOOTPRINT
+    mask = (hm.valid & near[None]).astype(dtype)
+    return hm.z.astype(dtype), mask, jnp.asarray(HEIGHT_WEIGHT, dtype)
 
 
 def _net_start(init: str, net, threshold, normals, roughness, camera, times) -> Waves:
