@@ -272,6 +272,9 @@ def build_parser():
                    help="start: spectral (default: greedy detection from the space-time spectrum) or net (the "
                         "wave network's waves from the first frames, then the same selection and refinement)")
     p.add_argument("--net-model", help="wave network file for --init net (default: the shipped model)")
+    p.add_argument("--heights", action="store_true",
+                   help="also fit the normals' integrated heights (fit.heights): pins the heights of long waves "
+                        "that move the pixels' hits on rough seas (opt-in while it is validated)")
 
     p = sub.add_parser("forecast", help="render waves at future frames",
                        description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "
@@ -830,7 +833,7 @@ def cmd_fit_waves(args):
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
     result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
                        noise=args.noise, throw=False, verbose=args.verbose,
-                       init="net" if args.init == "net" else None, net=args.net_model)
+                       init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite
