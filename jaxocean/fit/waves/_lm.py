@@ -140,7 +140,7 @@ def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale,
     rows, and the rest positions ``(T, H, W, 2)`` the model's pixels see (its hits).
     ``heights``: None, or ``(z, mask, weight)`` integrated heights ``(T, H, W)`` and where to
     use them: the model's height at each pixel's hit against them, per-frame level free."""
-    pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine)
+    pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine, heights is not None)
     d = (pred.normal[..., :2] - normals[..., :2])
     half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
     if heights is not None:

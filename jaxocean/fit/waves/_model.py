@@ -119,7 +119,7 @@ class Predicted(NamedTuple):
     roughness: jax.Array
     xy: jax.Array
     converged: jax.Array
-    z: jax.Array  # (T, H, W) the height [m] of each pixel's hit (its point on the surface)
+    z: jax.Array | None = None  # (T, H, W) height [m] of each pixel's hit, with ``with_z`` only
 
 
 def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
@@ -138,13 +138,15 @@ def predict(waves_: Waves, camera, times, *, n_min=hierarchy.DEFAULT_N_MIN, n_ma
     return p.normal, p.roughness
 
 
-@functools.partial(jax.jit, static_argnums=(3, 4, 5))
-def predict_jit(waves_, camera, times, n_min, n_max, refine=ROWS) -> Predicted:
+@functools.partial(jax.jit, static_argnums=(3, 4, 5, 6))
+def predict_jit(waves_, camera, times, n_min, n_max, refine=ROWS, with_z=False) -> Predicted:
+    # ``with_z``: also the hits' heights (a jitted output is always computed, so the
+    # displacement is evaluated only for the fits that use it)
     plan = render.full_plan(waves_.omega.shape[-1], refine)
 
     def one(t):
         g = render.geometry(waves_, camera, t, plan=plan, n_min=n_min, n_max=n_max)
-        return Predicted(g.normal, g.roughness, g.xy, g.converged & g.mask, g.position[..., 2])
+        return Predicted(g.normal, g.roughness, g.xy, g.converged & g.mask, g.position[..., 2] if with_z else None)
 
     if refine == ROWS:
         return jax.lax.map(one, times)

@@ -750,7 +750,7 @@ def _height_data(normals, camera, dtype):
     :data:`HEIGHT_WEIGHT`."""
     from jaxocean.fit.heights import heights as integrate
 
-    hm = integrate(jnp.where(jnp.isfinite(normals), normals, jnp.nan), camera)
+    hm = integrate(normals, camera)  # non-finite normals are left out there
     near = jnp.asarray(cam.intersect_sea(camera).footprint) <= HEIGHT_FOOTPRINT
     mask = (hm.valid & near[None]).astype(dtype)
     return hm.z.astype(dtype), mask, jnp.asarray(HEIGHT_WEIGHT, dtype)
