@@ -90,7 +90,7 @@ def save(name: str, rows, meta: dict | None = None) -> Path:
     RESULTS.mkdir(parents=True, exist_ok=True)
     path = RESULTS / f"{name}.json"
     payload = dict(meta=dict(machine=machine_info(), **(meta or {})), rows=rows)
-    tmp = path.with_suffix(".json.tmp")
+    tmp = path.with_suffix(f".json.{os.getpid()}.tmp")  # runs sharing a file never share a temporary
     tmp.write_text(json.dumps(payload, indent=1))
     tmp.replace(path)
     return path

@@ -86,46 +86,23 @@ def wrap_deg(a):
 # --------------------------------------------------------------------------- table 2
 
 
-def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
+def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = False) -> dict:
     scene, geo = dataset_scene(seed, resolution)
-    truth_all = scene.waves
-    ok = np.asarray(fw.resolvable(truth_all, scene.camera))
-    truth = jax.tree.map(lambda x: x[ok], truth_all)
     t0 = time.perf_counter()
-    result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose)
+    result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights)
     wall = time.perf_counter() - t0
-    m = fw.match(result.waves, truth)
-    mae = {f: float(np.mean(np.abs(np.asarray(getattr(m.abs_error, f))))) if m.true_index.size else float("nan")
-           for f in ("amplitude", "omega", "theta", "phase")}
-    # the matched waves weighted as the paper counts them: every true resolvable wave, missed
-    # ones at their full amplitude error (an upper bound of what a one-to-one table shows)
-    missed_h = np.asarray(truth.amplitude)[m.missed] if m.missed.size else np.zeros(0)
-    h_all = float((np.sum(np.abs(np.asarray(m.abs_error.amplitude))) + np.sum(missed_h)) / max(ok.sum(), 1))
-    sep = fw.separable(truth_all, scene.camera, scene.times)
-    sep_truth = jax.tree.map(lambda x: x[sep], truth_all)
-    ms = fw.match(result.waves, sep_truth)
-    mae_sep = {f: float(np.mean(np.abs(np.asarray(getattr(ms.abs_error, f))))) if ms.true_index.size
-               else float("nan") for f in ("amplitude", "omega", "theta")}
-    true_sea = fit.sea_state(truth_all)
-    row = dict(seed=seed, resolution=resolution, camera_height=float(scene.camera.height),
+    row = dict(seed=seed, resolution=resolution, heights=heights, camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
-               gamma=float(scene.spectrum.gamma), n_true=int(ok.size), n_resolvable=int(ok.sum()),
-               n_fitted=int(result.n_waves), n_matched=int(m.true_index.size), n_missed=int(m.missed.size),
-               n_spurious=int(m.spurious.size), success=bool(result.success),
+               gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
+               sampled_hs=float(fit.sea_state(scene.waves).hs), n_fitted=int(result.n_waves), success=bool(result.success),
                normal_error_rad=float(result.normal_error), time_s=wall,
-               mae_amplitude=mae["amplitude"], mae_omega=mae["omega"], mae_theta=mae["theta"],
-               mae_phase=mae["phase"], mae_amplitude_incl_missed=h_all,
-               true_theta_mean=float(scene.spectrum.theta_mean), sampled_hs=float(true_sea.hs),
-               n_separable=int(sep.sum()), n_separable_matched=int(ms.true_index.size),
-               mae_amplitude_separable=mae_sep["amplitude"], mae_omega_separable=mae_sep["omega"],
-               mae_theta_separable=mae_sep["theta"],
-               n_determined=int(np.sum(result.determined)),
-               stopped_by_criterion=bool(int(result.n_waves) < MAX_WAVES),
-               fitted_over_separable=int(result.n_waves) / max(int(sep.sum()), 1))
+               stopped_by_criterion=bool(int(result.n_waves) < MAX_WAVES))
     # what the long-wave band absorbed, and the true long waves it stands for
     band = result.long_waves
+    truth_all = scene.waves
     lam = 2 * np.pi * 9.81 / np.asarray(truth_all.omega, np.float64) ** 2
-    long_true = np.asarray(fw.resolvable(truth_all, scene.camera, cycles=0.0)) & ~ok
+    long_true = np.asarray(fw.resolvable(truth_all, scene.camera, cycles=0.0)) & ~np.asarray(
+        fw.resolvable(truth_all, scene.camera))
     row.update(band_slope_variance=float(band.slope_variance) if band is not None else None,
                band_max_height=float(np.max(np.asarray(band.waves.amplitude))) if band is not None else None,
                n_long_true=int(long_true.sum()),
@@ -135,10 +112,61 @@ def table2_one(seed: int, resolution: int, verbose: bool) -> dict:
     row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
     row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
     row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
-    row.update(score_sea(result.waves, scene, geo))
-    # the same estimator on the determined (separable) waves only
+    row.update(score_waves(result.waves, np.asarray(result.determined, bool), scene))
+    row.update(score_sea_both(result.waves, np.asarray(result.determined, bool), scene, geo))
+    return row
+
+
+def _mae(m, mask=None) -> dict:
+    """Mean absolute errors of a :func:`fw.match`'s pairs (``mask``: of the pairs to count)."""
+    out = {}
+    for f in ("amplitude", "omega", "theta", "phase"):
+        e = np.abs(np.asarray(getattr(m.abs_error, f)))
+        e = e if mask is None else e[mask]
+        out[f] = float(np.mean(e)) if e.size else float("nan")
+    return out
+
+
+def score_waves(fitted, determined, scene) -> dict:
+    """The fitted waves against the truth (:func:`fw.match`, one to one): over the resolvable
+    true waves, over the separable ones, and over the pairs whose fitted wave ``fit.waves``
+    marks determined (what it vouches for); plus the determined fitted waves that match no
+    resolvable true wave (false determinations)."""
+    truth_all = scene.waves
+    ok = np.asarray(fw.resolvable(truth_all, scene.camera))
+    truth = jax.tree.map(lambda x: x[ok], truth_all)
+    m = fw.match(fitted, truth)
+    mae = _mae(m)
+    # the matched waves weighted as the paper counts them: every true resolvable wave, missed
+    # ones at their full amplitude error (an upper bound of what a one-to-one table shows)
+    missed_h = np.asarray(truth.amplitude)[m.missed] if m.missed.size else np.zeros(0)
+    h_all = float((np.sum(np.abs(np.asarray(m.abs_error.amplitude))) + np.sum(missed_h)) / max(ok.sum(), 1))
+    sep = np.asarray(fw.separable(truth_all, scene.camera, scene.times))
+    ms = fw.match(fitted, jax.tree.map(lambda x: x[sep], truth_all))
+    mae_sep = _mae(ms)
+    det_pairs = determined[m.fit_index] if m.fit_index.size else np.zeros(0, bool)
+    mae_det = _mae(m, det_pairs)
+    n_fitted = int(np.asarray(fitted.omega).shape[0])
+    return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_matched=int(m.true_index.size),
+                n_missed=int(m.missed.size), n_spurious=int(m.spurious.size),
+                mae_amplitude=mae["amplitude"], mae_omega=mae["omega"], mae_theta=mae["theta"],
+                mae_phase=mae["phase"], mae_amplitude_incl_missed=h_all,
+                n_separable=int(sep.sum()), n_separable_matched=int(ms.true_index.size),
+                mae_amplitude_separable=mae_sep["amplitude"], mae_omega_separable=mae_sep["omega"],
+                mae_theta_separable=mae_sep["theta"],
+                n_determined=int(np.sum(determined)), n_determined_matched=int(np.sum(det_pairs)),
+                n_determined_unmatched=int(np.sum(determined[m.spurious])) if m.spurious.size else 0,
+                mae_amplitude_determined=mae_det["amplitude"], mae_omega_determined=mae_det["omega"],
+                mae_theta_determined=mae_det["theta"],
+                fitted_over_separable=n_fitted / max(int(sep.sum()), 1))
+
+
+def score_sea_both(fitted, determined, scene, geo) -> dict:
+    """:func:`score_sea` from the resolvable fitted waves, and (``determined_*``) from the
+    determined ones alone."""
+    row = score_sea(fitted, scene, geo)
     try:
-        det = score_sea(result.waves, scene, geo, reliable=np.asarray(result.determined, bool))
+        det = score_sea(fitted, scene, geo, reliable=determined)
         row.update({"determined_" + k: v for k, v in det.items() if not k.startswith("oracle")})
     except InvalidValueError as e:  # too few determined waves for a spectrum
         row["determined_sea_error"] = str(e)
@@ -163,38 +191,54 @@ def score_sea(fitted, scene, geo, reliable=None) -> dict:
                 oracle_tp_rel_error=abs(float(oracle.spectrum.tp) / tp - 1))
 
 
-def rescore(out) -> None:
-    """Recompute the sea-state columns of saved Table 2 scenes from their fitted waves
-    (after a change to ``fit.spectrum``; the wave fits themselves are not rerun)."""
+def rescore(out, key) -> None:
+    """Recompute the scores of the saved Table 2 scenes of ``key`` from their fitted waves
+    (after a change to the matching or to ``fit.spectrum``; the wave fits themselves are
+    not rerun)."""
     from jaxocean.waves import Waves
 
-    rows = out["table2"]["scenes"]
+    rows = out[key]["scenes"]
     for row in rows:
         scene, geo = dataset_scene(row["seed"], row["resolution"])
         fitted = Waves(*(jnp.asarray(row["fitted_waves"][f], jnp.float32) for f in Waves._fields))
-        row.update(score_sea(fitted, scene, geo))
-    out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
-    print(json.dumps(out["table2"]["summary"], indent=1))
+        determined = np.asarray(row["fitted_determined"], bool)
+        row.update(score_waves(fitted, determined, scene))
+        row.update(score_sea_both(fitted, determined, scene, geo))
+    out[key] = dict(scenes=rows, summary=table2_summary(rows))
+    print(json.dumps(out[key]["summary"], indent=1))
+    plot_table2(rows, key)
 
 
 def section_table2(args, out):
-    rows = list(out.get("table2", {}).get("scenes", [])) if args.resume else []
+    key = table2_key(args)
+    rows = list(out.get(key, {}).get("scenes", [])) if args.resume else []
     done = {r["seed"] for r in rows}
-    for seed in range(args.scenes):
+    for seed in args.seeds:
         if seed in done:
             continue
-        row = table2_one(seed, args.resolution, args.verbose)
+        row = table2_one(seed, args.resolution, args.verbose, heights=args.heights)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
                                       "mae_omega", "mae_theta", "hs_rel_error", "tp_rel_error", "dir_error_deg",
                                       "time_s"])
-        out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
+        if args.resume:  # keep the scenes that runs on other seeds saved meanwhile
+            mine = {r["seed"] for r in rows}
+            saved = benchutil.load_rows(NAME, {})
+            rows += [r for r in saved.get(key, {}).get("scenes", []) if r["seed"] not in mine]
+            out.update({k: v for k, v in saved.items() if k != key})
+        out[key] = dict(scenes=rows, summary=table2_summary(rows))
         save(out, args)  # nothing lost if a later scene crashes
     rows.sort(key=lambda r: r["seed"])
-    out["table2"] = dict(scenes=rows, summary=table2_summary(rows))
-    print(json.dumps(out["table2"]["summary"], indent=1))
-    plot_table2(rows)
+    out[key] = dict(scenes=rows, summary=table2_summary(rows))
+    print(json.dumps(out[key]["summary"], indent=1))
+    plot_table2(rows, key)
+
+
+def table2_key(args) -> str:
+    """Where a Table 2 run goes in the results: ``table2`` for the default fit,
+    ``table2_heights`` for ``fit.waves(heights=True)``."""
+    return "table2_heights" if args.heights else "table2"
 
 
 def table2_summary(rows) -> dict:
@@ -208,11 +252,14 @@ def table2_summary(rows) -> dict:
     resolvable = sum(r["n_resolvable"] for r in rows)
     s = {k: agg(k) for k in ("mae_amplitude", "mae_omega", "mae_theta", "mae_phase", "mae_amplitude_incl_missed",
                              "mae_amplitude_separable", "mae_omega_separable", "mae_theta_separable",
+                             "mae_amplitude_determined", "mae_omega_determined", "mae_theta_determined",
                              "hs_rel_error", "tp_rel_error", "dir_error_deg", "oracle_dir_error_deg",
                              "oracle_tp_rel_error", "time_s", "normal_error_rad")}
     s["separable_found_fraction"] = sum(r["n_separable_matched"] for r in rows) / max(
         sum(r["n_separable"] for r in rows), 1)
     s["found_fraction"] = matched / max(resolvable, 1)
+    s["determined_unmatched"] = sum(r.get("n_determined_unmatched", 0) for r in rows)
+    s["determined"] = sum(r["n_determined"] for r in rows)
     s["scenes"] = len(rows)
     s["success"] = sum(r["success"] for r in rows)
     s["stopped_by_criterion"] = sum(r.get("stopped_by_criterion", r["n_fitted"] < MAX_WAVES) for r in rows)
@@ -239,13 +286,18 @@ def table2_summary(rows) -> dict:
     return s
 
 
-def plot_table2(rows):
+def plot_table2(rows, section="table2"):
     plt = benchutil.pyplot()
 
     fig, axes = plt.subplots(1, 4, figsize=(15, 3.6))
     for ax, key in zip(axes[:3], ("amplitude", "omega", "theta")):
         ours = [r[f"mae_{key}"] for r in rows]
-        ax.bar(range(len(rows)), ours, color="tab:blue", label="ours (per scene)")
+        x = np.arange(len(rows))
+        ax.bar(x, ours, color="tab:blue", label="resolvable true waves")
+        ax.plot(x, [r[f"mae_{key}_separable"] for r in rows], "k^", ms=5, label="separable true waves")
+        ax.plot(x, [r.get(f"mae_{key}_determined", np.nan) for r in rows], "o", color="tab:green", ms=5,
+                label="waves the fit marks determined")
+        ax.set_xticks(x, [str(r["seed"]) for r in rows])
         ax.axhline(PAPER[key], color="tab:red", ls="--", label="paper Table 2 (MLP)")
         ax.axhline(TARGET[key], color="k", ls=":", label="target (paper / 10)")
         ax.set_yscale("log")
@@ -262,7 +314,7 @@ def plot_table2(rows):
     ax.set_ylabel("count")
     ax.set_title("order selection")
     ax.legend(fontsize=7)
-    benchutil.save_figure(fig, "wave_fit_table2")
+    benchutil.save_figure(fig, f"wave_fit_{section}")
 
 
 # --------------------------------------------------------------------------- convergence / speed
@@ -409,13 +461,20 @@ def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="2 scenes at 64^2, 32^2 for the four-wave problems")
     parser.add_argument("--scenes", type=int, default=0, help="table2: scenes (default 6; 2 with --quick)")
-    parser.add_argument("--resume", action="store_true", help="table2: keep scenes already in the results file")
+    parser.add_argument("--resume", action="store_true",
+                        help="table2: keep scenes already in the results file (and those that runs on other "
+                             "--seeds save meanwhile, so two runs can share the table)")
+    parser.add_argument("--seeds", default="", help="table2: comma-separated scene seeds (default 0..scenes-1)")
+    parser.add_argument("--heights", action="store_true",
+                        help="table2: fit.waves(heights=True), saved as table2_heights")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
-                        help="recompute the sea-state columns of the saved table2 scenes, then run --only")
+                        help="recompute the scores of the saved table2 (--heights: table2_heights) scenes from "
+                             "their fitted waves, then run --only (--only '' for nothing else)")
     parser.add_argument("--only", default=",".join(SECTIONS), help=f"comma-separated subset of {SECTIONS}")
     args = parser.parse_args(argv)
     args.scenes = args.scenes or (2 if args.quick else 6)
+    args.seeds = [int(v) for v in args.seeds.split(",") if v] or list(range(args.scenes))
     args.resolution = 64 if args.quick else 128
     args.small = 32 if args.quick else 64
     only = [s for s in args.only.split(",") if s]
@@ -424,7 +483,7 @@ def main(argv=None):
         parser.error(f"unknown sections {sorted(bad)}; choose from {SECTIONS}")
     out = benchutil.load_rows(NAME, {})
     if args.rescore:
-        rescore(out)
+        rescore(out, table2_key(args))
         save(out, args)
     for name in only:
         print(f"== {name}", flush=True)

@@ -272,9 +272,9 @@ def build_parser():
                    help="start: spectral (default: greedy detection from the space-time spectrum) or net (the "
                         "wave network's waves from the first frames, then the same selection and refinement)")
     p.add_argument("--net-model", help="wave network file for --init net (default: the shipped model)")
-    p.add_argument("--heights", action="store_true",
-                   help="also fit the normals' integrated heights (fit.heights): pins the heights of long waves "
-                        "that move the pixels' hits on rough seas (opt-in while it is validated)")
+    p.add_argument("--no-heights", dest="heights", action="store_false",
+                   help="fit the slopes alone, without the normals' integrated heights (fit.heights), which by "
+                        "default pin the heights of the long waves that move the pixels' hits on rough seas")
 
     p = sub.add_parser("forecast", help="render waves at future frames",
                        description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "

@@ -160,21 +160,51 @@ def test_a_short_wave_the_rows_path_explains_stays_on_it():
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
 
 
-def test_integrated_heights_hold_the_model_without_changing_a_fit_they_agree_with():
-    # the same rows-path wave fitted with its integrated heights as a second observation:
-    # they agree with the normals, so the fit is the same one wave; a registry solver has
-    # no height term and says so
+def test_slopes_alone_fit_what_the_integrated_heights_agree_with():
+    # the same rows-path wave fitted without its integrated heights (on by default): they
+    # agree with the normals, so slopes alone give the same one wave; a registry solver has
+    # no height term, goes without it by default and says so when asked for it
     c = ortho()
     k = 2 * np.pi / (5.0 * 12.0 / RES[0])
     truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [-0.43], [1.70])
     normals, rough = fw.predict(truth, c, TIMES, surface="auto")
-    fit = fw.waves(normals, rough, c, TIMES, heights=True)
+    fit = fw.waves(normals, rough, c, TIMES, heights=False)
     assert bool(fit.success) and int(fit.n_waves) <= 2
     m = fw.match(fit.waves, truth)
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
     assert float(np.max(m.abs_error.amplitude)) < 1e-3
     with pytest.raises(ValueError, match="heights=True needs solver='structured'"):
         fw.waves(normals, rough, c, TIMES, heights=True, solver="lm", long_waves=False)
+
+
+def test_height_gauss_newton_is_the_product_of_the_height_residuals_jacobian(x64):
+    # the integrated-height term's J^T J (structured, every sample) against autodiff of the
+    # residual _ls_loss uses: the model's heights at the rows path's hits, each frame's
+    # weighted mean removed, weighted sqrt(scale rho m); perspective view, waves from
+    # sub-pixel (partly weighted by the hierarchy) to longer than the view
+    c = persp()
+    w = make_waves([0.03, 0.02, 0.004, 0.2], [2.2, 3.1, 9.0, 0.9], [0.4, 2.1, -1.2, 0.3], [0.5, 4.0, 2.0, 1.0])
+    w = Waves(*(jnp.asarray(x, jnp.float64) for x in w))
+    times = jnp.asarray(TIMES, jnp.float64)
+    y, active = _model.pack(w), jnp.ones(4, bool)
+    rng = np.random.default_rng(1)
+    m = jnp.asarray(rng.uniform(0.0, 1.0, (TIMES.size,) + c.resolution) > 0.3, jnp.float64)
+    normals, _ = fw.predict(w, c, times)
+    weight = _inputs.valid_weights(normals, c)
+    assert float(jnp.sum(m * weight)) > 100
+    scale, rho = 0.7, 1e-2
+
+    def residual(yy):
+        z = _model.predict_jit(_model.active_waves(yy, active), c, times, 3.0, 6.0, _model.ROWS, True).z
+        used = m * weight
+        z = jnp.where(used > 0, z, 0.0)  # sky pixels have no height
+        e = z - (jnp.sum(z * used, (1, 2)) / jnp.sum(used, (1, 2)))[:, None, None]
+        return (jnp.sqrt(scale * rho * used) * e).reshape(-1)
+
+    J = jax.jacfwd(residual)(y)
+    hs = _inputs.all_samples(jnp.zeros(m.shape + (2,)), m * weight, times, c, scale * rho)
+    jtj = _lm._height_gauss_newton(y, active, _inputs.chunked(hs, 97), times, 3.0, 6.0)
+    np.testing.assert_allclose(np.asarray(jtj), np.asarray(J.T @ J), rtol=1e-6, atol=1e-9 * float(jnp.max(J.T @ J)))
 
 
 def test_a_flat_sea_raises_no_wave_found():
@@ -596,6 +626,13 @@ def test_match_and_resolvable_helpers():
     fitted = Waves(*[jnp.asarray(x)[::-1] for x in truth])
     m = fw.match(fitted, truth)
     assert m.missed.size == 0 and np.all(m.abs_error.omega == 0)
+    # a true wave with no fitted wave near it does not take the fitted wave of another: with
+    # raw distances the assignment pairs (A, f2) + (B, f1) (0.3 + 11 < 0 + 14) and loses A
+    a_b = make_waves([0.01, 0.01], np.sqrt(GRAVITY * np.asarray([1.0, 0.1])), [0.0, np.pi])
+    f1_f2 = make_waves([0.01, 0.01], np.sqrt(GRAVITY * np.asarray([1.0, 1.3])), [0.0, 0.0])
+    m = fw.match(f1_f2, a_b)
+    assert m.true_index.tolist() == [0] and m.fit_index.tolist() == [0]
+    assert m.missed.tolist() == [1] and m.spurious.tolist() == [1]
     far = truth._replace(omega=jnp.asarray([0.5, 3.6, 40.0]))  # 246 m: too long; 4 cm: sub-pixel
     ok = fw.resolvable(far, ortho())
     assert ok.tolist() == [False, True, False]

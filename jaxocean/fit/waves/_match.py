@@ -118,9 +118,10 @@ def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hiera
 
 
 def match(fitted: Waves, truth: Waves, *, tolerance: float = 0.1) -> WaveMatch:
-    """Match fitted to true waves one to one (Hungarian assignment on the relative
-    wave-vector distance ``|k_fit - k_true| / |k_true|``); pairs farther than
-    ``tolerance`` are left unmatched. Eager, NumPy."""
+    """Match fitted to true waves one to one: the most pairs whose relative wave-vector
+    distance ``|k_fit - k_true| / |k_true|`` is at most ``tolerance``, and among those
+    the assignment of least total distance (Hungarian); the rest are missed (true) or
+    spurious (fitted). Eager, NumPy."""
     from scipy.optimize import linear_sum_assignment
 
     def kv(w):
@@ -132,7 +133,12 @@ def match(fitted: Waves, truth: Waves, *, tolerance: float = 0.1) -> WaveMatch:
     kf, _ = kv(fitted)
     kt, k_true = kv(truth)
     cost = np.linalg.norm(kf[None, :, :] - kt[:, None, :], axis=-1) / k_true[:, None]
-    ti, fi = linear_sum_assignment(cost)
+    # every pair beyond the tolerance costs the same, more than all pairs within it together:
+    # an unmatchable true wave then cannot pull a fitted wave from the true wave it fits
+    # (with raw distances the assignment trades a close pair for two far ones when that
+    # lowers the sum)
+    far = 2.0 * tolerance * (min(cost.shape) + 1) + 1.0
+    ti, fi = linear_sum_assignment(np.where(cost <= tolerance, cost, far))
     ok = cost[ti, fi] <= tolerance
     ti, fi = ti[ok], fi[ok]
 

@@ -258,7 +258,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
-          surface: str = "auto", heights: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
+          surface: str = "auto", heights: bool | None = None, n_min=hierarchy.DEFAULT_N_MIN,
           n_max=hierarchy.DEFAULT_N_MAX, throw: bool = False, history: bool = False, return_selection: bool = False,
           verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
@@ -309,8 +309,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       each frame's level free, weighted ``HEIGHT_WEIGHT`` = 0.01 relative to the normals
       ((1 mrad / 1 cm)^2). Slopes barely constrain the heights of long waves and of the
       long-wave band, and on the hits path those heights move every pixel's hit; the
-      integrated heights pin them. Off by default while it is being validated (measured in
-      ``experiments/WAVES.md``). ``structured`` solver only.
+      integrated heights pin them (on the dataset's rough scenes the difference between a
+      failed fit and a successful one: ``experiments/WAVES.md``). ``None`` (default): on
+      with the ``structured`` solver, which alone can use them; ``True`` with another
+      solver is an error; ``False``: slopes alone.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
@@ -355,6 +357,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"surface must be one of {SURFACES}; got {surface!r}")
     if surface == "hits" and solver != "structured":
         raise ValueError(f"surface='hits' needs solver='structured'; got {solver!r}")
+    if heights is None:
+        heights = solver == "structured"
     if heights and solver != "structured":
         raise ValueError(f"heights=True needs solver='structured'; got {solver!r}")
     dtype = normals.dtype
