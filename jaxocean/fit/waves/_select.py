@@ -40,7 +40,7 @@ _CRITERIA = ("bic", "aic", "holdout")
 #: ``surface="auto"`` fits on the hits path once the model's rows-path and hits-path normals
 #: differ by more than this fraction of the success bound (:func:`normal_error_bound`)
 SURFACE_TOLERANCE = 0.5
-#: ``waves(heights=True)`` uses the integrated heights where a pixel's footprint is at most
+#: ``waves`` (heights on: the default) uses the integrated heights where a pixel's footprint is at most
 #: this [m] (``experiments/WAVES.md``, heights from normals: farther out they drift)
 HEIGHT_FOOTPRINT = 1.0
 #: the criterion's default noise floor: the per-component sigma of the normals whose mean
