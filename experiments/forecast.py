@@ -10,10 +10,10 @@ normal angle over sea pixels (:func:`jaxocean.forecast.geometry_error`). Baselin
 sea decorrelates. Targets: the error at frames 100 and 500 below half of persistence on
 every scene (``met.persistence``), and within 2x of frame 0 (``met.frame0``).
 
-Usage: ``python experiments/forecast.py [--frames 0,10,50,100,200,500] [--section table2_heights]
+Usage: ``python experiments/forecast.py [--frames 0,10,50,100,200,500] [--section table2_slopes]
 [--fit --scenes N]``; writes ``experiments/results/forecast.json`` and ``forecast.png``
-(``forecast_heights.*`` for ``--section table2_heights``: the waves of
-``fit.waves(heights=True)``).
+(``forecast_slopes.*`` for ``--section table2_slopes``: the waves of
+``fit.waves(heights=False)``).
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ def scene_rows(args):
     for seed in range(args.scenes or 2):
         scene, geo = wave_fit.dataset_scene(seed, args.resolution)
         r = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times,
-                      heights=args.section == "table2_heights")
+                      heights=args.section == "table2")
         rows.append(dict(seed=seed, resolution=args.resolution,
                          fitted_waves={f: np.asarray(getattr(r.waves, f), float).tolist() for f in r.waves._fields}))
     return rows
@@ -90,10 +90,10 @@ def main(argv=None):
     parser.add_argument("--fit", action="store_true", help="fit the scenes here instead of reading wave_fit.json")
     parser.add_argument("--scenes", type=int, default=0)
     parser.add_argument("--resolution", type=int, default=128)
-    parser.add_argument("--section", default="table2", choices=("table2", "table2_heights"),
+    parser.add_argument("--section", default="table2", choices=("table2", "table2_slopes"),
                         help="which Table 2 run of wave_fit.json to forecast from")
     args = parser.parse_args(argv)
-    name = "forecast" if args.section == "table2" else "forecast_heights"
+    name = "forecast" if args.section == "table2" else "forecast_slopes"
     frames = [int(f) for f in args.frames.split(",")]
     if frames[0] != 0:
         parser.error("--frames must start with 0 (the reference frame)")
