@@ -116,8 +116,9 @@ def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True) 
     row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
     row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
     row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
-    row.update(score_waves(result.waves, np.asarray(result.determined, bool), scene))
-    row.update(score_sea_both(result.waves, np.asarray(result.determined, bool), scene, geo))
+    determined = np.asarray(result.determined, bool)
+    row.update(score_waves(result.waves, determined, scene))
+    row.update(score_sea_both(result.waves, determined, scene, geo))
     return row
 
 
@@ -148,7 +149,7 @@ def score_waves(fitted, determined, scene) -> dict:
     sep = np.asarray(fw.separable(truth_all, scene.camera, scene.times))
     ms = fw.match(fitted, jax.tree.map(lambda x: x[sep], truth_all))
     mae_sep = _mae(ms)
-    det_pairs = determined[m.fit_index] if m.fit_index.size else np.zeros(0, bool)
+    det_pairs = determined[m.fit_index]
     mae_det = _mae(m, det_pairs)
     n_fitted = int(np.asarray(fitted.omega).shape[0])
     return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_matched=int(m.true_index.size),
@@ -159,7 +160,7 @@ def score_waves(fitted, determined, scene) -> dict:
                 mae_amplitude_separable=mae_sep["amplitude"], mae_omega_separable=mae_sep["omega"],
                 mae_theta_separable=mae_sep["theta"],
                 n_determined=int(np.sum(determined)), n_determined_matched=int(np.sum(det_pairs)),
-                n_determined_unmatched=int(np.sum(determined[m.spurious])) if m.spurious.size else 0,
+                n_determined_unmatched=int(np.sum(determined[m.spurious])),
                 mae_amplitude_determined=mae_det["amplitude"], mae_omega_determined=mae_det["omega"],
                 mae_theta_determined=mae_det["theta"],
                 fitted_over_separable=n_fitted / max(int(sep.sum()), 1))
