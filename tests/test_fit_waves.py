@@ -76,6 +76,20 @@ def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
         assert leaf.shape == (3,) and np.all(np.isfinite(leaf)) and np.all(np.asarray(leaf) >= 0)
 
 
+@pytest.mark.parametrize("polish, n_expected", [(None, 3), (0.0, 8)])
+def test_the_selection_refines_near_the_floor_before_adding_waves(monkeypatch, polish, n_expected):
+    # trials of 2 LM steps leave a clean 3-wave sea a few times above the noise floor: the
+    # selection refines the model longer there and stops at the 3 waves; without that
+    # (POLISH_FACTOR 0) the trials' missing steps are taken for missing waves, up to the cap
+    if polish is not None:
+        monkeypatch.setattr(_select, "POLISH_FACTOR", polish)
+    c = persp()
+    normals, rough = fw.predict(few_waves(), c, TIMES)
+    fit = fw.waves(normals, rough, c, TIMES, inner_steps=2, max_waves=8, surface="rows")
+    assert int(fit.n_waves) == n_expected
+    assert bool(fit.success) is (n_expected == 3)
+
+
 def test_spectral_initialiser_finds_a_single_wave():
     c = ortho()
     one = make_waves([0.03], [3.3], [2.5], [1.0])

@@ -58,8 +58,11 @@ Pipeline of :func:`waves`:
    batch is kept while it lowers the information criterion (``"bic"``:
    ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
    ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, by default the
-   noise whose mean normal angle is the success bound of noise-free data). Optionally the
-   final set is pruned by each wave's Wald statistic against the same penalty. The final
+   noise whose mean normal angle is the success bound of noise-free data). The selection
+   stops once the model explains the data to that floor; within ``POLISH_FACTOR`` (10) of
+   it, an accepted model whose trial ran out of steps is refined 4x longer before more
+   waves are tried, so that the trials' missing steps are not taken for missing waves.
+   Optionally the final set is pruned by each wave's Wald statistic against the same penalty. The final
    refinement adds the roughness term with the sub-pixel tail of waves outside the set
    fitted by non-negative least squares.
 4. **Refinement** (:func:`refine`): every parameter at once. The default solver
