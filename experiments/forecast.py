@@ -10,10 +10,14 @@ normal angle over sea pixels (:func:`jaxocean.forecast.geometry_error`). Baselin
 sea decorrelates. Targets: the error at frames 100 and 500 below half of persistence on
 every scene (``met.persistence``), and within 2x of frame 0 (``met.frame0``).
 
+Where a row holds the fitted long-wave band (``band_waves``), the forecast of the fitted waves
+*and* the band's stand-ins together is scored too (``normal_error_with_band_rad``).
+
 Usage: ``python experiments/forecast.py [--frames 0,10,50,100,200,500] [--section table2_slopes]
-[--fit --scenes N]``; writes ``experiments/results/forecast.json`` and ``forecast.png``
-(``forecast_slopes.*`` for ``--section table2_slopes``: the waves of
-``fit.waves(heights=False)``).
+[--fit --scenes N | --fit --seeds 1,4] [--name STEM]``; writes
+``experiments/results/forecast.json`` and ``forecast.png`` (``forecast_slopes.*`` for
+``--section table2_slopes``: the waves of ``fit.waves(heights=False)``; ``STEM.*`` with
+``--name``).
 """
 
 from __future__ import annotations
@@ -45,18 +49,26 @@ def scene_rows(args):
             return rows[: args.scenes or None]
         print("no fitted waves in wave_fit.json: fitting here")
     rows = []
-    for seed in range(args.scenes or 2):
+    seeds = [int(s) for s in args.seeds.split(",") if s] or list(range(args.scenes or 2))
+    for seed in seeds:
         scene, geo = wave_fit.dataset_scene(seed, args.resolution)
         r = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times,
                       heights=args.section == "table2")
-        rows.append(dict(seed=seed, resolution=args.resolution,
-                         fitted_waves={f: np.asarray(getattr(r.waves, f), float).tolist() for f in r.waves._fields}))
+        row = dict(seed=seed, resolution=args.resolution, success=bool(r.success),
+                   fitted_waves={f: np.asarray(getattr(r.waves, f), float).tolist() for f in r.waves._fields})
+        if r.long_waves is not None:
+            row["band_waves"] = {f: np.asarray(getattr(r.long_waves.waves, f), float).tolist() for f in Waves._fields}
+        rows.append(row)
     return rows
+
+
+def _waves(d) -> Waves:
+    return Waves(*(jnp.asarray(d[f], jnp.float32) for f in Waves._fields))
 
 
 def one_scene(row, frames):
     scene, geo = wave_fit.dataset_scene(row["seed"], row["resolution"])
-    fitted = Waves(*(jnp.asarray(row["fitted_waves"][f], jnp.float32) for f in Waves._fields))
+    fitted = _waves(row["fitted_waves"])
     times = jnp.asarray(fc.frame_times(np.asarray(scene.times), frames), jnp.float32)
     truth = fc.forecast(scene.waves, times, scene.camera).geometry
     pred = fc.forecast(fitted, times, scene.camera).geometry
@@ -64,10 +76,17 @@ def one_scene(row, frames):
     frame0 = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), truth)
     persistence = fc.geometry_error(frame0, truth)
     normal = np.asarray(err.normal, float)
-    return dict(seed=row["seed"], frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
-                normal_error_rad=normal.tolist(), roughness_error=np.asarray(err.roughness, float).tolist(),
-                ratio_to_frame0=(normal / normal[0]).tolist(),
-                persistence_rad=np.asarray(persistence.normal, float).tolist())
+    out = dict(seed=row["seed"], frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
+               normal_error_rad=normal.tolist(), roughness_error=np.asarray(err.roughness, float).tolist(),
+               ratio_to_frame0=(normal / normal[0]).tolist(),
+               persistence_rad=np.asarray(persistence.normal, float).tolist())
+    if "band_waves" in row:
+        # the fitted waves and the long-wave band's stand-ins together: everything the fit
+        # explained at frame 0, advanced by the band waves' own dispersion
+        both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fitted, _waves(row["band_waves"]))
+        err_b = fc.geometry_error(fc.forecast(both, times, scene.camera).geometry, truth)
+        out["normal_error_with_band_rad"] = np.asarray(err_b.normal, float).tolist()
+    return out
 
 
 def plot(rows, name):
@@ -89,21 +108,25 @@ def main(argv=None):
     parser.add_argument("--frames", default="0,10,50,100,200,500")
     parser.add_argument("--fit", action="store_true", help="fit the scenes here instead of reading wave_fit.json")
     parser.add_argument("--scenes", type=int, default=0)
+    parser.add_argument("--seeds", default="", help="--fit: comma-separated scene seeds (default 0..scenes-1)")
+    parser.add_argument("--name", default="", help="results file stem (default forecast, or forecast_slopes for "
+                        "--section table2_slopes)")
     parser.add_argument("--resolution", type=int, default=128)
     parser.add_argument("--section", default="table2", choices=("table2", "table2_slopes"),
                         help="which Table 2 run of wave_fit.json to forecast from")
     args = parser.parse_args(argv)
-    name = "forecast" if args.section == "table2" else "forecast_slopes"
+    name = args.name or ("forecast" if args.section == "table2" else "forecast_slopes")
     frames = [int(f) for f in args.frames.split(",")]
     if frames[0] != 0:
         parser.error("--frames must start with 0 (the reference frame)")
     rows = [one_scene(r, frames) for r in scene_rows(args)]
     for r in rows:
+        band = r.get("normal_error_with_band_rad", [float("nan")] * len(r["frames"]))
         benchutil.print_table([dict(seed=r["seed"], frame=f, err_deg=float(np.degrees(e)), ratio=q,
-                                    persistence_deg=float(np.degrees(p)))
-                               for f, e, q, p in zip(r["frames"], r["normal_error_rad"], r["ratio_to_frame0"],
-                                                     r["persistence_rad"])],
-                              ["seed", "frame", "err_deg", "ratio", "persistence_deg"])
+                                    with_band_deg=float(np.degrees(b)), persistence_deg=float(np.degrees(p)))
+                               for f, e, q, b, p in zip(r["frames"], r["normal_error_rad"], r["ratio_to_frame0"],
+                                                        band, r["persistence_rad"])],
+                              ["seed", "frame", "err_deg", "ratio", "with_band_deg", "persistence_deg"])
     horizons = [f for f in (100, 500) if f in frames]
     worst = {f: max(r["ratio_to_frame0"][r["frames"].index(f)] for r in rows) for f in horizons}
     worst_persistence = {f: max(r["normal_error_rad"][r["frames"].index(f)] / r["persistence_rad"][r["frames"].index(f)]

@@ -115,6 +115,8 @@ def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True) 
     # the fitted waves themselves, for experiments/forecast.py and --rescore
     row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
     row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
+    if band is not None:  # the band's fitted stand-ins, for a forecast of everything the fit explains
+        row["band_waves"] = {f: np.asarray(getattr(band.waves, f), float).tolist() for f in band.waves._fields}
     row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
     determined = np.asarray(result.determined, bool)
     row.update(score_waves(result.waves, determined, scene))
