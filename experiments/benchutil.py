@@ -96,6 +96,20 @@ def save(name: str, rows, meta: dict | None = None) -> Path:
     return path
 
 
+def waves_to_json(waves) -> dict:
+    """A ``Waves`` as JSON lists, one per field (how results rows store fitted waves)."""
+    return {f: np.asarray(getattr(waves, f), float).tolist() for f in waves._fields}
+
+
+def waves_from_json(d: dict):
+    """The float32 ``Waves`` that :func:`waves_to_json` stored."""
+    import jax.numpy as jnp
+
+    from jaxocean.waves import Waves
+
+    return Waves(*(jnp.asarray(d[f], jnp.float32) for f in Waves._fields))
+
+
 def print_table(rows, columns) -> None:
     widths = [max(len(c), *(len(_fmt(r.get(c))) for r in rows)) for c in columns]
     print("  ".join(c.rjust(w) for c, w in zip(columns, widths)))

@@ -35,7 +35,6 @@ import wave_fit  # noqa: E402
 
 from jaxocean import fit  # noqa: E402
 from jaxocean import forecast as fc  # noqa: E402
-from jaxocean.waves import Waves  # noqa: E402
 
 TARGET_RATIO = 2.0  # to frame 0
 TARGET_PERSISTENCE = 0.5  # to persistence
@@ -55,20 +54,16 @@ def scene_rows(args):
         r = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times,
                       heights=args.section == "table2")
         row = dict(seed=seed, resolution=args.resolution, success=bool(r.success),
-                   fitted_waves={f: np.asarray(getattr(r.waves, f), float).tolist() for f in r.waves._fields})
+                   fitted_waves=benchutil.waves_to_json(r.waves))
         if r.long_waves is not None:
-            row["band_waves"] = {f: np.asarray(getattr(r.long_waves.waves, f), float).tolist() for f in Waves._fields}
+            row["band_waves"] = benchutil.waves_to_json(r.long_waves.waves)
         rows.append(row)
     return rows
 
 
-def _waves(d) -> Waves:
-    return Waves(*(jnp.asarray(d[f], jnp.float32) for f in Waves._fields))
-
-
 def one_scene(row, frames):
     scene, geo = wave_fit.dataset_scene(row["seed"], row["resolution"])
-    fitted = _waves(row["fitted_waves"])
+    fitted = benchutil.waves_from_json(row["fitted_waves"])
     times = jnp.asarray(fc.frame_times(np.asarray(scene.times), frames), jnp.float32)
     truth = fc.forecast(scene.waves, times, scene.camera).geometry
     pred = fc.forecast(fitted, times, scene.camera).geometry
@@ -83,7 +78,8 @@ def one_scene(row, frames):
     if "band_waves" in row:
         # the fitted waves and the long-wave band's stand-ins together: everything the fit
         # explained at frame 0, advanced by the band waves' own dispersion
-        both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fitted, _waves(row["band_waves"]))
+        band = benchutil.waves_from_json(row["band_waves"])
+        both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fitted, band)
         err_b = fc.geometry_error(fc.forecast(both, times, scene.camera).geometry, truth)
         out["normal_error_with_band_rad"] = np.asarray(err_b.normal, float).tolist()
     return out

@@ -113,10 +113,10 @@ def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True) 
                long_true_slope_variance=float(np.sum((np.asarray(truth_all.amplitude, np.float64)[long_true]
                                                       * 2 * np.pi / lam[long_true]) ** 2) / 2))
     # the fitted waves themselves, for experiments/forecast.py and --rescore
-    row["fitted_waves"] = {f: np.asarray(getattr(result.waves, f), float).tolist() for f in result.waves._fields}
+    row["fitted_waves"] = benchutil.waves_to_json(result.waves)
     row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
     if band is not None:  # the band's fitted stand-ins, for a forecast of everything the fit explains
-        row["band_waves"] = {f: np.asarray(getattr(band.waves, f), float).tolist() for f in band.waves._fields}
+        row["band_waves"] = benchutil.waves_to_json(band.waves)
     row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
     determined = np.asarray(result.determined, bool)
     row.update(score_waves(result.waves, determined, scene))
@@ -202,12 +202,10 @@ def rescore(out, key) -> None:
     """Recompute the scores of the saved Table 2 scenes of ``key`` from their fitted waves
     (after a change to the matching or to ``fit.spectrum``; the wave fits themselves are
     not rerun)."""
-    from jaxocean.waves import Waves
-
     rows = out[key]["scenes"]
     for row in rows:
         scene, geo = dataset_scene(row["seed"], row["resolution"])
-        fitted = Waves(*(jnp.asarray(row["fitted_waves"][f], jnp.float32) for f in Waves._fields))
+        fitted = benchutil.waves_from_json(row["fitted_waves"])
         determined = np.asarray(row["fitted_determined"], bool)
         row.update(score_waves(fitted, determined, scene))
         row.update(score_sea_both(fitted, determined, scene, geo))

@@ -226,7 +226,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     # diagonal: with the exact block (cross terms, level projected out) a refinement
     # converges in far fewer steps, but the greedy selection, whose batches get 8 steps,
     # lands in worse optima -- 3 of 8 Table 2 scenes succeed against 5 of 8 with this
-    # diagonal (experiments/WAVES.md; why is not measured)
+    # diagonal, both measured without the selection's near-floor refinement
+    # (experiments/WAVES.md; why is not measured)
     height_diag = jnp.zeros_like(ridge)
     if heights is not None:
         height_diag = 0.5 * scale * heights[2] * jnp.sum(heights[1] * weight) * active.astype(dtype)
