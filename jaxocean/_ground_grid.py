@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxocean import camera as cam
+from jaxocean.surface import surface_point
 
 __all__ = ["hann", "grid_frames", "grid_points", "box_filter", "resample"]
 
@@ -89,27 +90,35 @@ def box_filter(img, size):
     return jax.lax.reduce_window(img, 0.0, jax.lax.add, window, (1,) * img.ndim, "SAME") / float(size * size)
 
 
-def resample(values, weight, camera, anchor, e_u, e_v, spacing, level, use_box, grid):
-    """``values (T, H, W, C)`` and validity ``(T, G, G)`` on one ground grid (module docstring)."""
+def resample(values, weight, camera, anchor, e_u, e_v, spacing, level, use_box, grid, surface=None, times=None):
+    """``values (T, H, W, C)`` and validity ``(T, G, G)`` on one ground grid (module docstring).
+
+    ``surface`` (``Waves``, with the frame ``times (T,)``): the grid's points are rest
+    positions of that trochoid surface, and frame ``t`` is sampled at the pixel that sees
+    the surface point of each at time ``t`` (so that waves riding on the surface's longer
+    waves are plane waves on the grid); None: the mean sea plane's points."""
     dtype = values.dtype
     size = 2 ** level
     T, C = weight.shape[0], values.shape[-1]
     sw = jnp.moveaxis(values * weight[..., None], 0, -1)  # (H, W, C, T)
-    sw = sw.reshape(sw.shape[0], sw.shape[1], -1)  # (H, W, C T)
     wt = jnp.moveaxis(weight, 0, -1)  # (H, W, T)
     if size > 1:
         sw = jnp.where(use_box, box_filter(sw, size), sw)
         wt = jnp.where(use_box, box_filter(wt, size), wt)
     X = grid_points(anchor, e_u, e_v, spacing, grid).astype(dtype)
-    P3 = jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1)
-    ij = cam.project(camera, P3)  # (G, G, 2)
-    coords = [ij[..., 0], ij[..., 1]]
+    if surface is None:
+        P3 = jnp.broadcast_to(jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1), (T, grid, grid, 3))
+    else:
+        P3 = jax.vmap(lambda t: surface_point(surface, X, t))(jnp.asarray(times, dtype))  # (T, G, G, 3)
+    ij = cam.project(camera, P3)  # (T, G, G, 2)
 
-    def sample(img2d):
-        return jax.scipy.ndimage.map_coordinates(img2d, coords, order=1, mode="constant", cval=0.0)
+    def sample(img2d, coords):
+        return jax.scipy.ndimage.map_coordinates(img2d, [coords[..., 0], coords[..., 1]], order=1, mode="constant",
+                                                 cval=0.0)
 
-    s_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(sw).reshape(grid, grid, C, T)
-    w_g = jax.vmap(sample, in_axes=-1, out_axes=-1)(wt)  # (G, G, T)
+    per_channel = jax.vmap(sample, in_axes=(-1, None), out_axes=-1)  # (H, W, C), coords -> (G, G, C)
+    s_g = jax.vmap(per_channel, in_axes=(-1, 0), out_axes=-1)(sw, ij)  # (G, G, C, T)
+    w_g = jax.vmap(sample, in_axes=(-1, 0), out_axes=-1)(wt, ij)  # (G, G, T)
     valid = w_g > 0.999
     s_g = jnp.where(valid[:, :, None, :], s_g / jnp.where(valid, w_g, 1.0)[:, :, None, :], 0.0)
     return jnp.moveaxis(s_g, -1, 0), jnp.moveaxis(valid.astype(dtype), -1, 0), X

@@ -21,7 +21,7 @@ import jaxocean.fit as fit_package
 from jaxocean.fit import spectrum_fit as fit_spectrum
 from jaxocean.fit import waves_fit as fw
 from jaxocean import _roughness
-from jaxocean.fit.waves import _inputs, _lm, _model, _select
+from jaxocean.fit.waves import _inputs, _lm, _model, _select, _spectral
 from jaxocean.fit.solvers import FitError
 from jaxocean.waves import GRAVITY, Waves, make_waves, too_steep
 
@@ -116,6 +116,34 @@ def test_linear_amplitude_solve_recovers_amplitudes_and_phases(ortho_scene):
     np.testing.assert_allclose(np.asarray(w.amplitude), np.asarray(truth.amplitude), rtol=0.05)
     dphi = np.angle(np.exp(1j * (np.asarray(w.phase) - np.asarray(truth.phase))))
     assert np.max(np.abs(dphi)) < 0.05
+
+
+def test_the_detection_sees_a_short_wave_on_a_swell_at_the_swells_rest_positions():
+    # a short wave riding on a steep swell is moved back and forth by the swell's orbits
+    # (k_short x h_swell = 2.5 rad of phase): on the mean sea plane its spectral peak loses
+    # most of its power; resampled at the rest positions of the swell's surface (what the
+    # selection does once it models the swell) the peak is that of the wave alone
+    c = cam.make_orthographic(12.0, (48, 48))
+    om = lambda length: float(np.sqrt(GRAVITY * 2 * np.pi / length))  # noqa: E731
+    short = make_waves([0.02], [om(1.5)], [0.7], [0.3])
+    swell = make_waves([0.6], [om(18.0)], [0.4], [1.0])
+    times = jnp.asarray(TIMES, jnp.float32)
+
+    def peak(waves, model, surface):
+        normals, _ = fw.predict(waves, c, times, surface="hits")
+        resid, wt, _ = _select._residual_slopes(model, normals, c, times, 1.0, 1.5, _model.HITS)
+        est = _spectral.spectral_pyramid(resid, wt, times, c, scales=1, grid=32, n_peaks=4, surface=surface)
+        return float(est.peak_power[0, 0]), float(est.peak_omega[0, 0])
+
+    flat = _model.pad_waves(make_waves([0.0], [1.0], [0.0], [0.0]), 8)[0]
+    alone, om_alone = peak(short, flat, None)
+    model = _model.pad_waves(swell, 8)[0]
+    both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), swell, short)
+    on_plane, _ = peak(both, model, None)
+    at_rest, om_rest = peak(both, model, model)
+    assert on_plane < 0.6 * alone
+    assert at_rest == pytest.approx(alone, rel=0.1) and om_rest == pytest.approx(om_alone)
+    assert abs(om_rest - om(1.5)) < 0.05 * om(1.5)
 
 
 def test_refine_from_the_spectral_start_in_perspective():

@@ -52,6 +52,9 @@ DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2
 #: reached the 96-wave cap at 1.05x the floor, and the capped fit explained its data to
 #: 1.9e-4 rad after its final refinement, ``experiments/WAVES.md``)
 POLISH_FACTOR = 10.0
+# the fraction of ``separation`` a candidate may stand from a model wave when the model has
+# stalled above POLISH_FACTOR x the floor with no separated candidate left
+CROWDED_SEPARATION = 0.5
 
 
 class NoWaveFound(InvalidValueError):
@@ -535,7 +538,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             resid = slope_field(clean_inputs(fit_n, None, wt)[0])
         smp = all_samples(resid, wt, fit_t, camera, positions=positions)
         smp_score = subsample(smp, score_samples)
-        est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16)
+        # on the hits path the grids hold the model's rest positions: a wave riding on the
+        # model's longer waves (moved by their orbits and by the parallax of their heights) is
+        # a plane wave there, not on the mean sea plane
+        est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16,
+                               surface=None if positions is None else model_of(current, band))
         c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
         c_th = jnp.concatenate([est.peak_theta.ravel(), long_th])
         valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(long_om.shape, bool)])
@@ -577,32 +584,47 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         kr = _kvec(r_om, r_th)
         k_old = _kvec(current.omega, current.theta) if n_cur else np.zeros((0, 2))
         n_add = min(cur_batch, limit - n_cur)
+        chosen = []
         if long_waves:
             # what the view can separate: resolved by the image, and at least `separation`
-            # Rayleigh limits from every model wave and every other chosen candidate
+            # Rayleigh limits from every model wave and every other chosen candidate; a
+            # model stalled far above the floor may add one wave closer to its own (the
+            # data demand it: noise-free data resolve waves closer than the Rayleigh limit)
             cand = Waves(jnp.zeros(n_cand, dtype), jnp.asarray(np.maximum(r_om, 1e-3), dtype),
                          jnp.asarray(r_th, dtype), jnp.zeros(n_cand, dtype))
-            admissible = resolvable(cand, camera, n_max=n_max)
-            if n_cur:
-                admissible &= np.min(rayleigh_separation(cand, current, camera, fit_t, n_max=n_max), 1) >= separation
+            resolved = resolvable(cand, camera, n_max=n_max)
+            to_model = (np.min(rayleigh_separation(cand, current, camera, fit_t, n_max=n_max), 1) if n_cur
+                        else np.full(n_cand, np.inf))
             mutual = rayleigh_separation(cand, cand, camera, fit_t, n_max=n_max)
-        chosen = []
-        for j in np.argsort(-e_ref):
-            if len(chosen) >= n_add or not np.isfinite(e_ref[j]) or e_ref[j] <= 0:
-                break
-            if r_om[j] < 0.5 * omega_min:
-                continue
-            if long_waves:
-                if admissible[j] and all(mutual[j, i] >= separation for i in chosen):
-                    chosen.append(j)
-                continue
-            kn = np.hypot(*kr[j])
-            sep = max(0.02 * kn, 0.7 * k_res)
-            if k_old.size and np.min(np.hypot(*(k_old - kr[j]).T)) < sep:
-                continue  # a wave the model already has
-            if any(np.hypot(*(kr[j] - kr[i])) < max(sep, 0.5 * res_scale[0]) for i in chosen):
-                continue
-            chosen.append(j)
+            crowded = (n_waves is None and not holdout and n_cur > 0
+                       and rss_now / m_obs > POLISH_FACTOR * floor2)
+            for relaxed in ((False, True) if crowded else (False,)):
+                level = CROWDED_SEPARATION * separation if relaxed else separation
+                for j in np.argsort(-e_ref):
+                    if len(chosen) >= n_add or not np.isfinite(e_ref[j]) or e_ref[j] <= 0:
+                        break
+                    if (r_om[j] >= 0.5 * omega_min and (resolved[j] or relaxed) and to_model[j] >= level
+                            and all(mutual[j, i] >= separation for i in chosen)):
+                        chosen.append(j)
+                if chosen:
+                    if verbose and relaxed:
+                        print(f"  stalled at rss/m {rss_now / m_obs:.3e}: {len(chosen)} candidate(s) the view "
+                              f"does not resolve or within {level:.3g} Rayleigh limits of a model wave",
+                              flush=True)
+                    break
+        else:
+            for j in np.argsort(-e_ref):
+                if len(chosen) >= n_add or not np.isfinite(e_ref[j]) or e_ref[j] <= 0:
+                    break
+                if r_om[j] < 0.5 * omega_min:
+                    continue
+                kn = np.hypot(*kr[j])
+                sep = max(0.02 * kn, 0.7 * k_res)
+                if k_old.size and np.min(np.hypot(*(k_old - kr[j]).T)) < sep:
+                    continue  # a wave the model already has
+                if any(np.hypot(*(kr[j] - kr[i])) < max(sep, 0.5 * res_scale[0]) for i in chosen):
+                    continue
+                chosen.append(j)
         if not chosen:
             if verbose:
                 print("  stop: no candidate pays the criterion's penalty and is resolvable and separated from "
@@ -667,7 +689,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             if n_waves is None and not holdout and rss_now / m_obs <= floor2:
                 break  # explained to the noise floor: nothing left to find
         elif cur_batch > 1:
-            cur_batch = max(1, cur_batch // 2)
+            # a smaller batch; halving past the candidates that were there to choose from
+            # (a batch no smaller would choose the same ones and be rejected again)
+            cur_batch //= 2
+            while cur_batch > 1 and cur_batch >= len(chosen):
+                cur_batch //= 2
         else:
             break
 

@@ -99,8 +99,8 @@ def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
 # =============================================================================== spectral estimate
 
 
-def _power_one_scale(slopes, weight, times, camera, anchor, e_u, e_v, d, level, use_box, grid):
-    s_g, v_g, X = resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid)
+def _power_one_scale(slopes, weight, times, camera, anchor, e_u, e_v, d, level, use_box, grid, surface=None):
+    s_g, v_g, X = resample(slopes, weight, camera, anchor, e_u, e_v, d, level, use_box, grid, surface, times)
     dtype = slopes.dtype
     win = hann(grid, dtype)
     wmap = win[:, None] * win[None, :] * jnp.min(v_g, axis=0)  # (G, G): the same support in every frame
@@ -135,13 +135,13 @@ def _peaks(power, kk, k_lo, k_hi, n_peaks):
 
 
 @functools.partial(jax.jit, static_argnames=("scales", "grid", "n_peaks"))
-def spectral_pyramid(slopes, weight, times, camera, *, scales, grid, n_peaks):
+def spectral_pyramid(slopes, weight, times, camera, *, scales, grid, n_peaks, surface=None):
     anchors, e_u, e_v, spacing, fallback = grid_frames(camera, scales, grid)
     out = []
     for g in range(scales):
         d = spacing[g]
         power, kx, ky, kk, support = _power_one_scale(slopes, weight, times, camera, anchors[g], e_u, e_v, d, g,
-                                                      fallback[g], grid)
+                                                      fallback[g], grid, surface)
         k_lo = 1.5 * 2 * jnp.pi / (grid * d)
         k_hi = 0.9 * jnp.pi / d
         # a grid with (almost) no valid point has no peaks
