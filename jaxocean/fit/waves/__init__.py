@@ -61,7 +61,13 @@ Pipeline of :func:`waves`:
    noise whose mean normal angle is the success bound of noise-free data). The selection
    stops once the model explains the data to that floor; within ``POLISH_FACTOR`` (10) of
    it, an accepted model whose trial ran out of steps is refined 4x longer before more
-   waves are tried, so that the trials' missing steps are not taken for missing waves.
+   waves are tried, so that the trials' missing steps are not taken for missing waves. A
+   model stalled more than ``POLISH_FACTOR`` above the floor with no admissible candidate
+   may add candidates the view does not resolve or that stand ``CROWDED_SEPARATION`` (0.5)
+   x ``separation`` from its waves. On the hits path the residual is resampled for
+   detection at the model's rest positions (grid point ``X`` of frame ``t`` read at the
+   pixel that sees the model's surface point ``p(X, t)``), where waves riding on the
+   model's longer waves are plane waves.
    Optionally the final set is pruned by each wave's Wald statistic against the same penalty. The final
    refinement adds the roughness term with the sub-pixel tail of waves outside the set
    fitted by non-negative least squares.

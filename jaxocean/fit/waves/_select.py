@@ -52,8 +52,10 @@ DEFAULT_NOISE_FLOOR = NORMAL_ERROR_FLOOR / (NOISE_FACTOR * math.sqrt(math.pi / 2
 #: reached the 96-wave cap at 1.05x the floor, and the capped fit explained its data to
 #: 1.9e-4 rad after its final refinement, ``experiments/WAVES.md``)
 POLISH_FACTOR = 10.0
-# the fraction of ``separation`` a candidate may stand from a model wave when the model has
-# stalled above POLISH_FACTOR x the floor with no separated candidate left
+#: the fraction of ``separation`` a candidate may stand from a model wave once the model has
+#: stalled more than POLISH_FACTOR above the floor with no admissible candidate left (then
+#: candidates the view does not resolve are admitted too: the data demand more waves, and
+#: noise-free data resolve waves closer than the Rayleigh limit)
 CROWDED_SEPARATION = 0.5
 
 
@@ -297,8 +299,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       nuisance waves of fixed wave vector whose amplitudes and phases are fitted jointly),
       and add as waves only candidates that the image resolves (:func:`resolvable`) and
       that stand at least ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from
-      every wave already in the model and from each other; what the band absorbed is
-      returned in ``WaveFit.long_waves``. Needs ``solver="structured"``. ``False``: every
+      every wave already in the model and from each other (a model stalled more than
+      ``POLISH_FACTOR`` above the floor with none left may add candidates that the view
+      does not resolve or that stand ``CROWDED_SEPARATION`` x ``separation`` from its
+      waves); what the band absorbed is returned in ``WaveFit.long_waves``. Needs ``solver="structured"``. ``False``: every
       candidate may become a wave (closer than 0.7 of the whole image's wave-vector
       resolution to a model wave excepted), no band.
     * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
