@@ -106,11 +106,11 @@ def resample(values, weight, camera, anchor, e_u, e_v, spacing, level, use_box, 
         sw = jnp.where(use_box, box_filter(sw, size), sw)
         wt = jnp.where(use_box, box_filter(wt, size), wt)
     X = grid_points(anchor, e_u, e_v, spacing, grid).astype(dtype)
-    if surface is None:
-        P3 = jnp.broadcast_to(jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1), (T, grid, grid, 3))
+    if surface is None:  # the plane's points: one projection serves every frame
+        ij = jnp.broadcast_to(cam.project(camera, jnp.concatenate([X, jnp.zeros_like(X[..., :1])], -1)),
+                              (T, grid, grid, 2))
     else:
-        P3 = jax.vmap(lambda t: surface_point(surface, X, t))(jnp.asarray(times, dtype))  # (T, G, G, 3)
-    ij = cam.project(camera, P3)  # (T, G, G, 2)
+        ij = cam.project(camera, jax.vmap(lambda t: surface_point(surface, X, t))(jnp.asarray(times, dtype)))
 
     def sample(img2d, coords):
         return jax.scipy.ndimage.map_coordinates(img2d, [coords[..., 0], coords[..., 1]], order=1, mode="constant",

@@ -532,11 +532,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     while current.omega.shape[0] < limit:
         n_cur = current.omega.shape[0]
         t_a = time.perf_counter()
-        positions = None
+        positions = rest_surface = None
         if n_cur > 0:
-            resid, wt, xy = _residual_slopes(model_of(current, band), fit_n, camera, fit_t, n_min, n_max,
-                                             state["refine"])
-            positions = None if state["refine"] == ROWS else xy
+            model = model_of(current, band)
+            resid, wt, xy = _residual_slopes(model, fit_n, camera, fit_t, n_min, n_max, state["refine"])
+            if state["refine"] != ROWS:
+                positions, rest_surface = xy, model
         else:
             wt = weight
             resid = slope_field(clean_inputs(fit_n, None, wt)[0])
@@ -546,7 +547,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # model's longer waves (moved by their orbits and by the parallax of their heights) is
         # a plane wave there, not on the mean sea plane
         est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16,
-                               surface=None if positions is None else model_of(current, band))
+                               surface=rest_surface)
         c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
         c_th = jnp.concatenate([est.peak_theta.ravel(), long_th])
         valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(long_om.shape, bool)])
@@ -592,8 +593,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         if long_waves:
             # what the view can separate: resolved by the image, and at least `separation`
             # Rayleigh limits from every model wave and every other chosen candidate; a
-            # model stalled far above the floor may add one wave closer to its own (the
-            # data demand it: noise-free data resolve waves closer than the Rayleigh limit)
+            # model stalled far above the floor may add candidates closer to its waves, or
+            # ones the view does not resolve (CROWDED_SEPARATION: the data demand them)
             cand = Waves(jnp.zeros(n_cand, dtype), jnp.asarray(np.maximum(r_om, 1e-3), dtype),
                          jnp.asarray(r_th, dtype), jnp.zeros(n_cand, dtype))
             resolved = resolvable(cand, camera, n_max=n_max)
