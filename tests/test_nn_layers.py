@@ -80,6 +80,10 @@ def test_groupnorm_normalises_each_group(key):
     np.testing.assert_allclose(y.var((1, 3)), 1.0, atol=1e-3)
     # no batch statistics: an image's output does not depend on its batch mates
     np.testing.assert_allclose(layer.apply(p, x)[:1], layer.apply(p, x[:1]), rtol=1e-6)
+    # then each channel's own scale and shift
+    scale, shift = jnp.linspace(0.5, 2.0, 6), jnp.linspace(-1.0, 1.0, 6)
+    np.testing.assert_allclose(layer.apply({"scale": scale, "shift": shift}, x),
+                               y.reshape(3, 4, 4, 6) * scale + shift, rtol=1e-5, atol=1e-5)
 
 
 def test_dropout_train_and_eval(key):

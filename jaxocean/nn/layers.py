@@ -197,13 +197,18 @@ def GroupNorm(groups: int = 8, eps: float = 1e-5) -> Layer:
         return tuple(in_shape), {"scale": jnp.ones((C,), jnp.float32), "shift": jnp.zeros((C,), jnp.float32)}
 
     def apply(params, x, *, key=None, train=False):
-        shape = x.shape
-        g = x.reshape(shape[:-1] + (groups, shape[-1] // groups))
-        axes = tuple(range(1, g.ndim - 2)) + (g.ndim - 1,)
-        mean = g.mean(axes, keepdims=True)
-        var = jnp.square(g - mean).mean(axes, keepdims=True)
-        g = (g - mean) * lax.rsqrt(var + eps)
-        return g.reshape(shape) * params["scale"] + params["shift"]
+        # The statistics reduce a (N, pixels, groups, C / groups) view; the normalisation
+        # and the scale and shift are then one per-(image, channel) affine map of x, which
+        # halves the backward pass's passes over the activations against normalising the
+        # grouped view and scaling after.
+        N, C = x.shape[0], x.shape[-1]
+        g = x.reshape(N, -1, groups, C // groups)
+        mean = g.mean((1, 3), keepdims=True)
+        inv_std = lax.rsqrt(jnp.square(g - mean).mean((1, 3)) + eps)         # (N, groups)
+        a = jnp.repeat(inv_std, C // groups, axis=1) * params["scale"]        # (N, C)
+        b = params["shift"] - jnp.repeat(mean[:, 0, :, 0], C // groups, axis=1) * a
+        per_image = (N,) + (1,) * (x.ndim - 2) + (C,)
+        return x * a.reshape(per_image) + b.reshape(per_image)
 
     return Layer(init, apply)
 
