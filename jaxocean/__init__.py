@@ -12,9 +12,10 @@ pure, jittable, differentiable functions over registered pytrees; the inverse st
 ``shading``    Lighting pytree, Bruneton ocean BRDF, Fresnel, sky, tone maps
 ``render``     geometry(), shade(), render(): the composed per-pixel renderer
 ``errors``     the two-tier error policy
+``compile_cache``  XLA's persistent compilation cache (``compile_cache.enable()``)
 """
 
-from jaxocean import camera, errors, hierarchy, render, shading, spectrum, surface, waves
+from jaxocean import camera, compile_cache, errors, hierarchy, render, shading, spectrum, surface, waves
 from jaxocean.camera import Camera, make_camera, make_orthographic
 from jaxocean.errors import InvalidValueError
 from jaxocean.hierarchy import WaveWeights
@@ -27,7 +28,7 @@ from jaxocean.waves import GRAVITY, Waves, make_waves
 __version__ = "0.1.0"
 
 __all__ = [
-    "camera", "errors", "hierarchy", "render", "shading", "spectrum", "surface", "waves",
+    "camera", "compile_cache", "errors", "hierarchy", "render", "shading", "spectrum", "surface", "waves",
     "Camera", "make_camera", "make_orthographic",
     "InvalidValueError",
     "WaveWeights",

@@ -61,6 +61,7 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxocean import compile_cache
 from jaxocean.files import json_safe, write_json
 
 __all__ = ["main", "build_parser"]
@@ -970,31 +971,14 @@ COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, 
             "forecast": cmd_forecast, "reconstruct": cmd_reconstruct}
 
 
-def _compile_cache() -> Path | None:
-    """The folder of XLA's persistent compilation cache for the command line: compiled
-    programs are kept between runs, so a second ``jaxocean reconstruct`` or ``demo`` skips
-    most of the minutes of compilation. ``$JAXOCEAN_COMPILE_CACHE`` names the folder
-    (default ``$XDG_CACHE_HOME/jaxocean/xla``, i.e. ``~/.cache/jaxocean/xla``); ``0`` or an
-    empty value turns it off."""
-    value = os.environ.get("JAXOCEAN_COMPILE_CACHE")
-    if value is not None and value.strip() in ("", "0"):
-        return None
-    if value:
-        return Path(value)
-    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "jaxocean" / "xla"
-
-
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     from jaxocean.errors import InvalidValueError
 
-    cache = _compile_cache()
-    if cache is not None:
-        import jax
-
-        jax.config.update("jax_compilation_cache_dir", str(cache))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+    # compiled programs kept between runs: a second ``reconstruct`` or ``demo`` skips most of
+    # the minutes of compilation (jaxocean.compile_cache)
+    compile_cache.enable()
 
     try:
         return COMMANDS[args.command](args)

@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxocean import cli
+from jaxocean import cli, compile_cache
 
 
 @pytest.mark.parametrize("command", ["render", "simulate", "check", "demo", "fit-lighting", "reedit", "fit-waves",
@@ -449,9 +449,21 @@ def test_forecast_refuses_a_failed_fit_and_other_json(tiny_scene, tmp_path, caps
 
 def test_compile_cache_folder(monkeypatch, tmp_path):
     monkeypatch.setenv("JAXOCEAN_COMPILE_CACHE", "0")
-    assert cli._compile_cache() is None
+    assert compile_cache.folder() is None
     monkeypatch.setenv("JAXOCEAN_COMPILE_CACHE", str(tmp_path / "c"))
-    assert cli._compile_cache() == tmp_path / "c"
+    assert compile_cache.folder() == tmp_path / "c"
     monkeypatch.delenv("JAXOCEAN_COMPILE_CACHE")
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    assert cli._compile_cache() == tmp_path / "jaxocean" / "xla"
+    assert compile_cache.folder() == tmp_path / "jaxocean" / "xla"
+
+
+def test_compile_cache_enable_sets_jax_and_respects_off(monkeypatch, tmp_path):
+    import jax
+
+    calls = []
+    monkeypatch.setattr(jax.config, "update", lambda name, value: calls.append((name, value)))
+    monkeypatch.setenv("JAXOCEAN_COMPILE_CACHE", "0")
+    assert compile_cache.enable() is None and calls == []
+    assert compile_cache.enable(tmp_path / "x") == tmp_path / "x"
+    assert calls == [("jax_compilation_cache_dir", str(tmp_path / "x")),
+                     ("jax_persistent_cache_min_compile_time_secs", compile_cache.MIN_COMPILE_TIME_S)]

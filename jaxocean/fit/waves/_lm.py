@@ -139,7 +139,7 @@ def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale,
     rows, and the rest positions ``(T, H, W, 2)`` the model's pixels see (its hits).
     ``heights``: None, or ``(z, mask, weight)`` integrated heights ``(T, H, W)`` and where to
     use them: the model's height at each pixel's hit against them, per-frame level free."""
-    pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine, heights is not None)
+    pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine, heights is not None, True)
     d = (pred.normal[..., :2] - normals[..., :2])
     half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
     if heights is not None:
@@ -257,30 +257,34 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         done: jax.Array
         conv: jax.Array
         hist: jax.Array
+        start: jax.Array  # the start is not evaluated yet
 
     def cond(s):
-        return (~s.done) & (s.k < max_steps)
+        return s.start | ((~s.done) & (s.k < max_steps))
 
+    # The loop's first pass evaluates the start (a zero step, accepted): the loss and the
+    # normal equations are then traced once each, not once for the start and once for the
+    # steps, which on the hits path halves the compilation (measured in experiments/WAVES.md).
     def body(s):
         d = jnp.diag(s.jtj)
         dmax = jnp.max(d)
         dsc = jnp.maximum(d, 1e-9 * dmax + 1e-30)
         A = s.jtj + s.lam * jnp.diag(dsc)
         step = -jnp.linalg.solve(A, s.jtr)
-        ok_step = jnp.all(jnp.isfinite(step))
-        step = jnp.where(ok_step, step, 0.0)
+        ok_step = jnp.all(jnp.isfinite(step)) | s.start
+        step = jnp.where(ok_step & ~s.start, step, 0.0)
         # projected LM: a step that would make a wave steeper than MAX_STEEPNESS stops at it
-        y_try = _steepness_projection(s.y + step, n, MAX_STEEPNESS)
+        y_try = jnp.where(s.start, s.y, _steepness_projection(s.y + step, n, MAX_STEEPNESS))
         step = y_try - s.y
         f_try = f(y_try)
         pred = -(step @ s.jtr) - 0.5 * step @ (s.jtj @ step)
         actual = s.f - f_try
         rho = actual / jnp.where(pred > 0, pred, 1.0)
-        accept = ok_step & jnp.isfinite(f_try) & (actual > 0) & (pred > 0) & (rho > 1e-4)
+        accept = s.start | (ok_step & jnp.isfinite(f_try) & (actual > 0) & (pred > 0) & (rho > 1e-4))
 
         def on_accept(_):
             jtj, jtr = normal_eq(y_try)
-            lam = s.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+            lam = jnp.where(s.start, s.lam, s.lam * jnp.maximum(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3))
             return y_try, f_try, jtj, jtr, lam, jnp.asarray(2.0, dtype)
 
         def on_reject(_):
@@ -301,13 +305,18 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         insignificant = (sigma2 > 0) & jnp.isfinite(chi2_gain) & (chi2_gain >= 0) & (chi2_gain <= CHI2_TOL)
         conv = (accept & (rel | insignificant)) | small | floor | stalled
         hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
-        return S(y, fv, jtj, jtr, lam, nu, s.k + 1, conv | ~jnp.isfinite(fv), conv & jnp.isfinite(fv), hist)
+        done = conv | ~jnp.isfinite(fv)
+        conv = conv & jnp.isfinite(fv)
+        # the start's pass: no step taken, converged only at the absolute floor
+        return S(y, fv, jtj, jtr, lam, nu, jnp.where(s.start, s.k, s.k + 1), jnp.where(s.start, floor, done),
+                 jnp.where(s.start, floor, conv), jnp.where(s.start, jnp.full_like(s.hist, fv), hist),
+                 jnp.zeros_like(s.start))
 
     y0 = _steepness_projection(y0, n, MAX_STEEPNESS)
-    f0 = f(y0)
-    jtj0, jtr0 = normal_eq(y0)
-    s0 = S(y0, f0, jtj0, jtr0, jnp.asarray(1e-3, dtype), jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32),
-           f0 - prior(y0) <= atol, f0 - prior(y0) <= atol, jnp.full((history_len,), f0))
+    p = y0.shape[0]
+    s0 = S(y0, jnp.asarray(jnp.inf, dtype), jnp.eye(p, dtype=dtype), jnp.zeros(p, dtype), jnp.asarray(1e-3, dtype),
+           jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
+           jnp.zeros((history_len,), dtype), jnp.asarray(True))
     s = jax.lax.while_loop(cond, body, s0)
     success = s.conv & jnp.isfinite(s.f) & jnp.all(jnp.isfinite(s.y))
     return _LMOut(s.y, s.f, s.k, success, s.jtj, s.hist)
@@ -326,19 +335,18 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
     held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
-    # max_steps is traced (one compilation serves every step budget); the history's length
-    # is static and only as long as asked for
+    # max_steps and the roughness weight are traced (one compilation serves every step budget
+    # and weight); the history's length is static and only as long as asked for
     return _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol,
-                       jnp.asarray(max_steps, jnp.int32), jnp.asarray(sigma2, y0.dtype), heights, n_min=n_min,
-                       n_max=n_max,
-                       roughness_weight=roughness_weight, hessian_samples=int(hessian_samples),
+                       jnp.asarray(max_steps, jnp.int32), jnp.asarray(sigma2, y0.dtype), heights,
+                       jnp.asarray(roughness_weight, y0.dtype), n_min=n_min, n_max=n_max,
+                       hessian_samples=int(hessian_samples),
                        history_len=int(max_steps) + 1 if history else 1, refine=int(refine))
 
 
-@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "roughness_weight", "hessian_samples", "history_len",
-                                             "refine"))
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "hessian_samples", "history_len", "refine"))
 def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, sigma2,
-                heights, *, n_min, n_max, roughness_weight, hessian_samples, history_len, refine):
+                heights, roughness_weight, *, n_min, n_max, hessian_samples, history_len, refine):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     if refine != ROWS:

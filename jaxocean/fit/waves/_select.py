@@ -391,6 +391,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     if holdout and T < 3:
         raise ValueError("criterion='holdout' needs at least 3 frames (one is held out)")
     fit_n, fit_t = (normals[:-1], times[:-1]) if holdout else (normals, times)
+    fit_r = None if roughness is None else (roughness[:-1] if holdout else roughness)
     height_data = _height_data(normals, camera, dtype) if heights else None
     fit_h = height_data if height_data is None or not holdout else tuple(
         x[:-1] if x.ndim else x for x in height_data)
@@ -463,7 +464,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         full, held = with_band(w, band_)
         n_pad = bucket_size(full.omega.shape[0])
         wp, active = pad_waves(full, n_pad)
-        out, _ = refine_kernel(pack(wp), active, fit_n, None, fit_t, camera, tail_rows,
+        # the roughness passed with weight 0: the same compiled kernel as the final fit's
+        out, _ = refine_kernel(pack(wp), active, fit_n, fit_r, fit_t, camera, tail_rows,
                                jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min, n_max=n_max,
                                max_steps=steps, roughness_weight=0.0, held=held, refine=state["refine"],
                                sigma2=sigma2, heights=fit_h)
