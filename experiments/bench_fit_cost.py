@@ -26,9 +26,8 @@ sys.path.insert(0, str(HERE))
 import benchutil  # noqa: E402
 
 WORKER = r"""
-import json, sys, time, warnings
+import json, sys, time
 sys.path.insert(0, sys.argv[2])
-import jax
 from jax import monitoring
 import wave_fit
 from jaxocean import fit

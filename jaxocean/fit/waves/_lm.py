@@ -262,19 +262,21 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     def cond(s):
         return s.start | ((~s.done) & (s.k < max_steps))
 
-    # The loop's first pass evaluates the start (a zero step, accepted): the loss and the
-    # normal equations are then traced once each, not once for the start and once for the
-    # steps, which on the hits path halves the compilation (measured in experiments/WAVES.md).
+    # The loop's first pass evaluates the start: with the placeholder J^T r = 0 its step is
+    # exactly zero, the projection puts y0 on the steepness bound, and the result is accepted.
+    # The loss and the normal equations are then traced once each, not once for the start
+    # and once for the steps, which on the hits path about halves the compilation
+    # (measured in experiments/WAVES.md).
     def body(s):
         d = jnp.diag(s.jtj)
         dmax = jnp.max(d)
         dsc = jnp.maximum(d, 1e-9 * dmax + 1e-30)
         A = s.jtj + s.lam * jnp.diag(dsc)
         step = -jnp.linalg.solve(A, s.jtr)
-        ok_step = jnp.all(jnp.isfinite(step)) | s.start
-        step = jnp.where(ok_step & ~s.start, step, 0.0)
+        ok_step = jnp.all(jnp.isfinite(step))
+        step = jnp.where(ok_step, step, 0.0)
         # projected LM: a step that would make a wave steeper than MAX_STEEPNESS stops at it
-        y_try = jnp.where(s.start, s.y, _steepness_projection(s.y + step, n, MAX_STEEPNESS))
+        y_try = _steepness_projection(s.y + step, n, MAX_STEEPNESS)
         step = y_try - s.y
         f_try = f(y_try)
         pred = -(step @ s.jtr) - 0.5 * step @ (s.jtj @ step)
@@ -312,7 +314,6 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
                  jnp.where(s.start, floor, conv), jnp.where(s.start, jnp.full_like(s.hist, fv), hist),
                  jnp.zeros_like(s.start))
 
-    y0 = _steepness_projection(y0, n, MAX_STEEPNESS)
     p = y0.shape[0]
     s0 = S(y0, jnp.asarray(jnp.inf, dtype), jnp.eye(p, dtype=dtype), jnp.zeros(p, dtype), jnp.asarray(1e-3, dtype),
            jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
