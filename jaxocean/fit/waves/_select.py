@@ -615,9 +615,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                         chosen.append(j)
                 if chosen:
                     if verbose and relaxed:
+                        # each: wavelength in view diameters, direction, and why it was not admissible
+                        lam = 2 * math.pi * GRAVITY / np.maximum(r_om[chosen], 1e-3) ** 2 / diameter
+                        why = [("unresolved" if not resolved[j] else "")
+                               + (" crowded" if to_model[j] < separation else "") for j in chosen]
                         print(f"  stalled at rss/m {rss_now / m_obs:.3e}: {len(chosen)} candidate(s) the view "
-                              f"does not resolve or within {level:.3g} Rayleigh limits of a model wave",
-                              flush=True)
+                              f"does not resolve or within {level:.3g} Rayleigh limits of a model wave: "
+                              + ", ".join(f"{lam_j:.2f} D at {math.degrees(r_th[j]):.0f} deg ({w.strip()})"
+                                          for lam_j, j, w in zip(lam, chosen, why)), flush=True)
                     break
         else:
             for j in np.argsort(-e_ref):
