@@ -33,7 +33,7 @@ from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, 
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
-from jaxocean.waves import GRAVITY, Waves, too_steep, validate
+from jaxocean.waves import GRAVITY, Waves, too_steep, validate, wavelength
 
 
 _CRITERIA = ("bic", "aic", "holdout")
@@ -616,13 +616,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                 if chosen:
                     if verbose and relaxed:
                         # each: wavelength in view diameters, direction, and why it was not admissible
-                        lam = 2 * math.pi * GRAVITY / np.maximum(r_om[chosen], 1e-3) ** 2 / diameter
-                        why = [("unresolved" if not resolved[j] else "")
-                               + (" crowded" if to_model[j] < separation else "") for j in chosen]
+                        lam = np.asarray(wavelength(cand.omega)) / diameter
+                        why = [" ".join(w for w, on in (("unresolved", not resolved[j]),
+                                                        ("crowded", to_model[j] < separation)) if on)
+                               for j in chosen]
                         print(f"  stalled at rss/m {rss_now / m_obs:.3e}: {len(chosen)} candidate(s) the view "
                               f"does not resolve or within {level:.3g} Rayleigh limits of a model wave: "
-                              + ", ".join(f"{lam_j:.2f} D at {math.degrees(r_th[j]):.0f} deg ({w.strip()})"
-                                          for lam_j, j, w in zip(lam, chosen, why)), flush=True)
+                              + ", ".join(f"{lam[j]:.2f} D at {math.degrees(r_th[j]):.0f} deg ({w})"
+                                          for j, w in zip(chosen, why)), flush=True)
                     break
         else:
             for j in np.argsort(-e_ref):
