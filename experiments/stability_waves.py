@@ -15,7 +15,7 @@ BIC knows it); ``resolution`` 32, 64, 128; ``nyquist``: one wave on an orthograp
 whose wavelength is 1 to 8 footprints (the renderer sends it from normals to roughness
 between n_max = 1.5 and n_min = 1 footprints).
 
-Usage: ``python experiments/stability_waves.py [--quick] [--only waves,frames,...]
+Usage: ``python experiments/stability_waves.py [--quick] [--only waves,frames,...] [--no-heights]
 [--seeds K]``; writes ``experiments/results/stability_waves.json`` and ``.png``.
 """
 
@@ -62,12 +62,12 @@ def add_noise(normals, sigma, seed):
     return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def score(truth, camera, normals, rough, times, noise=None):
+def score(truth, camera, normals, rough, times, noise=None, heights=True):
     ok = np.asarray(fw.resolvable(truth, camera))
     visible = jax.tree.map(lambda x: x[ok], truth)
     t0 = time.perf_counter()
     try:
-        r = fit.waves(normals, rough, camera, times, noise=noise)
+        r = fit.waves(normals, rough, camera, times, noise=noise, heights=heights)
     except InvalidValueError as exc:  # e.g. "no wave found": a measured failure, not a crash
         return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_fitted=0, found=0.0, spurious=0,
                     success=False, mae_amplitude=float("nan"), mae_omega=float("nan"), mae_theta=float("nan"),
@@ -82,15 +82,15 @@ def score(truth, camera, normals, rough, times, noise=None):
                 mae_theta=mae["theta"], normal_error_rad=float(r.normal_error), time_s=wall)
 
 
-def problem(seed, *, n=15, frames=10, res=64, noise=0.0):
+def problem(seed, *, n=15, frames=10, res=64, noise=0.0, heights=True):
     truth = sampled(seed, n)
     camera = base_camera(res)
     times = np.arange(frames) * 0.15
     normals, rough = fw.predict(truth, camera, times, surface="auto")  # as render draws it
-    return score(truth, camera, add_noise(normals, noise, seed), rough, times, noise=noise or None)
+    return score(truth, camera, add_noise(normals, noise, seed), rough, times, noise=noise or None, heights=heights)
 
 
-def nyquist_problem(seed, ratio, res):
+def nyquist_problem(seed, ratio, res, heights=True):
     width = 16.0
     camera = cam.make_orthographic(width, (res, res))
     footprint = width / res
@@ -101,25 +101,25 @@ def nyquist_problem(seed, ratio, res):
     truth = make_waves([0.2 / k], [om], [rng.uniform(-np.pi, np.pi)], [rng.uniform(0, 2 * np.pi)])
     times = np.arange(10) * 0.05
     normals, rough = fw.predict(truth, camera, times, surface="auto")  # as render draws it
-    row = score(truth, camera, normals, rough, times)
+    row = score(truth, camera, normals, rough, times, heights=heights)
     row["wavelength_px"] = ratio
     return row
 
 
-def run_axis(axis, values, seeds, quick, res, on_row=None):
+def run_axis(axis, values, seeds, quick, res, on_row=None, heights=True):
     rows = []
     for v in values:
         for seed in range(seeds):
             if axis == "waves":
-                row = problem(seed, n=v, res=res)
+                row = problem(seed, n=v, res=res, heights=heights)
             elif axis == "frames":
-                row = problem(seed, frames=v, res=res)
+                row = problem(seed, frames=v, res=res, heights=heights)
             elif axis == "noise":
-                row = problem(seed, noise=v, res=res)
+                row = problem(seed, noise=v, res=res, heights=heights)
             elif axis == "resolution":
-                row = problem(seed, res=v)
+                row = problem(seed, res=v, heights=heights)
             else:
-                row = nyquist_problem(seed, v, 32 if quick else 48)
+                row = nyquist_problem(seed, v, 32 if quick else 48, heights=heights)
             row.update(axis=axis, value=v, seed=seed)
             rows.append(row)
             benchutil.print_table([row], ["axis", "value", "seed", "n_resolvable", "n_fitted", "found", "spurious",
@@ -162,6 +162,8 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--seeds", type=int, default=0, help="problems per point (default 2; 1 with --quick)")
     parser.add_argument("--only", default=",".join(AXES))
+    parser.add_argument("--no-heights", dest="heights", action="store_false",
+                        help="fit from the slopes alone (fit.waves(heights=False)); default: slopes and integrated heights")
     parser.add_argument("--name", default=NAME, help="results file stem under experiments/results (default "
                         f"{NAME}; a separate name keeps a full-size run apart from --quick rows)")
     args = parser.parse_args(argv)
@@ -172,7 +174,7 @@ def main(argv=None):
         parser.error(f"unknown axes {sorted(bad)}; choose from {AXES}")
     out = benchutil.load_rows(args.name, {})
     res = 32 if args.quick else 64
-    meta = dict(quick=args.quick, seeds=seeds, sea={k: float(v) for k, v in SEA._asdict().items()})
+    meta = dict(quick=args.quick, seeds=seeds, heights=args.heights, sea={k: float(v) for k, v in SEA._asdict().items()})
 
     def save(axis, rows):
         out[axis] = list(rows)
@@ -181,7 +183,7 @@ def main(argv=None):
     for a in only:
         print(f"== {a}", flush=True)
         save(a, run_axis(a, (QUICK if args.quick else VALUES)[a], seeds, args.quick, res,
-                         on_row=lambda rows, a=a: save(a, rows)))
+                         on_row=lambda rows, a=a: save(a, rows), heights=args.heights))
         plot(out, args.name)
 
 
