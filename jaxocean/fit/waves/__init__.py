@@ -51,10 +51,11 @@ Pipeline of :func:`waves`:
    the whole set is refined by the structured Levenberg-Marquardt below (without the
    roughness term: the observed roughness holds waves the model does not have yet). The
    part of the sea the view cannot separate into waves -- waves longer than the view -- is
-   modelled by a long-wave band (:mod:`jaxocean.fit.waves._band`: 72 nuisance waves of fixed
-   wave vector, only their amplitudes and phases fitted, jointly with the waves), and a
-   candidate becomes a wave only if the image resolves it and it stands at least
-   ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from every model wave. A
+   modelled by a long-wave band (:mod:`jaxocean.fit.waves._band`: nuisance waves of fixed
+   wave vector, 6 wavelengths x 12 directions by default, only their amplitudes and phases
+   fitted, jointly with the waves), and a candidate becomes a wave only if the image
+   resolves it and it stands at least ``separation`` Rayleigh limits
+   (:func:`rayleigh_separation`) from every model wave. A
    batch is kept while it lowers the information criterion (``"bic"``:
    ``M ln(RSS/M) + 4 N ln M``; ``"aic"``: ``+ 8 N``; with a known ``noise`` sigma,
    ``RSS / sigma^2 + 4 N ln M``; the RSS is floored at ``M noise_floor^2``, by default the

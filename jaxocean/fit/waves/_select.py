@@ -295,9 +295,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       criterion's penalty, refit, and keep the smaller model only if the criterion improves
       (off by default: with correlated long waves a refit can land in a worse optimum).
     * ``long_waves``: model the part of the sea the view cannot separate into waves -- waves
-      longer than the view -- by the long-wave band of :mod:`jaxocean.fit.waves._band` (72
-      nuisance waves of fixed wave vector whose amplitudes and phases are fitted jointly),
-      and add as waves only candidates that the image resolves (:func:`resolvable`) and
+      longer than the view -- by the long-wave band of :mod:`jaxocean.fit.waves._band`
+      (nuisance waves of fixed wave vector, 6 wavelengths x 12 directions by default, whose
+      amplitudes and phases are fitted jointly), and add as waves only candidates that the image resolves (:func:`resolvable`) and
       that stand at least ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from
       every wave already in the model and from each other (a model stalled more than
       ``POLISH_FACTOR`` above the floor with none left may add candidates that the view
