@@ -106,20 +106,18 @@ def nyquist_problem(seed, ratio, res, heights=True):
     return row
 
 
+#: the argument of :func:`problem` each axis but ``nyquist`` varies
+_PROBLEM_ARGUMENT = dict(waves="n", frames="frames", noise="noise", resolution="res")
+
+
 def run_axis(axis, values, seeds, quick, res, on_row=None, heights=True):
     rows = []
     for v in values:
         for seed in range(seeds):
-            if axis == "waves":
-                row = problem(seed, n=v, res=res, heights=heights)
-            elif axis == "frames":
-                row = problem(seed, frames=v, res=res, heights=heights)
-            elif axis == "noise":
-                row = problem(seed, noise=v, res=res, heights=heights)
-            elif axis == "resolution":
-                row = problem(seed, res=v, heights=heights)
-            else:
+            if axis == "nyquist":
                 row = nyquist_problem(seed, v, 32 if quick else 48, heights=heights)
+            else:
+                row = problem(seed, **{"res": res, _PROBLEM_ARGUMENT[axis]: v}, heights=heights)
             row.update(axis=axis, value=v, seed=seed)
             rows.append(row)
             benchutil.print_table([row], ["axis", "value", "seed", "n_resolvable", "n_fitted", "found", "spurious",
@@ -163,7 +161,8 @@ def main(argv=None):
     parser.add_argument("--seeds", type=int, default=0, help="problems per point (default 2; 1 with --quick)")
     parser.add_argument("--only", default=",".join(AXES))
     parser.add_argument("--no-heights", dest="heights", action="store_false",
-                        help="fit from the slopes alone (fit.waves(heights=False)); default: slopes and integrated heights")
+                        help="fit from the slopes alone (fit.waves(heights=False)); "
+                             "default: slopes and integrated heights")
     parser.add_argument("--name", default=NAME, help="results file stem under experiments/results (default "
                         f"{NAME}; a separate name keeps a full-size run apart from --quick rows)")
     args = parser.parse_args(argv)
@@ -174,7 +173,8 @@ def main(argv=None):
         parser.error(f"unknown axes {sorted(bad)}; choose from {AXES}")
     out = benchutil.load_rows(args.name, {})
     res = 32 if args.quick else 64
-    meta = dict(quick=args.quick, seeds=seeds, heights=args.heights, sea={k: float(v) for k, v in SEA._asdict().items()})
+    meta = dict(quick=args.quick, seeds=seeds, heights=args.heights,
+                sea={k: float(v) for k, v in SEA._asdict().items()})
 
     def save(axis, rows):
         out[axis] = list(rows)

@@ -297,12 +297,13 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     * ``long_waves``: model the part of the sea the view cannot separate into waves -- waves
       longer than the view -- by the long-wave band of :mod:`jaxocean.fit.waves._band`
       (nuisance waves of fixed wave vector, 6 wavelengths x 12 directions by default, whose
-      amplitudes and phases are fitted jointly), and add as waves only candidates that the image resolves (:func:`resolvable`) and
-      that stand at least ``separation`` Rayleigh limits (:func:`rayleigh_separation`) from
-      every wave already in the model and from each other (a model stalled more than
-      ``POLISH_FACTOR`` above the floor with none left may add candidates that the view
-      does not resolve or that stand ``CROWDED_SEPARATION`` x ``separation`` from its
-      waves); what the band absorbed is returned in ``WaveFit.long_waves``. Needs ``solver="structured"``. ``False``: every
+      amplitudes and phases are fitted jointly), and add as waves only candidates that the
+      image resolves (:func:`resolvable`) and that stand at least ``separation`` Rayleigh
+      limits (:func:`rayleigh_separation`) from every wave already in the model and from
+      each other (a model stalled more than ``POLISH_FACTOR`` above the floor with none
+      left may add candidates that the view does not resolve or that stand
+      ``CROWDED_SEPARATION`` x ``separation`` from its waves); what the band absorbed is
+      returned in ``WaveFit.long_waves``. Needs ``solver="structured"``. ``False``: every
       candidate may become a wave (closer than 0.7 of the whole image's wave-vector
       resolution to a model wave excepted), no band.
     * ``solver``: ``"structured"`` (default) or a registry name (:mod:`jaxocean.fit.waves`, step 4).
