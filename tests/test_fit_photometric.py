@@ -140,6 +140,9 @@ def test_a_sequence_the_model_cannot_explain_fails(scene):
     pure = _fit(scene, noise)
     assert not pure.success
     assert "no structure above the noise" in pure.message or "explain too little" in pure.message
+    # rows of one value (a calm sea quantised to a few codes): said as such, not as noise
+    flat = _fit(scene, np.full_like(np.asarray(scene["images"]), 0.05))
+    assert not flat.success and "spread about each row's median is 0" in flat.message, flat.message
 
 
 def test_residual_is_jit_consistent_and_its_loss_has_exact_gradients(scene):

@@ -881,7 +881,10 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) ->
         reasons.append(f"outliers are {frac:.1%} of the used pixels, above {MAX_OUTLIER_FRACTION:.0%}: the model "
                        "cannot produce much of the image (whitecaps, spray, objects, a wrong start?)")
     if math.isfinite(noise):
-        if not signal >= STRUCTURE_RATIO * level:
+        if not signal > 0:
+            reasons.append("the images hold no structure: their spread about each row's median is 0 (rows of one "
+                           "value, e.g. a calm sea quantised to a few display codes)")
+        elif not signal >= STRUCTURE_RATIO * level:
             reasons.append(f"the images hold no structure above the noise: their spread {signal:.3g} is below "
                            f"{STRUCTURE_RATIO} x the noise {level:.3g} ({source})")
         else:
