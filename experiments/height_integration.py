@@ -15,8 +15,22 @@ hits):
   which a wave model evaluates at): the horizontal displacement of the waves is left in;
 * the time per frame.
 
-Usage: ``python experiments/height_integration.py [--scenes N]``; writes
-``experiments/results/height_integration.json`` and ``.png``.
+With ``--steps``, instead, why the integration goes wrong on steep seas (first frame of each
+scene, pixels of footprint at most 1 m, the ones ``fit.waves`` uses):
+
+* the rms slope, and the misfit of the integration's own equations at the *true* hits and
+  heights (each neighbouring pair held to its mean slope times the distance between its
+  hits), in slope units, between pixels along the view (down the image's columns): its rms,
+  and its mean, which tilts the heights;
+* a defect correction: the integration's error on a model of the sea (its normals'
+  integrated heights less its heights at its hits) taken off the data's heights, with the
+  model all the true waves, the resolvable ones, the separable ones, or the 10 / 20 / 30
+  steepest (``k h``): how good the correction is as a function of how much of the sea a
+  fit would hold.
+
+Usage: ``python experiments/height_integration.py [--scenes N] [--steps]``; writes
+``experiments/results/height_integration.json`` and ``.png`` (``--steps``:
+``height_integration_steps.json`` and ``.png``).
 """
 
 from __future__ import annotations
@@ -34,8 +48,13 @@ from wave_fit import dataset_scene  # noqa: E402
 
 from jaxocean import camera as cam  # noqa: E402
 from jaxocean import fit, render  # noqa: E402
+from jaxocean.fit.waves import resolvable, separable  # noqa: E402
+from jaxocean.waves import wavenumber  # noqa: E402
 
 NAME = "height_integration"
+STEPS_NAME = "height_integration_steps"
+USED_FOOTPRINT = 1.0  # [m]: where fit.waves holds the model to the heights (HEIGHT_FOOTPRINT)
+STEEPEST = (10, 20, 30)
 NEAR_FOOTPRINT = 0.5  # [m]: the near field, where the pixels sample the resolved waves finely
 
 
@@ -88,6 +107,68 @@ def measure(seed: int) -> dict:
                 median=summary, frames=frames)
 
 
+def _level_free(e) -> float:
+    return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
+
+
+def measure_steps(seed: int) -> dict:
+    scene, geo = dataset_scene(seed, 128)
+    camera, t = scene.camera, float(np.asarray(scene.times)[0])
+    hit = cam.intersect_sea(camera)
+    sea = np.asarray(hit.mask)
+    footprint = np.where(sea, np.asarray(hit.footprint, np.float64), np.inf)
+    true = render.geometry(scene.waves, camera, t)
+    pos = np.asarray(true.position, np.float64)
+    normal = np.asarray(geo.normal[0], np.float64)
+    data = fit.heights(geo.normal[0], camera)
+    z_data = np.asarray(data.z, np.float64)
+    used = np.asarray(data.valid) & np.asarray(true.converged) & sea & (footprint <= USED_FOOTPRINT)
+    row = dict(seed=seed, hs=float(scene.spectrum.hs), error_m=_level_free((z_data - pos[..., 2])[used]))
+    slope = -normal[..., :2] / normal[..., 2:3]
+    row["slope_rms"] = float(np.sqrt(np.mean(np.sum(slope[used] ** 2, -1))))
+    # the integration's equations between vertical neighbours at the true hits, in slope units
+    # (over the pair's mean-sea-plane spacing, as fit.heights weighs them)
+    pair = used[1:] & used[:-1]
+    step = np.sum(0.5 * (slope[1:] + slope[:-1]) * (pos[1:, :, :2] - pos[:-1, :, :2]), -1)
+    spacing = np.linalg.norm(np.asarray(hit.xy)[1:] - np.asarray(hit.xy)[:-1], axis=-1)
+    misfit = ((pos[1:, :, 2] - pos[:-1, :, 2] - step) / np.where(pair, spacing, 1.0))[pair]
+    row["step_misfit_rms"] = float(np.sqrt(np.mean(misfit ** 2)))
+    row["step_misfit_mean"] = float(np.mean(misfit))
+    kh = np.asarray(wavenumber(scene.waves.omega)) * np.asarray(scene.waves.amplitude)
+    models = {"all": np.ones(kh.shape, bool), "resolvable": np.asarray(resolvable(scene.waves, camera)),
+              "separable": np.asarray(separable(scene.waves, camera, scene.times))}
+    for k in STEEPEST:
+        models[f"steepest_{k}"] = np.isin(np.arange(kh.size), np.argsort(-kh)[:k])
+    for name, keep in models.items():
+        model = jax.tree.map(lambda a: a[np.flatnonzero(keep)], scene.waves)
+        g = render.geometry(model, camera, t, plan=render.full_plan(int(keep.sum()), 8))
+        own = fit.heights(np.where(np.asarray(g.converged)[..., None], np.asarray(g.normal), np.nan), camera)
+        defect = np.asarray(own.z, np.float64) - np.asarray(g.position[..., 2], np.float64)
+        ok = used & np.asarray(own.valid) & np.asarray(g.converged)
+        row[f"corrected_{name}_m"] = _level_free((z_data - defect - pos[..., 2])[ok])
+        row[f"waves_{name}"] = int(keep.sum())
+    return row
+
+
+def chart_steps(rows) -> None:
+    plt = benchutil.pyplot()
+    fig, ax = plt.subplots(figsize=(9, 4))
+    x = np.arange(len(rows))
+    keys = ["error_m"] + [f"corrected_{n}_m" for n in
+                          ["all", "resolvable", "separable"] + [f"steepest_{k}" for k in reversed(STEEPEST)]]
+    w = 0.8 / len(keys)
+    for j, key in enumerate(keys):
+        label = "as integrated" if key == "error_m" else "corrected by: " + key[10:-2].replace("_", " ")
+        ax.bar(x + (j - len(keys) / 2 + 0.5) * w, [r[key] for r in rows], w, label=label)
+    ax.set_yscale("log")
+    ax.set_xticks(x, [f"{r['seed']}\nslope {r['slope_rms']:.2f}" for r in rows])
+    ax.set_xlabel("Table 2 scene (seed), rms slope")
+    ax.set_ylabel(f"height error [m rms], footprint <= {USED_FOOTPRINT} m")
+    ax.set_title("integrated heights, and less the integration's error on a model of the sea")
+    ax.legend(fontsize=7)
+    benchutil.save_figure(fig, STEPS_NAME)
+
+
 def chart(rows) -> None:
     plt = benchutil.pyplot()
     fig, axes = plt.subplots(1, 2, figsize=(11, 4))
@@ -124,8 +205,19 @@ def chart(rows) -> None:
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scenes", type=int, default=8)
+    parser.add_argument("--steps", action="store_true", help="the integration's step misfit and its defect correction")
     args = parser.parse_args(argv)
     rows = []
+    if args.steps:
+        for seed in range(args.scenes):
+            rows.append(measure_steps(seed))
+            r = rows[-1]
+            print(f"scene {seed}: slope rms {r['slope_rms']:.3f}; step misfit rms {r['step_misfit_rms']:.4f} mean "
+                  f"{r['step_misfit_mean']:+.4f}; error {r['error_m']:.4f} m, corrected: "
+                  + ", ".join(f"{k[10:-2]} {v:.4f}" for k, v in r.items() if k.startswith("corrected_")), flush=True)
+            benchutil.save(STEPS_NAME, rows)
+        chart_steps(rows)
+        return
     for seed in range(args.scenes):
         rows.append(measure(seed))
         m = rows[-1]["median"]
