@@ -13,8 +13,9 @@ hierarchical normal and roughness maps, 10 frames):
    matched pairs against the paper's Table 2 (MLP, 60 waves: h 0.00518 m, omega 0.131
    rad/s, theta 0.227 rad) on every scene, and over the *separable* true waves
    (:func:`jaxocean.fit.waves.separable`) against a tenth of it. Also: how many resolvable
-   waves were found, the fitted count against the separable count (target <= 1.5x), the
-   fitted waves ``fit.waves`` marks determined and the errors of those matched (what the
+   waves were found, the fitted count against the separable count (target <= 1.5x), where
+   the unmatched fitted waves sit (beside a matched or a missed resolvable true wave, or
+   outside what the image resolves), the fitted waves ``fit.waves`` marks determined and the errors of those matched (what the
    fit vouches for), whether the fit succeeded and stopped by
    its criterion (below the 96-wave cap), what the long-wave band absorbed, Hs / Tp / mean
    direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
@@ -55,7 +56,7 @@ from jaxocean import fit, render  # noqa: E402
 from jaxocean.errors import InvalidValueError  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
 from jaxocean.io import dataset  # noqa: E402
-from jaxocean.waves import make_waves  # noqa: E402
+from jaxocean.waves import make_waves, wavenumber  # noqa: E402
 
 SECTIONS = ("table2", "convergence", "speed")
 PAPER = dict(amplitude=0.00518, omega=0.131, theta=0.227)  # Table 2, MLP, 60 waves
@@ -154,6 +155,20 @@ def score_waves(fitted, determined, scene) -> dict:
     det_pairs = determined[m.fit_index]
     mae_det = _mae(m, det_pairs)
     n_fitted = int(np.asarray(fitted.omega).shape[0])
+    # where the unmatched fitted waves sit: beside a matched resolvable wave (a cluster the
+    # view cannot separate, modelled with more waves than it holds), beside a missed one, or
+    # outside what the image resolves (stand-ins for the long or sub-pixel seas)
+    kt, kf = _wave_vectors(truth), _wave_vectors(fitted)
+    matched = np.zeros(kt.shape[0], bool)
+    matched[np.asarray(m.true_index)] = True
+    fitted_resolved = np.asarray(fw.resolvable(fitted, scene.camera))
+    near = {"matched": 0, "missed": 0, "unresolvable": 0}
+    for j in np.asarray(m.spurious):
+        if not fitted_resolved[j] or kt.shape[0] == 0:
+            near["unresolvable"] += 1
+            continue
+        nearest = int(np.argmin(np.linalg.norm(kt - kf[j], axis=1) / np.linalg.norm(kt, axis=1)))
+        near["matched" if matched[nearest] else "missed"] += 1
     return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_matched=int(m.true_index.size),
                 n_missed=int(m.missed.size), n_spurious=int(m.spurious.size),
                 mae_amplitude=mae["amplitude"], mae_omega=mae["omega"], mae_theta=mae["theta"],
@@ -165,7 +180,16 @@ def score_waves(fitted, determined, scene) -> dict:
                 n_determined_unmatched=int(np.sum(determined[m.spurious])),
                 mae_amplitude_determined=mae_det["amplitude"], mae_omega_determined=mae_det["omega"],
                 mae_theta_determined=mae_det["theta"],
-                fitted_over_separable=n_fitted / max(int(sep.sum()), 1))
+                fitted_over_separable=n_fitted / max(int(sep.sum()), 1),
+                fitted_over_resolvable=n_fitted / max(int(ok.sum()), 1),
+                n_spurious_near_matched=near["matched"], n_spurious_near_missed=near["missed"],
+                n_spurious_unresolvable=near["unresolvable"])
+
+
+def _wave_vectors(w) -> np.ndarray:
+    k = np.asarray(wavenumber(w.omega), np.float64)
+    theta = np.asarray(w.theta, np.float64)
+    return np.stack([k * np.cos(theta), k * np.sin(theta)], -1)
 
 
 def score_sea_both(fitted, determined, scene, geo) -> dict:
