@@ -49,7 +49,7 @@ from wave_fit import dataset_scene  # noqa: E402
 from jaxocean import camera as cam  # noqa: E402
 from jaxocean import fit, render  # noqa: E402
 from jaxocean.fit.waves import resolvable, separable  # noqa: E402
-from jaxocean.waves import wavenumber  # noqa: E402
+from jaxocean.waves import steepness  # noqa: E402
 
 NAME = "height_integration"
 STEPS_NAME = "height_integration_steps"
@@ -107,10 +107,6 @@ def measure(seed: int) -> dict:
                 median=summary, frames=frames)
 
 
-def _level_free(e) -> float:
-    return float(np.sqrt(np.mean((e - e.mean()) ** 2)))
-
-
 def measure_steps(seed: int) -> dict:
     scene, geo = dataset_scene(seed, 128)
     camera, t = scene.camera, float(np.asarray(scene.times)[0])
@@ -123,7 +119,7 @@ def measure_steps(seed: int) -> dict:
     data = fit.heights(geo.normal[0], camera)
     z_data = np.asarray(data.z, np.float64)
     used = np.asarray(data.valid) & np.asarray(true.converged) & sea & (footprint <= USED_FOOTPRINT)
-    row = dict(seed=seed, hs=float(scene.spectrum.hs), error_m=_level_free((z_data - pos[..., 2])[used]))
+    row = dict(seed=seed, hs=float(scene.spectrum.hs), error_m=float(np.std((z_data - pos[..., 2])[used])))
     slope = -normal[..., :2] / normal[..., 2:3]
     row["slope_rms"] = float(np.sqrt(np.mean(np.sum(slope[used] ** 2, -1))))
     # the integration's equations between vertical neighbours at the true hits, in slope units
@@ -134,7 +130,7 @@ def measure_steps(seed: int) -> dict:
     misfit = ((pos[1:, :, 2] - pos[:-1, :, 2] - step) / np.where(pair, spacing, 1.0))[pair]
     row["step_misfit_rms"] = float(np.sqrt(np.mean(misfit ** 2)))
     row["step_misfit_mean"] = float(np.mean(misfit))
-    kh = np.asarray(wavenumber(scene.waves.omega)) * np.asarray(scene.waves.amplitude)
+    kh = np.asarray(steepness(scene.waves))
     models = {"all": np.ones(kh.shape, bool), "resolvable": np.asarray(resolvable(scene.waves, camera)),
               "separable": np.asarray(separable(scene.waves, camera, scene.times))}
     for k in STEEPEST:
@@ -145,7 +141,7 @@ def measure_steps(seed: int) -> dict:
         own = fit.heights(np.where(np.asarray(g.converged)[..., None], np.asarray(g.normal), np.nan), camera)
         defect = np.asarray(own.z, np.float64) - np.asarray(g.position[..., 2], np.float64)
         ok = used & np.asarray(own.valid) & np.asarray(g.converged)
-        row[f"corrected_{name}_m"] = _level_free((z_data - defect - pos[..., 2])[ok])
+        row[f"corrected_{name}_m"] = float(np.std((z_data - defect - pos[..., 2])[ok]))  # level free
         row[f"waves_{name}"] = int(keep.sum())
     return row
 

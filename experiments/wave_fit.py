@@ -15,8 +15,9 @@ hierarchical normal and roughness maps, 10 frames):
    (:func:`jaxocean.fit.waves.separable`) against a tenth of it. Also: how many resolvable
    waves were found, the fitted count against the separable count (target <= 1.5x), where
    the unmatched fitted waves sit (beside a matched or a missed resolvable true wave, or
-   outside what the image resolves), the fitted waves ``fit.waves`` marks determined and the errors of those matched (what the
-   fit vouches for), whether the fit succeeded and stopped by
+   outside what the image resolves), the fitted waves ``fit.waves`` marks determined and
+   the errors of those matched (what the fit vouches for), whether the fit succeeded and
+   stopped by
    its criterion (below the 96-wave cap), what the long-wave band absorbed, Hs / Tp / mean
    direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
    time (target 2 minutes). Geometry as the dataset writes it (:func:`dataset_scene`).
@@ -56,7 +57,7 @@ from jaxocean import fit, render  # noqa: E402
 from jaxocean.errors import InvalidValueError  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
 from jaxocean.io import dataset  # noqa: E402
-from jaxocean.waves import make_waves, wavenumber  # noqa: E402
+from jaxocean.waves import make_waves, wave_vector  # noqa: E402
 
 SECTIONS = ("table2", "convergence", "speed")
 PAPER = dict(amplitude=0.00518, omega=0.131, theta=0.227)  # Table 2, MLP, 60 waves
@@ -158,7 +159,7 @@ def score_waves(fitted, determined, scene) -> dict:
     # where the unmatched fitted waves sit: beside a matched resolvable wave (a cluster the
     # view cannot separate, modelled with more waves than it holds), beside a missed one, or
     # outside what the image resolves (stand-ins for the long or sub-pixel seas)
-    kt, kf = _wave_vectors(truth), _wave_vectors(fitted)
+    kt, kf = (np.asarray(wave_vector(w), np.float64) for w in (truth, fitted))
     matched = np.zeros(kt.shape[0], bool)
     matched[np.asarray(m.true_index)] = True
     fitted_resolved = np.asarray(fw.resolvable(fitted, scene.camera))
@@ -184,12 +185,6 @@ def score_waves(fitted, determined, scene) -> dict:
                 fitted_over_resolvable=n_fitted / max(int(ok.sum()), 1),
                 n_spurious_near_matched=near["matched"], n_spurious_near_missed=near["missed"],
                 n_spurious_unresolvable=near["unresolvable"])
-
-
-def _wave_vectors(w) -> np.ndarray:
-    k = np.asarray(wavenumber(w.omega), np.float64)
-    theta = np.asarray(w.theta, np.float64)
-    return np.stack([k * np.cos(theta), k * np.sin(theta)], -1)
 
 
 def score_sea_both(fitted, determined, scene, geo) -> dict:

@@ -24,10 +24,10 @@ is at most 0.5 m, heights to 0.03-1.2 cm rms after the level on six scenes and 3
 Hs 2.5 m scene; on the steepest (rms slope 0.31) they are off by 28 cm. On such a sea, seen
 at a low angle, the faces toward the camera are sampled densely and those away from it
 sparsely, so each pair's mean slope is biased and the heights tilt (the equations above
-miss the true heights by +0.018 on average along the view). Farther out, where the pixels no longer sample the resolved waves, the heights can drift by
-metres (2 m on the Hs 2.5 m scene), which is why the level is set by the nearest sea. The
-level itself, which the normals cannot give, was 0.04-0.25 m from the truth. 50-100 ms a
-frame on 2 CPU cores.
+miss the true heights by +0.018 on average along the view). Farther out, where the pixels
+no longer sample the resolved waves, the heights can drift by metres (2 m on the Hs 2.5 m
+scene), which is why the level is set by the nearest sea. The level itself, which the
+normals cannot give, was 0.04-0.25 m from the truth. 50-100 ms a frame on 2 CPU cores.
 
 Protocol: ``heights(normals (..., H, W, 3), camera) -> HeightMap`` (a leading frame axis is
 mapped over). Heights and positions in metres, world frame (z up, the mean sea plane z = 0).
