@@ -293,6 +293,11 @@ def build_parser():
     when.add_argument("--times", type=_number_list, help="times [s], e.g. 0,10,50")
     p.add_argument("--fps", type=_positive, help="frames per second for --frames (default: the JSON's frame "
                                                  "interval; frame 0 is its first time)")
+    p.add_argument("--undamped", action="store_true",
+                   help="with a fit-waves result: extrapolate every fitted wave's phase as fitted, without the "
+                        "long-wave band. Default: the least-squares forecast (jaxocean.forecast), the fit's waves "
+                        "and band with each one damped outside the fitted window by its frequency uncertainty, so "
+                        "that what the window did not measure fades instead of being extrapolated")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
@@ -844,6 +849,17 @@ def cmd_fit_waves(args):
               "roughness_error": json_safe(float(result.roughness_error)), "steps": int(result.steps),
               "success": success, "converged": bool(result.converged), "time_s": json_safe(float(result.time_s)),
               "uncertainty": {name: json_safe(np.ravel(leaf)) for name, leaf in zip(w._fields, result.uncertainty)}}
+    if finite and result.determined is not None:
+        from jaxocean.fit.waves import forecast_model
+
+        # what `forecast` needs for the least-squares forecast: the band's stand-ins and the
+        # frequency uncertainty of every component (waves, then band)
+        model, sigma, window = forecast_model(result, scene.camera, times)
+        n = int(result.n_waves)
+        report["determined"] = [bool(d) for d in np.asarray(result.determined)]
+        report["forecast"] = {"window_s": list(window), "frequency_sigma": json_safe(np.asarray(sigma, np.float64)),
+                              "band": {name: json_safe(np.asarray(leaf[n:], np.float64))
+                                       for name, leaf in zip(model._fields, model)}}
     print(f"  {report['n_waves']} wave(s); loss {float(result.loss):.3e}, mean normal error "
           f"{float(np.degrees(result.normal_error)):.3g} deg, roughness error {float(result.roughness_error):.3g}; "
           f"{report['steps']} step(s), {float(result.time_s):.1f} s; success: {success}")
@@ -912,10 +928,30 @@ def cmd_forecast(args):
     camera = _camera_from_args(args, scene.camera, None, where=f"{args.waves}")
     _check_memory(camera.resolution, len(times), "forecast")
     lighting = _lighting_from_args(args, scene.lighting)
+    import jax.numpy as jnp
+
+    from jaxocean.waves import Waves
+
+    model, damp = scene.waves, {}
+    stored = wave_fit.get("forecast") if isinstance(wave_fit, dict) else None
+    if stored is not None and not args.undamped:
+        # the fit's whole model (waves and long-wave band), each component damped outside the
+        # fitted window by its frequency uncertainty: the least-squares forecast
+        band = Waves(*(jnp.asarray(stored["band"][name], scene.waves.omega.dtype) for name in Waves._fields))
+        model = Waves(*(jnp.concatenate([a, b]) for a, b in zip(scene.waves, band)))
+        sigma = np.asarray(stored["frequency_sigma"], np.float64)
+        if sigma.shape != model.omega.shape:
+            raise ValueError(f"{args.waves}: wave_fit.forecast.frequency_sigma has {sigma.size} entries for "
+                             f"{model.omega.shape[0]} waves and band stand-ins")
+        damp = dict(window=tuple(stored["window_s"]), frequency_sigma=jnp.asarray(sigma, model.omega.dtype))
+        print(f"least-squares forecast: {np.size(scene.waves.omega)} wave(s) and {band.omega.shape[0]} long-wave "
+              f"stand-in(s), each damped outside the fitted window ({damp['window'][0]:.4g}-{damp['window'][1]:.4g} "
+              f"s) by its frequency uncertainty (--undamped: extrapolate every fitted wave as it is)")
     print(f"forecasting {np.size(scene.waves.omega)} wave(s) at t = "
           f"{', '.join(f'{t:.4g}' for t in times)} s ({camera.resolution[0]}x{camera.resolution[1]})")
     t0 = time.perf_counter()
-    result = jax.device_get(forecast(scene.waves, times, camera, lighting))
+    # drawn as a camera sees it (render's own choice of the hits or rows path, as `simulate` draws)
+    result = jax.device_get(forecast(model, times, camera, lighting, plan="auto", **damp))
     render_s = time.perf_counter() - t0
     sample = SceneSample(scene.waves, None, camera, lighting, times)
     from jaxocean.io import write_sequence

@@ -19,6 +19,15 @@ re-editing (its Fig. 15-16). Rendering goes through :func:`jaxocean.render.geome
 the fit's own model), ``plan="auto"`` lets the renderer choose as :func:`jaxocean.render.render` does
 (converged hits for close views; the same choice under ``jit``), or pass a :class:`jaxocean.render.RenderPlan`.
 
+Uncertain frequencies: a fitted wave whose frequency is known to ``sigma`` [rad/s] has, a
+time ``d`` outside the observed window, a phase known to ``sigma d``. For a Gaussian phase
+error the expected wave is the wave times ``exp(-(sigma d)^2 / 2)`` (``E cos(psi + e) =
+exp(-var e / 2) cos psi``), so ``forecast(..., window=(t_first, t_last), frequency_sigma=sigma)``
+returns that conditional mean -- the least-squares forecast -- instead of extrapolating
+phases it does not know: inside the window every wave is kept, far outside it only the
+waves whose frequencies are measured remain. :func:`damping` gives the factors;
+``jaxocean.fit.waves.forecast_model`` the fit's model and its ``sigma``.
+
 Frames: :func:`frame_times` turns frame indices (``0, 100, 500``) into times on the
 observed sequence's clock (``t0 + f dt`` with ``dt`` the median frame interval).
 Errors: :func:`geometry_error` gives the per-frame mean normal angle and mean absolute
@@ -39,7 +48,7 @@ from jaxocean._math import angle_between
 from jaxocean.errors import check_values, is_concrete
 from jaxocean.waves import Waves, validate
 
-__all__ = ["Forecast", "GeometryError", "advance", "forecast", "frame_times", "geometry_error"]
+__all__ = ["Forecast", "GeometryError", "advance", "damping", "forecast", "frame_times", "geometry_error"]
 
 
 class Forecast(NamedTuple):
@@ -73,6 +82,24 @@ def advance(waves: Waves, dt) -> Waves:
                  jnp.broadcast_to(phase, shape))
 
 
+def damping(frequency_sigma, times, window):
+    """Amplitude factors ``(T, N)`` of the least-squares forecast (module docstring):
+    ``exp(-(sigma_i d(t))^2 / 2)`` with ``d(t)`` the distance [s] of each of ``times (T,)``
+    outside ``window = (t_first, t_last)`` (0 inside it) and ``frequency_sigma (N,)`` the
+    waves' 1-sigma frequency uncertainties [rad/s] (0: known exactly, never damped)."""
+    sigma = jnp.asarray(frequency_sigma)
+    times = jnp.atleast_1d(jnp.asarray(times, sigma.dtype))
+    if sigma.ndim != 1 or times.ndim != 1:
+        raise ValueError(f"frequency_sigma must be (N,) and times (T,); got {sigma.shape} and {times.shape}")
+    lo, hi = (jnp.asarray(w, sigma.dtype) for w in window)
+    if is_concrete(sigma, lo, hi):
+        check_values(np.asarray(sigma) >= 0, "frequency_sigma must be >= 0 [rad/s] (no NaN)", sigma)
+        check_values(np.asarray(hi - lo) >= 0, "window must be (t_first, t_last) with t_first <= t_last",
+                     np.asarray(hi - lo))
+    d = jnp.maximum(jnp.maximum(lo - times, times - hi), 0.0)
+    return jnp.exp(-0.5 * (sigma[None, :] * d[:, None]) ** 2)
+
+
 def frame_times(times, frames):
     """Times [s] of frame indices ``frames`` on the clock of an observed sequence ``times``:
     ``times[0] + f * dt`` with ``dt`` the median frame interval (needs >= 2 times)."""
@@ -86,10 +113,13 @@ def frame_times(times, frames):
 
 
 def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_min=hierarchy.DEFAULT_N_MIN,
-             n_max=hierarchy.DEFAULT_N_MAX, horizon_gradient=0.0) -> Forecast:
+             n_max=hierarchy.DEFAULT_N_MAX, horizon_gradient=0.0, window=None, frequency_sigma=None) -> Forecast:
     """Evolve ``waves`` (leaves ``(N,)``) to ``times (T,)``; re-render when given a camera (and
-    a lighting). See the module docstring. Jittable (with a static ``plan``) and
-    differentiable in the waves, camera and lighting."""
+    a lighting). See the module docstring. ``window=(t_first, t_last)`` [s] and
+    ``frequency_sigma (N,)`` [rad/s], given together: each wave's amplitude at each time
+    scaled by :func:`damping` (the least-squares forecast of waves whose frequencies are
+    uncertain; the returned ``waves`` carry the scaled amplitudes). Jittable (with a static
+    ``plan``) and differentiable in the waves, camera and lighting."""
     validate(waves, max_steepness=None)
     if waves.omega.ndim != 1:
         raise ValueError(f"forecast takes Waves with leaves (N,); got {waves.omega.shape} (vmap batches)")
@@ -98,7 +128,16 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
         raise ValueError(f"times must be a scalar or (T,); got shape {times.shape}")
     if is_concrete(times):
         check_values(np.isfinite(np.asarray(times)), "forecast times must be finite", times)
+    if (window is None) != (frequency_sigma is None):
+        raise ValueError("window and frequency_sigma go together: give both (a damped forecast) or neither")
     advanced = advance(waves, times[:, None])
+    scale = None
+    if frequency_sigma is not None:
+        if jnp.shape(frequency_sigma) != waves.omega.shape:
+            raise ValueError(f"frequency_sigma must have one entry per wave {waves.omega.shape}; "
+                             f"got {jnp.shape(frequency_sigma)}")
+        scale = damping(jnp.asarray(frequency_sigma, waves.omega.dtype), times, window)
+        advanced = advanced._replace(amplitude=advanced.amplitude * scale)
     if camera is None:
         if lighting is not None:
             raise ValueError("rendering an image needs a camera (lighting given without camera)")
@@ -114,10 +153,12 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
     elif plan is not None and not isinstance(plan, render.RenderPlan):
         raise ValueError(f"plan must be 'rows', 'auto', None or a RenderPlan; got {plan!r}")
 
-    def one(t):
-        return render.geometry(waves, camera, t, plan=plan, n_min=n_min, n_max=n_max)
+    def one(args):
+        t, factor = args
+        w = waves if factor is None else waves._replace(amplitude=waves.amplitude * factor)
+        return render.geometry(w, camera, t, plan=plan, n_min=n_min, n_max=n_max)
 
-    geo = jax.lax.map(one, times)
+    geo = jax.lax.map(one, (times, scale))
     image = None
     if lighting is not None:
         shading.validate_lighting(lighting)
@@ -145,10 +186,11 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
             if m is not None:
                 mask = mask & m
     mask = jnp.broadcast_to(jnp.asarray(mask, bool), pn.shape[:-1]).astype(pn.dtype)
-    angle = angle_between(pn, tn)
+    # pixels left out may hold NaN (unconverged hits): they count as zero, not as NaN
+    angle = jnp.where(mask > 0, angle_between(pn, tn), 0.0)
     count = jnp.maximum(jnp.sum(mask, axis=(-2, -1)), 1.0)
     normal = jnp.sum(angle * mask, axis=(-2, -1)) / count
-    rough = jnp.sum(jnp.abs(pr - tr) * mask, axis=(-2, -1)) / count
+    rough = jnp.sum(jnp.where(mask > 0, jnp.abs(pr - tr), 0.0), axis=(-2, -1)) / count
     return GeometryError(normal, rough)
 
 

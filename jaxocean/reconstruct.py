@@ -622,17 +622,22 @@ def _mean_square_slopes(geometry) -> tuple:
 
 
 def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.0, ahead=(2.0, 10.0, 30.0),
-                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0)):
+                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0), model=None):
     """Stage 6b: forecast frames ``ahead`` seconds after the last observed frame, and the
     last frame re-rendered from a camera ``height_factor`` times as high and under a new sun
     (``sun_elevation``, from behind the camera; an overcast fit gets a sun 20 times its sky);
-    linear images in the footage's units (times ``exposure``)."""
+    linear images in the footage's units (times ``exposure``). ``model``: None (forecast
+    ``waves`` as they are) or ``(waves, frequency_sigma, window)`` of
+    :func:`jaxocean.fit.waves.forecast_model`: the least-squares forecast of a wave fit."""
     from jaxocean import fit
 
     def run():
         t_end = float(seq.times[-1])
         times = np.asarray([t_end + a for a in ahead])
-        fcast = fc.forecast(waves, times, seq.camera, lighting)
+        if model is None:
+            fcast = fc.forecast(waves, times, seq.camera, lighting)
+        else:
+            fcast = fc.forecast(model[0], times, seq.camera, lighting, window=model[2], frequency_sigma=model[1])
         light = lighting
         if float(np.max(np.asarray(lighting.sun_color))) <= 0:
             light = lighting._replace(sun_color=20.0 * jnp.asarray(lighting.sky_color))
@@ -643,7 +648,8 @@ def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.
                    new_sun=exposure * np.asarray(sun),
                    normals=np.asarray(fcast.geometry.normal))
         return out, True, "", dict(ahead_s=list(ahead), camera_height_m=height_factor * float(seq.camera.height),
-                                   sun_elevation_deg=math.degrees(sun_elevation))
+                                   sun_elevation_deg=math.degrees(sun_elevation),
+                                   forecast="least-squares (damped)" if model is not None else "as fitted")
 
     return _timed("forecast", run)
 
@@ -698,7 +704,15 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     refined = photo is not None and stages["photometric"].success
     from jaxocean.fit.photometric import mean_exposure
 
-    outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0)
+    # the wave fit's least-squares forecast (waves and band, damped outside the window by what
+    # it measured); waves refined against the images are forecast as they are
+    model = None
+    if not refined and int(wfit.n_waves) > 0 and wfit.determined is not None:
+        from jaxocean.fit.waves import forecast_model
+
+        model = forecast_model(wfit, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
+    outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0,
+                                 model=model)
     say(rep)
     result = Reconstruction(seq, geometry, light, wfit, photo, dict(sea, waves=waves, check=check, spectrum_fit=sfit),
                             outlook, stages)

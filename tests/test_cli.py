@@ -265,10 +265,19 @@ def test_fit_waves_then_forecast(tiny_scene, tmp_path, capsys):
     assert report["match"]["matched"] == 2 and report["match"]["max_abs_error"]["omega"] < 1e-2
     assert len(data["waves"]["omega"]) == 2 and data["camera"]["resolution"] == [16, 16]
     assert "2 matched" in capsys.readouterr().out
-    # the fitted waves forecast like any scene
+    # what the least-squares forecast needs: the band and a frequency sigma per component
+    stored = report["forecast"]
+    n_band = len(stored["band"]["omega"])
+    assert len(stored["frequency_sigma"]) == 2 + n_band and min(stored["frequency_sigma"]) >= 0
+    assert stored["window_s"] == pytest.approx([data["times"][0], data["times"][2]])
+    assert len(report["determined"]) == 2
+    # the fitted waves forecast like any scene: damped by default, as fitted with --undamped
     assert cli.main(["forecast", str(out), "--frames", "0,10", "--fps", "5", "--camera-height", "8",
                      "--out", str(tmp_path / "fc")]) == 0
+    assert "least-squares forecast: 2 wave(s)" in capsys.readouterr().out
     assert json.loads((tmp_path / "fc" / "scene.json").read_text())["times"] == pytest.approx([0.0, 2.0])
+    assert cli.main(["forecast", str(out), "--frames", "0,10", "--undamped", "--out", str(tmp_path / "fc2")]) == 0
+    assert "least-squares" not in capsys.readouterr().out
 
 
 def test_demo_render_stage_and_bad_stage(tmp_path, capsys):

@@ -76,6 +76,30 @@ def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
         assert leaf.shape == (3,) and np.all(np.isfinite(leaf)) and np.all(np.asarray(leaf) >= 0)
 
 
+def test_forecast_model_is_the_fit_with_its_band_and_the_window_frequency_uncertainty(ortho_scene, ortho_fit):
+    from jaxocean import forecast as fc
+
+    c, _, normals, _ = ortho_scene
+    fit, _ = ortho_fit
+    model, sigma, window = fw.forecast_model(fit, c, TIMES)
+    n, band = int(fit.n_waves), fit.long_waves.waves
+    assert model.omega.shape == sigma.shape == (n + band.omega.shape[0],)
+    assert window == (float(TIMES[0]), float(TIMES[-1]))
+    # determined waves keep their own uncertainty; the band's stand-ins get the Rayleigh cell:
+    # here the view (12 m square, diameter 17 m) limits it, pi g / (omega L) / sqrt 3
+    assert fit.determined.all()
+    np.testing.assert_allclose(sigma[:n], fit.uncertainty.omega, rtol=1e-6)
+    L = 12.0 * np.sqrt(2.0) * (RES[0] - 1) / RES[0]
+    cell = np.minimum(2 * np.pi / (TIMES[-1] - TIMES[0]), np.pi * GRAVITY / (np.asarray(band.omega) * L)) / np.sqrt(3)
+    np.testing.assert_allclose(sigma[n:], cell, rtol=2e-2)
+    # inside the window the damped forecast is the model that explained the frames
+    inside = fc.forecast(model, TIMES, c, window=window, frequency_sigma=sigma).geometry
+    fitted = fw.predict(model, c, TIMES)[0]
+    assert float(jnp.max(jnp.abs(inside.normal - fitted))) < 1e-5
+    with pytest.raises(ValueError, match="needs a fit of fit.waves"):
+        fw.forecast_model(fit._replace(determined=None), c, TIMES)
+
+
 @pytest.mark.parametrize("polish, n_expected", [(None, 3), (0.0, 8)])
 def test_the_selection_refines_near_the_floor_before_adding_waves(monkeypatch, polish, n_expected):
     # trials of 2 LM steps leave a clean 3-wave sea a few times above the noise floor: the

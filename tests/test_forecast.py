@@ -4,6 +4,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from jax.test_util import check_grads
 
 from jaxocean import camera as cam
 from jaxocean import forecast as fc
@@ -85,6 +86,12 @@ def test_geometry_error_is_zero_for_identical_and_known_for_tilted_normals():
     np.testing.assert_allclose(fc.geometry_error((tilt, r + 0.01), (up, r)).roughness, [0.01], rtol=1e-5)
     with pytest.raises(ValueError, match="shapes differ"):
         fc.geometry_error((up, r), (up[:, :1], r[:, :1]))
+    # pixels outside the mask may hold NaN (unconverged hits): they are left out, not NaN
+    holed = tilt.at[0, 0, 0].set(jnp.nan)
+    mask = jnp.ones((1, 2, 2), bool).at[0, 0, 0].set(False)
+    err = fc.geometry_error((holed, r.at[0, 0, 0].set(jnp.nan)), (up, r), mask)
+    np.testing.assert_allclose(err.normal, [0.1], rtol=1e-5)
+    np.testing.assert_allclose(err.roughness, [0.0], atol=0)
 
 
 def test_forecast_is_differentiable_in_the_waves(x64):
@@ -101,3 +108,58 @@ def test_forecast_is_differentiable_in_the_waves(x64):
     e0 = jnp.zeros(3).at[0].set(eps)
     fd = (loss(w.amplitude + e0) - loss(w.amplitude - e0)) / (2 * eps)
     np.testing.assert_allclose(float(g[0]), float(fd), rtol=1e-5)
+
+
+def test_damping_is_one_inside_the_window_and_gaussian_in_the_distance_outside():
+    sigma = jnp.asarray([0.0, 0.5, 2.0])
+    times = jnp.asarray([-1.0, 0.0, 0.4, 1.0, 3.0])
+    d = np.asarray([1.0, 0.0, 0.0, 0.0, 2.0])  # distance outside (0, 1)
+    expected = np.exp(-0.5 * (np.asarray(sigma)[None, :] * d[:, None]) ** 2)
+    np.testing.assert_allclose(fc.damping(sigma, times, (0.0, 1.0)), expected, rtol=1e-6)
+
+
+def test_damped_wave_is_the_expected_wave_under_a_gaussian_frequency_error(x64):
+    # the least-squares forecast: E_e[a cos(psi + e d)] over e ~ N(0, sigma^2) (Gauss-Hermite
+    # quadrature, exact for this integrand to double precision) is the damped wave
+    w = jax.tree.map(lambda x: jnp.asarray(x, jnp.float64), sea())
+    sigma = jnp.asarray([0.05, 0.3, 0.0], jnp.float64)
+    window, t = (0.0, 1.5), 6.0
+    damped = fc.forecast(w, t, window=window, frequency_sigma=sigma).waves
+    plain = fc.forecast(w, t).waves
+    nodes, weights = np.polynomial.hermite_e.hermegauss(60)
+    weights = weights / weights.sum()
+    d = t - window[1]
+    expect = [np.sum(weights * a * np.cos(p + nodes * s * d))
+              for a, p, s in zip(np.asarray(plain.amplitude[0]), np.asarray(plain.phase[0]), np.asarray(sigma))]
+    got = np.asarray(damped.amplitude[0]) * np.cos(np.asarray(damped.phase[0]))
+    np.testing.assert_allclose(got, expect, rtol=1e-10, atol=1e-14)
+
+
+def test_damped_forecast_keeps_the_window_is_jittable_and_differentiable(x64):
+    w, c = sea(), camera()
+    sigma = jnp.asarray([0.0, 0.4, 1.0])
+    times = jnp.asarray([0.0, 0.5, 4.0])
+    plain = fc.forecast(w, times, c)
+    damped = fc.forecast(w, times, c, window=(0.0, 0.5), frequency_sigma=sigma)
+    # inside the window nothing changes; outside, the damped sea is flatter
+    np.testing.assert_array_equal(damped.geometry.normal[:2], plain.geometry.normal[:2])
+    slope = lambda g: float(jnp.mean(jnp.sum(g.normal[2, ..., :2] ** 2, -1)))  # noqa: E731
+    assert slope(damped.geometry) < 0.9 * slope(plain.geometry)
+    jitted = jax.jit(lambda s: fc.forecast(w, times, c, window=(0.0, 0.5), frequency_sigma=s).geometry.normal)
+    np.testing.assert_allclose(jitted(sigma), damped.geometry.normal, atol=1e-6)
+    check_grads(lambda s: fc.damping(s, jnp.asarray([-0.3, 0.2, 2.0]), (0.0, 0.5)),
+                (jnp.asarray([0.1, 0.7, 1.3]),), order=2, modes=("fwd", "rev"))
+
+
+def test_damped_forecast_bad_inputs():
+    w = sea()
+    with pytest.raises(ValueError, match="go together"):
+        fc.forecast(w, 1.0, window=(0.0, 1.0))
+    with pytest.raises(ValueError, match="go together"):
+        fc.forecast(w, 1.0, frequency_sigma=jnp.zeros(3))
+    with pytest.raises(ValueError, match="one entry per wave"):
+        fc.forecast(w, 1.0, window=(0.0, 1.0), frequency_sigma=jnp.zeros(2))
+    with pytest.raises(InvalidValueError, match="frequency_sigma must be >= 0"):
+        fc.forecast(w, 1.0, window=(0.0, 1.0), frequency_sigma=jnp.asarray([0.1, -0.1, 0.0]))
+    with pytest.raises(InvalidValueError, match="t_first <= t_last"):
+        fc.forecast(w, 1.0, window=(2.0, 1.0), frequency_sigma=jnp.zeros(3))

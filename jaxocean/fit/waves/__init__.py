@@ -103,7 +103,8 @@ from jaxocean.fit.waves._band import LongWaveBand
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import WaveMatch, match, rayleigh_separation, resolvable, separable
+from jaxocean.fit.waves._match import (WaveMatch, forecast_model, frequency_cell, match, rayleigh_separation,
+                                       resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -131,5 +132,7 @@ __all__ = [
     "separable",
     "rayleigh_separation",
     "match",
+    "frequency_cell",
+    "forecast_model",
     "check_inputs",
 ]

@@ -4,7 +4,9 @@ Protocol: :func:`resolvable` says which waves ``(N,)`` a camera's image resolves
 individually, :func:`separable` which of those the observation window also separates from
 every other wave of the set (the waves a fit determines) and :func:`rayleigh_separation` by how
 much; :func:`match` pairs fitted with true waves one to one and returns the absolute errors of
-the pairs (:class:`WaveMatch`).
+the pairs (:class:`WaveMatch`); :func:`forecast_model` turns a fit into the model and
+frequency uncertainties of :func:`jaxocean.forecast.forecast`'s damped forecast
+(:func:`frequency_cell`: what a window that does not separate a wave knows of its frequency).
 """
 
 from __future__ import annotations
@@ -158,3 +160,56 @@ def match(fitted: Waves, truth: Waves, *, tolerance: float = 0.1) -> WaveMatch:
     spurious = np.setdiff1d(np.arange(kf.shape[0]), fi)
     return WaveMatch(ti, fi, err, missed, spurious)
 
+
+
+# =============================================================================== forecasting
+
+
+def frequency_cell(omega, camera, times) -> np.ndarray:
+    """1-sigma frequency uncertainty [rad/s] ``(N,)`` of waves the observation window does
+    not separate: their frequency is known only to within its Rayleigh cell, ``|d omega| <
+    2 pi / T`` in time and ``|d omega| < pi g / (omega L)`` through the dispersion relation
+    in space (``T`` the observed duration, ``L`` the view's diameter,
+    :func:`~jaxocean.fit.waves._band.view_diameter`), taken as uniform: the half-width over
+    ``sqrt 3`` (eager, NumPy)."""
+    from jaxocean.fit.waves._band import view_diameter
+
+    om = np.asarray(omega, np.float64)
+    t = np.asarray(times, np.float64)
+    duration = float(t[-1] - t[0])
+    half = np.minimum(2 * np.pi / duration, np.pi * GRAVITY / (np.maximum(om, 1e-12) * view_diameter(camera)))
+    return half / np.sqrt(3.0)
+
+
+def forecast_model(result, camera, times):
+    """What a fit (:class:`~jaxocean.fit.waves.WaveFit` of :func:`~jaxocean.fit.waves.waves`)
+    says about the sea outside its window, for :func:`jaxocean.forecast.forecast`'s damped
+    forecast: ``(model, frequency_sigma, window)``.
+
+    * ``model``: the fitted waves followed by the long-wave band's stand-ins (the model
+      that explained the frames);
+    * ``frequency_sigma`` ``(N,)`` [rad/s]: for a determined wave its fitted 1-sigma
+      uncertainty; for the others -- stand-ins for what the window does not separate, whose
+      fitted frequencies are one choice within a Rayleigh cell -- and for a determined wave
+      without a finite uncertainty, :func:`frequency_cell`;
+    * ``window``: ``(times[0], times[-1])``.
+
+    ``forecast(model, t, camera, window=window, frequency_sigma=frequency_sigma)`` then keeps
+    every wave inside the window (the frames are explained) and, outside it, the expected
+    sea given what the window measured."""
+    if result.determined is None:
+        raise ValueError("forecast_model needs a fit of fit.waves (with `determined`); refine() does not say "
+                         "which waves the window determines")
+    waves_, det = result.waves, np.asarray(result.determined, bool)
+    t = np.asarray(times, np.float64)
+    if t.ndim != 1 or t.size < 2:
+        raise ValueError(f"times must be the fitted frames' times (T,), T >= 2; got shape {t.shape}")
+    own = (np.full(det.shape, np.nan) if result.uncertainty is None
+           else np.asarray(result.uncertainty.omega, np.float64))
+    sigma = np.where(det & np.isfinite(own), own, frequency_cell(waves_.omega, camera, t))
+    band = None if result.long_waves is None else result.long_waves.waves
+    if band is not None and band.omega.shape[0]:
+        waves_ = Waves(*(np.concatenate([np.asarray(a), np.asarray(b)]) for a, b in zip(waves_, band)))
+        sigma = np.concatenate([sigma, frequency_cell(band.omega, camera, t)])
+    model = Waves(*(np.asarray(x, np.asarray(result.waves.omega).dtype) for x in waves_))
+    return model, sigma.astype(model.omega.dtype), (float(t[0]), float(t[-1]))
