@@ -649,7 +649,7 @@ def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.
                    normals=np.asarray(fcast.geometry.normal))
         return out, True, "", dict(ahead_s=list(ahead), camera_height_m=height_factor * float(seq.camera.height),
                                    sun_elevation_deg=math.degrees(sun_elevation),
-                                   forecast="least-squares (damped)" if model is not None else "as fitted")
+                                   forecast="least-squares (damped)" if model is not None else "as fitted (no wave fit)")
 
     return _timed("forecast", run)
 
@@ -704,13 +704,19 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     refined = photo is not None and stages["photometric"].success
     from jaxocean.fit.photometric import mean_exposure
 
-    # the wave fit's least-squares forecast (waves and band, damped outside the window by what
-    # it measured); waves refined against the images are forecast as they are
+    # the least-squares forecast: each wave damped outside the fitted window by what the window
+    # measured of its frequency. Stage 4's waves come with its long-wave band; waves refined
+    # against the images (stage 5, same order, no band) with stage 5's own `determined` and
+    # stage 4's frequency uncertainties
     model = None
-    if not refined and int(wfit.n_waves) > 0 and wfit.determined is not None:
+    if int(wfit.n_waves) > 0 and wfit.determined is not None:
         from jaxocean.fit.waves import forecast_model
 
-        model = forecast_model(wfit, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
+        basis = wfit
+        if refined:
+            basis = wfit._replace(waves=photo.waves, long_waves=None,
+                                  determined=wfit.determined if photo.determined is None else photo.determined)
+        model = forecast_model(basis, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
     outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0,
                                  model=model)
     say(rep)

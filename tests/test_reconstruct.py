@@ -113,7 +113,10 @@ def test_reconstruct_command_end_to_end(tmp_path):
     assert surface in ("rows", "hits") and f"({surface})" in page
     for figure in ("frames.png", "sea.png", "forecast.png"):
         assert (out / figure).stat().st_size > 0 and figure in page
-
+    # the forecast is the wave fit's least-squares forecast unless the fit found no wave
+    found = data["stages"]["waves"]["details"]["n_waves"] > 0
+    assert data["stages"]["forecast"]["details"]["forecast"] == ("least-squares (damped)" if found
+                                                                  else "as fitted (no wave fit)")
 
 
 def test_steep_waves_are_capped_and_reported():
