@@ -102,7 +102,8 @@ def _sea_errors(sea: dict, truth_waves, spectrum) -> dict:
                 waves_hs_true=float(fit.sea_state(truth_waves).hs))
 
 
-def run_one(dataset, index: int, variant: str, work: Path, *, frames: int, dt: float, seed: int) -> dict:
+def run_one(dataset, index: int, variant: str, work: Path, *, frames: int, dt: float, seed: int,
+            geometry_model=None) -> dict:
     import jax
 
     from jaxocean import render
@@ -122,10 +123,11 @@ def run_one(dataset, index: int, variant: str, work: Path, *, frames: int, dt: f
     camera_json = write_scene(folder, scene_to_dict(camera=scene.camera, times=times))
     t0 = time.perf_counter()
     result = rc.reconstruct(files, camera_json, out=folder / "out", response="bruneton", progress=True,
-                            wave_frames=min(frames, 8), max_waves=16)
+                            wave_frames=min(frames, 8), max_waves=16, geometry_model=geometry_model)
     wall = time.perf_counter() - t0
     stages = {n: dict(success=r.success, seconds=r.seconds) for n, r in result.stages.items()}
-    row = dict(scene=index, variant=variant, exposure=exposure, wall_s=wall, stages=stages,
+    row = dict(scene=index, variant=variant, geometry_model=geometry_model or "cpu", exposure=exposure, wall_s=wall,
+               stages=stages,
                table1=_geometry_scores(result.geometry, geo, scene.camera),
                stage4=_wave_scores(result.waves.waves, scene.waves, scene.camera),
                # stage 5's waves whether or not it reported success (its flag is in stages)
@@ -175,6 +177,8 @@ def main(argv=None):
     ap.add_argument("--work", default="out/reconstruct_experiment")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--name", default="reconstruct", help="results file stem (finished runs in it are kept)")
+    ap.add_argument("--geometry-model", default=None, help="stage 2's network: a shipped model's name (cpu, gpu) or "
+                    "a model file (default: reconstruct's default, cpu)")
     args = ap.parse_args(argv)
     splits = json.loads((Path(args.dataset) / "splits.json").read_text())
     scenes = splits["test"][: args.scenes]
@@ -189,7 +193,7 @@ def main(argv=None):
                 continue
             print(f"--- scene {index} {variant}", flush=True)
             rows.append(run_one(args.dataset, index, variant, Path(args.work), frames=args.frames, dt=args.dt,
-                                seed=args.seed))
+                                seed=args.seed, geometry_model=args.geometry_model))
             RESULTS.mkdir(exist_ok=True)
             out_json.write_text(json.dumps(dict(paper_table2=PAPER_TABLE2, rows=rows), indent=1))
     _chart(rows, RESULTS / f"{args.name}.png")
