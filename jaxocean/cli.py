@@ -279,7 +279,9 @@ def build_parser():
 
     p = sub.add_parser("forecast", help="render waves at future frames",
                        description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "
-                                   "times and render them: EXR + PNG per frame (numbered in output order; each "
+                                   "times and render them as render draws them (the converged hits where the "
+                                   "waves move them). A fit-waves result is forecast by the least-squares "
+                                   "forecast (see --undamped): EXR + PNG per frame (numbered in output order; each "
                                    "file's metadata and scene.json's extra.forecast_frames give the requested "
                                    "frame index) and scene.json. Camera and lighting come from the JSON unless "
                                    "replaced by the options; the default lighting is jaxocean.shading's. "
