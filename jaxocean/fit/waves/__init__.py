@@ -97,6 +97,11 @@ resolves it somewhere (``lambda >= n_max x`` the smallest footprint) and at leas
 ``cycles`` of its wavelengths fit into the part of the sea where it is resolved, measured
 along its direction of travel. Longer waves are seen only as a smooth tilt field: the fit
 explains them with some long waves, not with the true ones (``experiments/WAVES.md``).
+
+Forecasting a fit (:func:`forecast_model`): the fitted waves with the long-wave band, and a
+frequency uncertainty per component -- the fit's own for determined waves, the window's
+Rayleigh cell (:func:`frequency_cell`) for the stand-ins -- for the least-squares forecast
+of :func:`jaxocean.forecast.forecast` (``window=``, ``frequency_sigma=``).
 """
 
 from jaxocean.fit.waves._band import LongWaveBand
