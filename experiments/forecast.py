@@ -81,14 +81,6 @@ def scene_rows(args):
     return rows
 
 
-def _usable(*geometries):
-    """Sea pixels whose hit converged in every one of ``geometries`` ((T, H, W) bool)."""
-    mask = geometries[0].mask
-    for g in geometries:
-        mask = mask & g.mask & (True if g.converged is None else g.converged)
-    return mask
-
-
 def _with_band(fitted, row):
     """The fit's whole model: its waves followed by the long-wave band's stand-ins (if the row
     holds them), and the number of stand-ins."""
@@ -110,7 +102,7 @@ def _damped(fitted, det, row, scene, times, truth, refine):
     t_obs = np.asarray(scene.times, float)
     g = fc.forecast(model, times, scene.camera, plan=render.full_plan(sigma.size, refine),
                     window=(t_obs[0], t_obs[-1]), frequency_sigma=jnp.asarray(sigma, model.omega.dtype)).geometry
-    return np.asarray(fc.geometry_error(g, truth, _usable(g, truth)).normal, float).tolist()
+    return np.asarray(fc.geometry_error(g, truth).normal, float).tolist()
 
 
 def one_scene(row, frames, surface="camera"):
@@ -127,9 +119,9 @@ def one_scene(row, frames, surface="camera"):
     else:
         truth = fc.forecast(scene.waves, times, scene.camera).geometry
         pred = fc.forecast(fitted, times, scene.camera).geometry
-    err = fc.geometry_error(pred, truth, _usable(pred, truth))
+    err = fc.geometry_error(pred, truth)
     frame0 = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), truth)
-    persistence = fc.geometry_error(frame0, truth, _usable(frame0, truth))
+    persistence = fc.geometry_error(frame0, truth)
     normal = np.asarray(err.normal, float)
     out = dict(seed=row["seed"], surface=surface, fit_surface=row.get("surface"), fit_success=row.get("success"),
                frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
@@ -144,19 +136,18 @@ def one_scene(row, frames, surface="camera"):
                            ("separable", fw.separable(scene.waves, scene.camera, scene.times))):
             sub = jax.tree.map(lambda x: x[np.nonzero(keep)[0]], scene.waves)
             g = fc.forecast(sub, times, scene.camera, plan=render.full_plan(int(keep.sum()), refine_truth)).geometry
-            out[f"oracle_{name}_rad"] = np.asarray(fc.geometry_error(g, truth, _usable(g, truth)).normal, float).tolist()
+            out[f"oracle_{name}_rad"] = np.asarray(fc.geometry_error(g, truth).normal, float).tolist()
             out[f"n_{name}"] = int(keep.sum())
         if "fitted_determined" in row:
             det = np.nonzero(np.asarray(row["fitted_determined"], bool))[0]
             sub = jax.tree.map(lambda x: x[det], fitted)
             g = fc.forecast(sub, times, scene.camera, plan=render.full_plan(det.size, refine)).geometry
-            out["determined_rad"] = np.asarray(fc.geometry_error(g, truth, _usable(g, truth)).normal, float).tolist()
+            out["determined_rad"] = np.asarray(fc.geometry_error(g, truth).normal, float).tolist()
             out["damped_rad"] = _damped(fitted, det, row, scene, times, truth, refine)
         # the truth drawn here against the frames the fit saw (the same renderer: ~0)
         observed = render.Geometry(*[None if x is None else x[:1] for x in geo])
-        out["truth_vs_observed_rad"] = float(fc.geometry_error(jax.tree.map(lambda x: x[:1], truth), observed,
-                                                               _usable(observed, jax.tree.map(lambda x: x[:1], truth))
-                                                               ).normal[0])
+        out["truth_vs_observed_rad"] = float(fc.geometry_error(jax.tree.map(lambda x: x[:1], truth),
+                                                               observed).normal[0])
         return out
     both, n_band = _with_band(fitted, row)
     if n_band:

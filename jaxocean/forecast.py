@@ -64,7 +64,7 @@ class Forecast(NamedTuple):
 
 class GeometryError(NamedTuple):
     """Per-frame errors ``(T,)``: mean normal angle [rad] and mean absolute roughness
-    difference over pixels that are sea in both sequences."""
+    difference over the pixels that are sea, with converged hits, in both sequences."""
 
     normal: jax.Array
     roughness: jax.Array
@@ -175,7 +175,8 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
     """Per-frame mean normal angle [rad] and mean |roughness difference| between two
     geometry sequences (each a ``Geometry`` with leading ``(T,)``, or a pair ``(normal (T,
     H, W, 3), roughness (T, H, W))``). ``mask (H, W)`` or ``(T, H, W)``: pixels to count
-    (default: the geometries' own sea masks where available, else all)."""
+    (default: the pixels that are sea with a converged hit in every ``Geometry`` given, else
+    all)."""
     pn, pr, pm = _unpack_geometry(predicted)
     tn, tr, tm = _unpack_geometry(truth)
     if pn.shape != tn.shape:
@@ -196,7 +197,9 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
 
 def _unpack_geometry(g):
     if isinstance(g, render.Geometry):
-        return jnp.asarray(g.normal), jnp.asarray(g.roughness), jnp.asarray(g.mask)
+        # the pixels a geometry vouches for: sea, with a converged hit (render.Geometry)
+        mask = jnp.asarray(g.mask) if g.converged is None else jnp.asarray(g.mask) & jnp.asarray(g.converged)
+        return jnp.asarray(g.normal), jnp.asarray(g.roughness), mask
     try:
         normal, roughness = g
     except (TypeError, ValueError):

@@ -86,6 +86,13 @@ def test_geometry_error_is_zero_for_identical_and_known_for_tilted_normals():
     np.testing.assert_allclose(fc.geometry_error((tilt, r + 0.01), (up, r)).roughness, [0.01], rtol=1e-5)
     with pytest.raises(ValueError, match="shapes differ"):
         fc.geometry_error((up, r), (up[:, :1], r[:, :1]))
+    # a Geometry's pixels whose hit did not converge are left out by default
+    g = out.geometry
+    bad = g._replace(normal=g.normal.at[:, 0, 0].set(jnp.asarray([1.0, 0.0, 0.0])),
+                     converged=jnp.ones(g.mask.shape, bool).at[:, 0, 0].set(False))
+    assert bool(g.mask[0, 0, 0])
+    np.testing.assert_allclose(fc.geometry_error(bad, g).normal, 0.0, atol=1e-6)
+    assert float(fc.geometry_error(bad._replace(converged=None), g).normal[0]) > 1e-3
     # pixels outside the mask may hold NaN (unconverged hits): they are left out, not NaN
     holed = tilt.at[0, 0, 0].set(jnp.nan)
     mask = jnp.ones((1, 2, 2), bool).at[0, 0, 0].set(False)
