@@ -90,12 +90,12 @@ def _with_band(fitted, row):
     return jax.tree.map(lambda a, b: jnp.concatenate([a, b]), fitted, band), int(band.omega.shape[0])
 
 
-def _damped(fitted, det, row, scene, times, truth, refine):
-    """The least-squares (damped) forecast of the fit's model: the row's waves and band with
-    the frequency uncertainty of ``fit.waves.forecast_model`` -- the Rayleigh cell for the
-    stand-ins and the band, 0 for the determined waves (the rows hold no fitted uncertainty;
-    ``forecast_model`` would use the fit's own)."""
-    model, _ = _with_band(fitted, row)
+def _damped(model, det, scene, times, truth, refine):
+    """The least-squares (damped) forecast of the fit's ``model`` (its waves, then its band;
+    ``det`` the indices of the determined waves) with the frequency uncertainty of
+    ``fit.waves.forecast_model`` -- the Rayleigh cell for the stand-ins and the band, 0 for
+    the determined waves (the rows hold no fitted uncertainty; ``forecast_model`` would use
+    the fit's own)."""
     undetermined = np.ones(model.omega.shape[0], bool)
     undetermined[det] = False  # the fitted waves come first
     sigma = np.where(undetermined, fw.frequency_cell(model.omega, scene.camera, scene.times), 0.0)
@@ -143,7 +143,7 @@ def one_scene(row, frames, surface="camera"):
             sub = jax.tree.map(lambda x: x[det], fitted)
             g = fc.forecast(sub, times, scene.camera, plan=render.full_plan(det.size, refine)).geometry
             out["determined_rad"] = np.asarray(fc.geometry_error(g, truth).normal, float).tolist()
-            out["damped_rad"] = _damped(fitted, det, row, scene, times, truth, refine)
+            out["damped_rad"] = _damped(model, det, scene, times, truth, refine)
         # the truth drawn here against the frames the fit saw (the same renderer: ~0)
         observed = render.Geometry(*[None if x is None else x[:1] for x in geo])
         out["truth_vs_observed_rad"] = float(fc.geometry_error(jax.tree.map(lambda x: x[:1], truth),

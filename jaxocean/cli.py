@@ -894,10 +894,12 @@ def cmd_fit_waves(args):
 
 def cmd_forecast(args):
     import jax
+    import jax.numpy as jnp
 
     from jaxocean.forecast import forecast, frame_times
     from jaxocean.io import read_scene
     from jaxocean.io.dataset import SceneSample
+    from jaxocean.waves import Waves
 
     _check_out_dir(args.out)
     _refuse_other_json(args.waves, "forecast needs waves (a fit-waves result or a scene.json)")
@@ -930,10 +932,6 @@ def cmd_forecast(args):
     camera = _camera_from_args(args, scene.camera, None, where=f"{args.waves}")
     _check_memory(camera.resolution, len(times), "forecast")
     lighting = _lighting_from_args(args, scene.lighting)
-    import jax.numpy as jnp
-
-    from jaxocean.waves import Waves
-
     model, damp = scene.waves, {}
     stored = wave_fit.get("forecast") if isinstance(wave_fit, dict) else None
     if stored is not None and not args.undamped:

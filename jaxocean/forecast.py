@@ -190,7 +190,7 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
     # pixels left out may hold NaN (unconverged hits): they count as zero, not as NaN
     angle = jnp.where(mask > 0, angle_between(pn, tn), 0.0)
     count = jnp.maximum(jnp.sum(mask, axis=(-2, -1)), 1.0)
-    normal = jnp.sum(angle * mask, axis=(-2, -1)) / count
+    normal = jnp.sum(angle, axis=(-2, -1)) / count
     rough = jnp.sum(jnp.where(mask > 0, jnp.abs(pr - tr), 0.0), axis=(-2, -1)) / count
     return GeometryError(normal, rough)
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy
+from jaxocean.fit.waves._band import view_diameter
 from jaxocean.waves import GRAVITY, Waves, validate
 
 
@@ -170,10 +171,8 @@ def frequency_cell(omega, camera, times) -> np.ndarray:
     not separate: their frequency is known only to within its Rayleigh cell, ``|d omega| <
     2 pi / T`` in time and ``|d omega| < pi g / (omega L)`` through the dispersion relation
     in space (``T`` the observed duration, ``L`` the view's diameter,
-    :func:`~jaxocean.fit.waves._band.view_diameter`), taken as uniform: the half-width over
+    :func:`view_diameter`), taken as uniform: the half-width over
     ``sqrt 3`` (eager, NumPy)."""
-    from jaxocean.fit.waves._band import view_diameter
-
     om = np.asarray(omega, np.float64)
     t = np.asarray(times, np.float64)
     duration = float(t[-1] - t[0])
