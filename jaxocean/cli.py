@@ -268,6 +268,11 @@ def build_parser():
     p.add_argument("--noise", type=float, help="noise sigma of the normals' x/y components when known (order "
                    "selection and the success test use it; default: noise-free up to storage precision, so a fit "
                    "leaving more than 1 mrad mean normal error is reported failed)")
+    p.add_argument("--noise-correlation", type=float, default=0.0, metavar="PX",
+                   help="correlation length [px] of the --noise across the image (errors correlated as "
+                        "exp(-d/PX), e.g. a network's smooth normal errors): each wave then pays the order "
+                        "selection's penalty at the noise in its own band of the spectrum (default 0: independent "
+                        "pixels)")
     p.add_argument("--verbose", action="store_true", help="print the fit's order-selection steps")
     p.add_argument("--init", choices=("spectral", "net"), default="spectral",
                    help="start: spectral (default: greedy detection from the space-time spectrum) or net (the "
@@ -820,6 +825,10 @@ def cmd_fit_waves(args):
         raise ValueError(f"--max-waves must be >= 1; got {args.max_waves}")
     if args.noise is not None and not (np.isfinite(args.noise) and args.noise > 0):
         raise ValueError(f"--noise must be a finite sigma > 0 (fit.waves' own bound); got {args.noise}")
+    if not (np.isfinite(args.noise_correlation) and args.noise_correlation >= 0):
+        raise ValueError(f"--noise-correlation must be a finite number of pixels >= 0; got {args.noise_correlation}")
+    if args.noise_correlation > 0 and args.noise is None:
+        raise ValueError("--noise-correlation is the correlation of --noise: give --noise too")
     _check_out_file(args.out)
     _refuse_other_json(args.scene, "fit-waves needs a scene directory (scene.json and its frame_XXXXX.exr files)")
     scene_dir = Path(args.scene)
@@ -840,7 +849,8 @@ def cmd_fit_waves(args):
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
     result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
-                       noise=args.noise, throw=False, verbose=args.verbose,
+                       noise=args.noise, noise_correlation=args.noise_correlation, throw=False,
+                       verbose=args.verbose,
                        init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
@@ -850,6 +860,7 @@ def cmd_fit_waves(args):
               "normal_error_deg": json_safe(math.degrees(float(result.normal_error))),
               "roughness_error": json_safe(float(result.roughness_error)), "steps": int(result.steps),
               "success": success, "converged": bool(result.converged), "time_s": json_safe(float(result.time_s)),
+              "noise": args.noise, "noise_correlation_px": float(args.noise_correlation),
               "uncertainty": {name: json_safe(np.ravel(leaf)) for name, leaf in zip(w._fields, result.uncertainty)}}
     if finite and result.determined is not None:
         from jaxocean.fit.waves import forecast_model

@@ -83,9 +83,14 @@ BLACK_LEVEL = 0.5 / 255
 GEOMETRY_NOISE = 0.092
 #: the correlation length of that error, as a fraction of the view's width: the network's
 #: normal errors are smooth (their autocorrelation on 4 dataset scenes at 128^2 is 0.24-0.55
-#: at 8 px and 0.13-0.45 at 16 px), and errors taken as independent average out over the
-#: glitter and let a wrong sun pass (experiments/LIGHTING.md); 1/8 of the width (16 px at
-#: 128) errs on the correlated side
+#: at 8 px and 0.13-0.45 at 16 px; fitted as exp(-d / l) on 3 test scenes x both shipped
+#: networks, 8-bit frames with display noise 0.01, l = 5-23 px: short on the rough scene
+#: whose error is large, long on the calm ones). The lighting stage draws Gaussian fields of
+#: this length: errors taken as independent average out over the glitter and let a wrong sun
+#: pass (experiments/LIGHTING.md), and 1/8 of the width (16 px at 128) errs on the correlated
+#: side. The wave stage takes it as the exponential's ``l`` (``fit.waves``'
+#: ``noise_correlation``): taken as independent, smooth errors pay the order selection's
+#: penalty over many pixels and become waves
 GEOMETRY_CORRELATION = 0.125
 
 
@@ -419,10 +424,11 @@ def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcas
 
 
 def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: int = 24, init=None,
-                noise: float = GEOMETRY_NOISE):
+                noise: float = GEOMETRY_NOISE, correlation: float = GEOMETRY_CORRELATION):
     """Stage 4: the component waves behind the geometry sequence (``frames`` of them, spread
     evenly; None: all), at most ``max_waves``, with the order selection and success test of
-    :func:`jaxocean.fit.waves` told the geometry's ``noise`` (per normal component).
+    :func:`jaxocean.fit.waves` told the geometry's ``noise`` (per normal component),
+    correlated over ``correlation`` times the view's width (``noise_correlation``).
     ``init``: starting :class:`Waves` (e.g. a wave network's answer), else the fit's
     spectral start."""
     from jaxocean import fit
@@ -431,17 +437,20 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
 
     def run():
         kw = {} if init is None else dict(init=init)
+        length = float(correlation) * seq.camera.resolution[1]
         try:
             result = fit.waves(geometry.normal[idx], geometry.roughness[idx], seq.camera, seq.times[idx],
-                               max_waves=max_waves, noise=noise, **kw)
+                               max_waves=max_waves, noise=noise, noise_correlation=length, **kw)
         except fit.NoWaveFound as error:
             # nothing to hand on but a flat sea: the later stages start from it and say so
             flat = _flat_sea_fit(geometry.normal[idx], seq.camera, seq.times[idx])
-            details = dict(n_waves=0, frames=len(idx), normal_error_rad=float(flat.normal_error), determined=0,
-                           capped_waves=0, surface="rows")
+            details = dict(n_waves=0, frames=len(idx), normal_error_rad=float(flat.normal_error),
+                           normal_noise_rad=float(noise), normal_correlation_px=length, determined=0, capped_waves=0,
+                           surface="rows")
             return flat, False, str(error), details
         n = int(result.n_waves)
         details = dict(n_waves=n, frames=len(idx), normal_error_rad=float(result.normal_error),
+                       normal_noise_rad=float(noise), normal_correlation_px=length,
                        determined=int(np.sum(result.determined)) if result.determined is not None else None,
                        surface=result.surface)
         why = [] if result.success else [f"stopped at the cap of {max_waves} waves" if n >= max_waves

@@ -249,6 +249,8 @@ def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert cli.main(["fit-waves", str(tmp_path / "nowhere"), "--out", str(out)]) == 2
     assert cli.main(["fit-waves", str(tiny_scene), "--noise", "-0.1", "--out", str(out)]) == 2
     assert "--noise must be a finite sigma" in capsys.readouterr().err
+    assert cli.main(["fit-waves", str(tiny_scene), "--noise-correlation", "4", "--out", str(out)]) == 2
+    assert "give --noise too" in capsys.readouterr().err
     assert cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out)]).heights
     assert not cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out), "--no-heights"]).heights
     assert not out.exists()

@@ -487,6 +487,55 @@ def test_known_noise_sets_the_criterion_and_the_success_bound(ortho_scene):
         fw.waves(noisy, rough, c, TIMES, noise=0.0)
 
 
+def test_noise_cells_are_the_correlated_noise_power_at_each_wavenumber():
+    # orthographic 12 m / 24 px: every footprint is 0.5 m, so the count is the formula itself
+    c = ortho()
+    w = make_waves([0.01, 0.01, 0.01], [1.5, 2.8, 4.9], [0.0, 1.0, 2.0])
+    lam = 2 * np.pi * GRAVITY / np.asarray(w.omega, np.float64) ** 2
+    ell = 3.0
+    want = 2 * np.pi * ell ** 2 / (1 + (2 * np.pi / lam * 0.5 * ell) ** 2) ** 1.5
+    got = fw.noise_cells(w, c, ell)
+    np.testing.assert_allclose(got, np.maximum(want, 1.0), rtol=1e-6)
+    assert got[0] > got[1] > 1.0  # longer waves share their band with more of the smooth noise
+    np.testing.assert_array_equal(fw.noise_cells(w, c, 0.0), np.ones(3))
+
+
+def _smooth_noise(shape, sigma, length, seed):
+    # Gaussian random fields of standard deviation sigma, smooth over `length` pixels in
+    # (H, W) and independent per frame and component
+    from scipy import ndimage
+
+    white = np.random.default_rng(seed).standard_normal(shape)
+    field = ndimage.gaussian_filter(white, (0, length / np.sqrt(2), length / np.sqrt(2), 0), mode="wrap")
+    return sigma * field / field.std()
+
+
+def test_smooth_noise_is_not_taken_for_waves_when_its_correlation_is_stated(ortho_scene):
+    # normals with noise smooth over 3 px (a network's kind of error): taken as independent
+    # pixels it is explained by spurious waves that pass as a success; with its correlation
+    # stated the fit returns the three true waves
+    c, truth, normals, rough = ortho_scene
+    sigma, ell = 0.01, 3.0
+    noisy = np.asarray(normals, np.float64)
+    noisy[..., :2] += _smooth_noise(noisy[..., :2].shape, sigma, ell, 0)
+    noisy = jnp.asarray(noisy / np.linalg.norm(noisy, axis=-1, keepdims=True), normals.dtype)
+    white = fw.waves(noisy, rough, c, TIMES, noise=sigma)
+    assert bool(white.success) and fw.match(white.waves, truth).spurious.size > 0
+    aware = fw.waves(noisy, rough, c, TIMES, noise=sigma, noise_correlation=ell)
+    m = fw.match(aware.waves, truth)
+    assert bool(aware.success) and int(aware.n_waves) == 3
+    assert m.missed.size == 0 and m.spurious.size == 0 and np.max(m.abs_error.amplitude) < 0.3 * 0.012
+    # each wave's uncertainty is the white-noise one scaled by its noise cells
+    plain = fw.waves(noisy, rough, c, TIMES, noise=sigma, init=aware.waves)  # the same waves, refined
+    cells = fw.noise_cells(aware.waves, c, ell)
+    np.testing.assert_allclose(np.asarray(aware.uncertainty.amplitude),
+                               np.asarray(plain.uncertainty.amplitude) * np.sqrt(cells), rtol=0.05)
+    with pytest.raises(ValueError, match="pass noise= too"):
+        fw.waves(noisy, rough, c, TIMES, noise_correlation=ell)
+    with pytest.raises(ValueError, match="noise_correlation must be"):
+        fw.waves(noisy, rough, c, TIMES, noise=sigma, noise_correlation=-1.0)
+
+
 def test_roughness_tail_nnls_recovers_the_unmodelled_roughness():
     # three partly sub-pixel waves (0.35-0.7 m; footprints 0.2-0.55 m) beside the resolved
     # ones: the tail fitted for the resolved set reproduces the short waves' roughness per row,

@@ -163,6 +163,9 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     assert not rep.success and "no wave found" in rep.message
     assert rep.details["n_waves"] == 0 and rep.details["normal_error_rad"] == pytest.approx(0.0, abs=1e-6)
     assert rep.details["surface"] == "rows"
+    # the fit was told the network's error and its correlation across the view
+    assert rep.details["normal_noise_rad"] == rc.GEOMETRY_NOISE
+    assert rep.details["normal_correlation_px"] == pytest.approx(rc.GEOMETRY_CORRELATION * 32)
     assert float(jnp.max(wfit.waves.amplitude)) == 0.0 and not bool(wfit.success)
     g = render.geometry(wfit.waves, seq.camera, 0.0)
     sea = np.asarray(g.mask)

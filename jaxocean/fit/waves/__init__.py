@@ -92,6 +92,12 @@ Wave uncertainty (:class:`WaveFit` ``uncertainty``) is the Gauss-Newton covarian
 ``sigma^2 (J^T J)^-1`` with ``sigma^2 = RSS / (M - 4N)``, mapped to ``(h, omega, theta,
 phi)``: cheap (the solver has ``J^T J``) and meaningful when the residual is noise.
 
+Noise correlated across the image (``noise_correlation=``, :func:`noise_cells`): a
+network's normal errors are smooth, and taken as independent pixels they pay the criterion's
+penalty over many pixels and become waves. Each wave is then scored at the noise in its own
+band of the spectrum: ``c`` pixels per independent observation, the power of errors
+correlated as ``exp(-d / l)`` at the wave's wavenumber in pixels relative to white noise.
+
 Resolvability (:func:`resolvable`): a wave is individually recoverable when the image
 resolves it somewhere (``lambda >= n_max x`` the smallest footprint) and at least
 ``cycles`` of its wavelengths fit into the part of the sea where it is resolved, measured
@@ -108,8 +114,8 @@ from jaxocean.fit.waves._band import LongWaveBand
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import (WaveMatch, forecast_model, frequency_cell, match, rayleigh_separation,
-                                       resolvable, separable)
+from jaxocean.fit.waves._match import (WaveMatch, forecast_model, frequency_cell, match, noise_cells,
+                                       rayleigh_separation, resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -138,6 +144,7 @@ __all__ = [
     "rayleigh_separation",
     "match",
     "frequency_cell",
+    "noise_cells",
     "forecast_model",
     "check_inputs",
 ]

@@ -6,7 +6,9 @@ every other wave of the set (the waves a fit determines) and :func:`rayleigh_sep
 much; :func:`match` pairs fitted with true waves one to one and returns the absolute errors of
 the pairs (:class:`WaveMatch`); :func:`forecast_model` turns a fit into the model and
 frequency uncertainties of :func:`jaxocean.forecast.forecast`'s damped forecast
-(:func:`frequency_cell`: what a window that does not separate a wave knows of its frequency).
+(:func:`frequency_cell`: what a window that does not separate a wave knows of its frequency);
+:func:`noise_cells` says how many pixels carry one independent observation of each wave when
+the normals' errors are correlated across the image.
 """
 
 from __future__ import annotations
@@ -48,6 +50,33 @@ def _sea_view(waves_: Waves, camera, max_distance):
     mask = np.asarray(hit.mask)
     return (np.asarray(waves_.omega, np.float64), np.asarray(waves_.theta, np.float64),
             np.asarray(hit.footprint)[mask], np.asarray(hit.xy)[mask])
+
+
+def noise_cells(waves_: Waves, camera, correlation: float, *, n_max=hierarchy.DEFAULT_N_MAX,
+                max_distance=cam.DEFAULT_MAX_DISTANCE) -> np.ndarray:
+    """Pixels per independent observation of each wave, ``(N,)`` >= 1 (eager, NumPy), for
+    normal errors correlated as ``exp(-d / l)`` over ``d`` pixels (``correlation = l``).
+
+    Such errors have the power spectrum ``2 pi l^2 / (1 + (kappa l)^2)^(3/2)`` [px^2] times
+    their variance at ``kappa`` rad per pixel (white noise: 1), so a wave of wavenumber
+    ``k`` [rad/m] sees, at a pixel of footprint ``f``, the error power of ``kappa = k f``
+    cells. The count is the harmonic mean of that over the sea pixels that resolve the wave
+    (:func:`resolvable`'s rule; all sea pixels when none does), floored at 1 (white noise):
+    a wave removes ``c`` times less chi^2 than its energy in units of the per-pixel
+    variance would say. ``correlation = 0``: ones.
+    """
+    om, _, fp, _ = _sea_view(waves_, camera, max_distance)
+    if not correlation > 0:
+        return np.ones(om.shape)
+    lam = 2 * np.pi * GRAVITY / om ** 2
+    out = np.ones(om.shape)
+    for i in range(om.size):
+        sel = fp * n_max <= lam[i]
+        f = fp[sel] if sel.any() else fp
+        kappa_l = (2 * np.pi / lam[i]) * f * correlation
+        cells = 2 * np.pi * correlation ** 2 / (1.0 + kappa_l ** 2) ** 1.5
+        out[i] = max(1.0, 1.0 / float(np.mean(1.0 / cells)))
+    return out
 
 
 def resolvable(waves_: Waves, camera, *, cycles: float = 1.0, n_min=hierarchy.DEFAULT_N_MIN,

@@ -31,7 +31,7 @@ from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
                                        surface_refine, to_waves, wrap_angle)
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
-from jaxocean.fit.waves._match import rayleigh_separation, resolvable, separable
+from jaxocean.fit.waves._match import noise_cells, rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
 from jaxocean.waves import GRAVITY, Waves, too_steep, validate, wavelength
 
@@ -247,12 +247,15 @@ def _pad_to(x, n, fill):
 # =============================================================================== greedy fit
 
 
-def _criterion_value(kind, rss, m, n, noise, floor2):
-    """``rss``: residual sum of squares of the normal components; ``m`` their number."""
+def _criterion_value(kind, rss, m, n, noise, floor2, discount=0.0):
+    """``rss``: residual sum of squares of the normal components; ``m`` their number.
+    ``discount``: with a stated noise correlated across the image, the part of the waves'
+    explained energy that the noise could have made (:func:`_correlated_discount`), added
+    back to the residual."""
     rss = max(float(rss), m * floor2, 1e-300)
     if noise is not None:
         pen = 4 * n * math.log(m) if kind != "aic" else 8 * n
-        return rss / float(noise) ** 2 + pen
+        return (rss + float(discount)) / float(noise) ** 2 + pen
     if kind == "aic":
         return m * math.log(rss / m) + 8 * n
     return m * math.log(rss / m) + 4 * n * math.log(m)
@@ -266,7 +269,7 @@ def _kvec(om, th):
 def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | str | None = None,
           net=None, net_threshold: float = 0.5,
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
-          noise_floor=None, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
+          noise_floor=None, noise_correlation: float = 0.0, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
           surface: str = "auto", heights: bool | None = None, n_min=hierarchy.DEFAULT_N_MIN,
@@ -285,6 +288,16 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       well as ``success`` asks; a smaller floor (down to ``200 eps`` of the dtype, 2.4e-5
       in float32, the precision of a phase ``k . X`` of a few thousand radians) makes the
       selection go on explaining the long-wave band's residual with more waves.
+      ``noise_correlation``: the correlation length ``l`` [px] of the stated ``noise``
+      across the image (errors correlated as ``exp(-d / l)``, e.g. a network's smooth
+      normal errors; 0: independent pixels). Each wave then counts ``c`` pixels per
+      independent observation (:func:`noise_cells`: the noise's power at the wave's
+      wavenumber in pixels, relative to white noise), so its explained energy pays the
+      criterion's penalty only at ``c`` times the per-pixel noise variance -- in the
+      selection, the Wald pruning and the wave's reported ``uncertainty`` (scaled by
+      ``sqrt(c)``). Without it, structure far below the per-pixel noise is significant
+      over many pixels, and smooth errors become waves. The success bound stays the
+      per-pixel one.
     * ``init``: starting waves; then no spectral initialisation, and waves are added only
       if ``n_waves`` asks for more. ``init="net"``: start from the waves of the wave network
       (:func:`jaxocean.nn.waves.predict` on the first ``config.frames`` frames: the slots
@@ -363,6 +376,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"n_waves must be a positive int or None; got {n_waves!r}")
     if noise is not None:
         check_values(np.asarray(noise) > 0, "noise must be > 0", noise)
+    if not (isinstance(noise_correlation, (int, float, np.floating, np.integer))
+            and math.isfinite(noise_correlation) and noise_correlation >= 0):
+        raise ValueError(f"noise_correlation must be a finite number of pixels >= 0; got {noise_correlation!r}")
+    if noise_correlation > 0 and noise is None:
+        raise ValueError("noise_correlation is the correlation of the stated noise: pass noise= too")
     if long_waves and solver != "structured":
         raise ValueError(f"long_waves=True (the long-wave band) needs solver='structured'; got {solver!r} "
                          "(pass long_waves=False to refine with a registry solver)")
@@ -473,6 +491,18 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
+    def cells_of(w: Waves) -> np.ndarray:
+        # pixels per independent observation of each wave (ones: white noise)
+        if not noise_correlation > 0 or w.omega.shape[0] == 0:
+            return np.ones(w.omega.shape[0])
+        return noise_cells(w, camera, float(noise_correlation), n_max=n_max)
+
+    def discount_of(w: Waves, y, jtj, n_pad, m):
+        n = w.omega.shape[0]
+        if not noise_correlation > 0 or n == 0:
+            return 0.0
+        return _correlated_discount(y, jtj, jnp.arange(n_pad) < n + n_band, n, cells_of(w), m)
+
     def rss_of(out):
         # out.loss = 0.5 |r|^2 with residuals scaled by 1/sqrt(P): the RSS is loss * m
         return float(out.loss) * m_obs
@@ -483,7 +513,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             wt = valid_weights(normals[-1:], camera) * pred.converged
             d = pred.normal[..., :2] - normals[-1:, ..., :2]
             return float(jnp.sum(d * d * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
-        return _criterion_value(criterion, rss_of(out), m_obs, w.omega.shape[0], noise, floor2)
+        n_pad = out.y.shape[0] // 4
+        return _criterion_value(criterion, rss_of(out), m_obs, w.omega.shape[0], noise, floor2,
+                                discount_of(w, out.y, out.jtj, n_pad, m_obs))
 
     # ---- start
     empty = Waves(*(jnp.zeros(0, dtype),) * 4)
@@ -588,7 +620,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         rss_cur = float(jnp.sum(smp.sw ** 2 * jnp.sum(smp.target ** 2, -1)))  # slope-space residual
         sig2 = max(rss_cur / m_obs, floor2) if noise is None else float(noise) ** 2
         pen = 8.0 if criterion == "aic" else 4.0 * math.log(m_obs)
-        e_ref = np.where((e_all >= pen * sig2) | (n_waves is not None), e_ref, -np.inf)
+        # with correlated noise each candidate pays at its own noise level
+        cand_cells = cells_of(Waves(jnp.zeros(n_cand, dtype), jnp.asarray(np.maximum(r_om, 1e-3), dtype),
+                                    jnp.asarray(r_th, dtype), jnp.zeros(n_cand, dtype)))
+        e_ref = np.where((e_all >= pen * sig2 * cand_cells) | (n_waves is not None), e_ref, -np.inf)
         kr = _kvec(r_om, r_th)
         k_old = _kvec(current.omega, current.theta) if n_cur else np.zeros((0, 2))
         n_add = min(cur_batch, limit - n_cur)
@@ -654,7 +689,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         a_j, b_j, part = a_j[:ch.size], b_j[:ch.size], part[:ch.size] * (e_all[ch] / np.maximum(e_ref[ch], 1e-300))
         if n_waves is None:
             part = np.where(np.isfinite(part), part, 0.0)
-            ok = part >= pen * sig2
+            ok = part >= pen * sig2 * cand_cells[ch]
             if not ok.any():
                 ok = part >= part.max()
             ch, a_j, b_j = ch[ok], a_j[ok], b_j[ok]
@@ -749,9 +784,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     m_all = 2.0 * float(jnp.sum(valid_weights(normals, camera)))
 
-    def crit(fit_, n):
+    def crit(fit_, w):
         return _criterion_value(criterion if criterion != "holdout" else "bic", float(fit_["half"]) * m_all, m_all,
-                                n, noise, floor2)
+                                w.omega.shape[0], noise, floor2,
+                                discount_of(w, fit_["y"], fit_["jtj"], fit_["n_pad"], m_all))
 
     update_surface(current, band, rss_now if math.isfinite(rss_now) else None)
     best = final_fit(current, band)
@@ -760,14 +796,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         for _ in range(2):
             n_cur = current.omega.shape[0]
             keep = _wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
-                              criterion, noise, floor2)[:n_cur]
+                              criterion, noise, floor2, cells_of(current))[:n_cur]
             if keep.all() or keep.sum() == 0:
                 break
             fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
             pruned = jax.tree.map(lambda x: x[np.nonzero(keep)[0]], fitted)
             trial = final_fit(pruned, best["band"])
             total_steps += int(trial["steps"])
-            better = crit(trial, pruned.omega.shape[0]) <= crit(best, n_cur)
+            better = crit(trial, pruned) <= crit(best, current)
             if verbose:
                 print(f"  pruning {int((~keep).sum())} of {n_cur} waves (Wald statistic below the penalty): "
                       f"{'kept' if better else 'reverted'}", flush=True)
@@ -781,6 +817,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                         hist if history else None, rw, n_min, n_max, t0, state["refine"])
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
+    if noise_correlation > 0:
+        # each wave's estimate is as uncertain as the noise in its band of the spectrum
+        root = jnp.asarray(np.sqrt(cells_of(result.waves)), dtype)
+        result = result._replace(uncertainty=Waves(*(u * root for u in result.uncertainty)))
     # the loop ran into the cap, not into the criterion: the count was not selected
     capped = n_waves is None and selecting and n_fit >= max_waves
     # success is explaining the data to their noise: converged is not enough (measured: one
@@ -869,17 +909,14 @@ def _nnls_tail(w: Waves, roughness, camera, n_min, n_max, dtype, n_virtual=24):
     return jnp.asarray(np.where(rows, tail, 0.0), dtype)
 
 
-def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2):
-    """Keep a wave when deleting it (a = b = 0) would cost more than the criterion's penalty."""
-    n = active.shape[0]
-    p = 4 * n
+def _deletion_cost(y, jtj, active, n):
+    """``(n,)``: the increase of ``|r|^2`` (the solver's scaled residual) that deleting each
+    of the first ``n`` waves (``a = b = 0``, the rest refitted) would cost, to second order:
+    ``x^T cov_xx^-1 x`` with ``x = (a, b)`` and ``cov = (J^T J)^-1`` over every parameter
+    (NaN where the solve fails, 0 for inactive waves)."""
+    n_all = active.shape[0]
+    p = 4 * n_all
     act = np.asarray(active)
-    m = n_obs
-    # residual variance in the solver's units (residuals scaled by 1/sqrt(P), P = m / 2)
-    sigma2 = max(2.0 * float(half) / max(m - 4 * act.sum(), 1.0), floor2 / (m / 2.0))
-    if noise is not None:
-        sigma2 = float(noise) ** 2 / (m / 2.0)
-    sigma2 = max(sigma2, 1e-300)
     A = np.asarray(jtj, np.float64)
     # a column without information (omega and theta of a wave whose amplitude went to 0)
     # is scaled as an identity row instead of dividing by its zero norm
@@ -887,21 +924,53 @@ def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2):
     d = np.where(has, np.sqrt(np.where(has, np.diag(A), 1.0)), 1.0)
     scaled = np.where(has[:, None] & has[None, :], A / d[:, None] / d[None, :], np.eye(p))
     cov = np.linalg.pinv(scaled + 1e-9 * np.eye(p)) / d[:, None] / d[None, :]
-    yy = np.asarray(y, np.float64).reshape(4, n)
-    pen = 8.0 if criterion == "aic" else 4.0 * math.log(m)
-    keep = np.ones(n, bool)
-    for i in np.nonzero(act)[0]:
-        idx = [i, n + i]
+    yy = np.asarray(y, np.float64).reshape(4, n_all)
+    cost = np.zeros(n)
+    for i in np.nonzero(act[:n])[0]:
+        idx = [i, n_all + i]
         C = cov[np.ix_(idx, idx)]
         x = yy[:2, i]
         try:
-            wald = float(x @ np.linalg.solve(C, x))
+            cost[i] = float(x @ np.linalg.solve(C, x))
         except np.linalg.LinAlgError:
-            continue
-        # x^T cov^-1 x is the RSS increase of deleting the wave; in units of sigma^2 it is
-        # the Wald statistic, compared with the criterion's penalty for 4 parameters
-        keep[i] = wald / sigma2 >= pen or not np.isfinite(wald)
-    return keep
+            cost[i] = np.nan
+    return cost
+
+
+def _correlated_discount(y, jtj, active, n, cells, m):
+    """The RSS a model's first ``n`` waves explain that noise correlated across the image
+    could have made: ``sum_i D_i (1 - 1 / c_i)`` with ``D_i`` the RSS increase of deleting
+    wave ``i`` (:func:`_deletion_cost`, residuals scaled by ``1/sqrt(P)``, ``P = m / 2``) and
+    ``c_i`` its pixels per independent observation (:func:`noise_cells`). Added to the RSS it
+    makes each wave's chi^2 gain ``D_i / (c_i sigma^2)``: the generalised least-squares
+    chi^2 of waves that each sit in one band of the noise's spectrum. 0 when every
+    ``c_i = 1`` (white noise)."""
+    cells = np.asarray(cells, np.float64)[:n]
+    if n == 0 or np.all(cells <= 1.0):
+        return 0.0
+    cost = np.nan_to_num(_deletion_cost(y, jtj, active, n), nan=0.0) * (m / 2.0)
+    return float(np.sum(np.maximum(cost, 0.0) * (1.0 - 1.0 / cells)))
+
+
+def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2, cells=None):
+    """Keep a wave when deleting it (a = b = 0) would cost more than the criterion's penalty
+    (with correlated noise, in units of each wave's noise: ``cells`` times the per-pixel
+    variance)."""
+    n = active.shape[0]
+    act = np.asarray(active)
+    m = n_obs
+    # residual variance in the solver's units (residuals scaled by 1/sqrt(P), P = m / 2)
+    sigma2 = max(2.0 * float(half) / max(m - 4 * act.sum(), 1.0), floor2 / (m / 2.0))
+    if noise is not None:
+        sigma2 = float(noise) ** 2 / (m / 2.0)
+    sigma2 = max(sigma2, 1e-300)
+    cells = np.ones(n) if cells is None else np.concatenate([np.asarray(cells, np.float64),
+                                                              np.ones(max(n - len(cells), 0))])[:n]
+    # x^T cov^-1 x is the RSS increase of deleting the wave; in units of sigma^2 it is the
+    # Wald statistic, compared with the criterion's penalty for 4 parameters
+    wald = _deletion_cost(y, jtj, active, n)
+    pen = 8.0 if criterion == "aic" else 4.0 * math.log(m)
+    return ~np.isfinite(wald) | (wald / (sigma2 * cells) >= pen) | ~act
 
 
 def _sorted(result: WaveFit, n: int) -> WaveFit:
