@@ -170,3 +170,26 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     g = render.geometry(wfit.waves, seq.camera, 0.0)
     sea = np.asarray(g.mask)
     np.testing.assert_allclose(np.asarray(g.normal)[sea][:, 2], 1.0, atol=1e-6)
+
+
+def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_path, monkeypatch):
+    # a wave fit that succeeds on the geometry: the stage succeeds when the images carry
+    # no space-time evidence either way (too few frames), and fails, saying why, when they
+    # show no dispersive waves
+    from jaxocean import fit
+
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    truth = jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0])
+    geos = [render.geometry(truth, seq.camera, t) for t in seq.times]
+    stack = SimpleNamespace(normal=jnp.stack([g.normal for g in geos]), roughness=jnp.stack([g.roughness for g in geos]))
+    good = fit.refine(stack.normal, None, seq.camera, seq.times, truth, max_steps=0)
+    good = good._replace(success=jnp.asarray(True), determined=np.ones(2, bool), surface="rows")
+    monkeypatch.setattr(fit, "waves", lambda *a, **k: good)
+    assert rc.space_time_evidence(seq) is None  # 2 frames: no evidence, not negative evidence
+    _, rep = rc.waves_stage(seq, stack, frames=None)
+    assert rep.success and rep.details["images_show_dispersion"] is None
+    flat_images = SimpleNamespace(success=False, message="ratio 1.05 (success needs > 2)")
+    _, rep = rc.waves_stage(seq, stack, frames=None, evidence=flat_images)
+    assert not rep.success and rep.details["images_show_dispersion"] is False
+    assert "show no dispersive waves" in rep.message and "ratio 1.05" in rep.message
