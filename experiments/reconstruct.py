@@ -64,6 +64,9 @@ def _wave_scores(fitted, truth, camera) -> dict:
 
     keep = np.asarray(fit.resolvable(truth, camera))
     true_res = type(truth)(*(np.asarray(x)[keep] for x in truth))
+    # a wave of zero amplitude is no wave (the flat sea a stage hands on when it found none)
+    real = np.asarray(fitted.amplitude) > 0
+    fitted = type(fitted)(*(np.asarray(x)[real] for x in fitted))
     m = fit.match(fitted, true_res)
     n = int(m.true_index.size)
     err = m.abs_error

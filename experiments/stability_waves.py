@@ -62,12 +62,12 @@ def add_noise(normals, sigma, seed):
     return n / jnp.linalg.norm(n, axis=-1, keepdims=True)
 
 
-def score(truth, camera, normals, rough, times, noise=None, heights=True, **fit_kw):
+def score(truth, camera, normals, rough, times, noise=None, heights=True):
     ok = np.asarray(fw.resolvable(truth, camera))
     visible = jax.tree.map(lambda x: x[ok], truth)
     t0 = time.perf_counter()
     try:
-        r = fit.waves(normals, rough, camera, times, noise=noise, heights=heights, **fit_kw)
+        r = fit.waves(normals, rough, camera, times, noise=noise, heights=heights)
     except InvalidValueError as exc:  # e.g. "no wave found": a measured failure, not a crash
         return dict(n_true=int(ok.size), n_resolvable=int(ok.sum()), n_fitted=0, found=0.0, spurious=0,
                     success=False, mae_amplitude=float("nan"), mae_omega=float("nan"), mae_theta=float("nan"),

@@ -589,7 +589,10 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     def run():
         check = space_time_evidence(seq) if isinstance(evidence, str) and evidence == "auto" else evidence
         state = fit.sea_state(waves)
-        n_reliable = int(np.sum(fit.resolvable(waves, seq.camera)))
+        # a flat sea handed on (no wave found) is no sea state: its one zero-amplitude wave
+        # has a period, but no wave of the sea
+        no_waves = not bool(np.any(np.asarray(waves.amplitude) > 0))
+        n_reliable = 0 if no_waves else int(np.sum(fit.resolvable(waves, seq.camera)))
         sf = None
         hs_std_waves = _hs_uncertainty(waves, std)
         nan = math.nan
@@ -601,6 +604,10 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             # the spectrum fit's scatter and the waves' own amplitude errors, independent
             hs_std = math.hypot(sf.hs_std, hs_std_waves) if math.isfinite(hs_std_waves) else sf.hs_std
             tp_std, theta_std, spread_std, gam_std = sf.tp_std, sf.theta_std, sf.s_max_std, sf.gamma_std
+        elif no_waves:
+            hs, tp, theta, spread, gam = nan, nan, nan, nan, nan
+            observed = False
+            hs_std, tp_std, theta_std, spread_std, gam_std = nan, nan, nan, nan, nan
         else:  # too few resolved waves for a spectrum: the waves' own bulk numbers, marked as bounds
             hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), nan, nan
             observed = False
@@ -611,10 +618,12 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
             spreading_s_max=spread, spreading_std=spread_std, gamma=gam, gamma_std=gam_std, peak_observed=observed,
             bound=None if observed else ("Hs and Tp are bounds: the spectral peak lies outside the observed band"
-                                         if sf is not None else "Hs and Tp are those of the fitted waves alone "
+                                         if sf is not None else "no wave was found: no sea state" if no_waves
+                                         else "Hs and Tp are those of the fitted waves alone "
                                          "(too few resolved waves for a spectrum)"),
             omega_band=None if sf is None else [float(x) for x in sf.omega_band],
-            waves_hs_m=float(state.hs), waves_tp_s=float(state.tp), resolved_waves=n_reliable,
+            waves_hs_m=nan if no_waves else float(state.hs), waves_tp_s=nan if no_waves else float(state.tp),
+            resolved_waves=n_reliable,
             mean_square_slope=sum(_mean_square_slopes(geometry)),
             spectrum_success=sf is not None and bool(sf.success),
             spectrum_misfit=None if sf is None else float(sf.misfit),

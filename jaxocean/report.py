@@ -98,11 +98,17 @@ def _sea_figure(path, result):
     waves = result.sea["waves"]
     sfit = result.sea["spectrum_fit"]
     h, w, th = (np.asarray(x, np.float64) for x in (waves.amplitude, waves.omega, waves.theta))
+    # a flat sea handed on (no wave found) is drawn as no wave, not as its zero-amplitude stand-in
+    real = h > 0
+    h, w, th = h[real], w[real], th[real]
     fig = plt.figure(figsize=(10, 4))
     ax = fig.add_subplot(1, 2, 1)
-    ax.stem(w, h, basefmt=" ")
+    if real.any():
+        ax.stem(w, h, basefmt=" ")
     ax.set_xlabel("frequency omega [rad/s]")
     ax.set_ylabel("amplitude h [m]", color="C0")
+    if not real.any():
+        ax.text(0.5, 0.5, "no wave found", ha="center", va="center", transform=ax.transAxes)
     if sfit is not None:
         om = np.linspace(max(0.2, 0.5 * w.min()), 1.5 * w.max(), 200)
         ax2 = ax.twinx()
@@ -117,7 +123,7 @@ def _sea_figure(path, result):
     if compass:
         pa.set_theta_zero_location("N")
         pa.set_theta_direction(-1)
-    pa.scatter(angles, 2 * np.pi / w, s=20 + 400 * h / max(h.max(), 1e-9), alpha=0.6)
+    pa.scatter(angles, 2 * np.pi / w, s=20 + 400 * h / max(h.max(initial=0.0), 1e-9), alpha=0.6)
     pa.set_title("direction of travel (radius: period [s])" + (", from north" if compass else ", from +x"))
     fig.tight_layout()
     return plots.save_figure(fig, path)

@@ -170,6 +170,11 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     g = render.geometry(wfit.waves, seq.camera, 0.0)
     sea = np.asarray(g.mask)
     np.testing.assert_allclose(np.asarray(g.normal)[sea][:, 2], 1.0, atol=1e-6)
+    # no wave, no sea state: the flat sea's one zero-amplitude wave lends it no period
+    flat = SimpleNamespace(normal=flat.normal, roughness=flat.roughness, mask=jnp.ones(shape, bool))
+    (sea_state, _, _), rep = rc.sea_stage(seq, wfit.waves, flat, waves_ok=False, evidence=None)
+    assert not rep.success and "no wave was found" in sea_state["bound"]
+    assert all(math.isnan(sea_state[k]) for k in ("hs_m", "tp_s", "direction_deg", "waves_hs_m"))
 
 
 def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_path, monkeypatch):
@@ -193,3 +198,13 @@ def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_pat
     _, rep = rc.waves_stage(seq, stack, frames=None, evidence=flat_images)
     assert not rep.success and rep.details["images_show_dispersion"] is False
     assert "show no dispersive waves" in rep.message and "ratio 1.05" in rep.message
+
+
+def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
+    # the flat sea a failed wave stage hands on: no stem at its zero-amplitude stand-in
+    from jaxocean import report
+
+    flat = SimpleNamespace(sea={"waves": jo.make_waves([0.0], [1.0], [0.0]), "spectrum_fit": None},
+                           sequence=SimpleNamespace(compass=True))
+    path = report._sea_figure(tmp_path / "sea.png", flat)
+    assert Path(path).stat().st_size > 0
