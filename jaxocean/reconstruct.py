@@ -94,6 +94,9 @@ GEOMETRY_NOISE = 0.092
 #: ``noise_correlation``): taken as independent, smooth errors pay the order selection's
 #: penalty over many pixels and become waves
 GEOMETRY_CORRELATION = 0.125
+#: how far [factor] the wave stage's peak period may lie from the images' own (space-time
+#: evidence) for the images to confirm the waves
+PEAK_PERIOD_FACTOR = 2.0
 
 
 class StageReport(NamedTuple):
@@ -450,7 +453,10 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
     ``"auto"`` to compute it): the fit tests the waves against the network's geometry at
     the network's *average* error, and where the network is far worse than that (measured:
     a rough scene, 0.29 rad against 0.115) waves that explain its geometry are not in the
-    sea. Images with no energy on the dispersion shell cannot confirm them.
+    sea. Images with no energy on the dispersion shell cannot confirm them, nor can images
+    whose peak period is more than ``PEAK_PERIOD_FACTOR`` (2) from the waves' (measured: one
+    17 s wave "explaining" a network's geometry of a 5.5 s sea whose images peak at 2.8 s
+    within their band).
     ``init``: starting :class:`Waves` (e.g. a wave network's answer), else the fit's
     spectral start."""
     from jaxocean import fit
@@ -483,6 +489,19 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
         if not confirmed:
             why.append("the images show no dispersive waves to confirm them (space-time evidence: "
                        f"{check.message})")
+        elif check is not None:
+            # the waves must put their peak where the images do: within a factor of
+            # PEAK_PERIOD_FACTOR of the images' peak period (only the lower side where that
+            # peak sits at the band's long-wave edge, and the sea's may be longer)
+            tp_fit = float(fit.sea_state(result.waves).tp)
+            tp_img = float(check.peak_period_s)
+            low, high = tp_img / PEAK_PERIOD_FACTOR, (math.inf if check.peak_at_band_edge
+                                                      else tp_img * PEAK_PERIOD_FACTOR)
+            details["peak_period_s"] = tp_fit
+            if not low <= tp_fit <= high:
+                confirmed = False
+                why.append(f"the waves' peak period {tp_fit:.3g} s is not the images' ({tp_img:.3g} s, "
+                           f"space-time evidence)")
         # a fit to noisy geometry can explain the noise with waves too steep to exist (looping
         # crests, k h > 1): they are reported and capped so that the later stages can render
         waves, capped = _cap_steepness(result.waves, why)

@@ -198,6 +198,19 @@ def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_pat
     _, rep = rc.waves_stage(seq, stack, frames=None, evidence=flat_images)
     assert not rep.success and rep.details["images_show_dispersion"] is False
     assert "show no dispersive waves" in rep.message and "ratio 1.05" in rep.message
+    # images that show waves confirm them only where they peak near the waves' peak period
+    tp = float(fit.sea_state(truth).tp)
+
+    def images(period, edge):
+        return SimpleNamespace(success=True, message="dispersive", peak_period_s=period, peak_at_band_edge=edge)
+
+    assert rc.waves_stage(seq, stack, frames=None, evidence=images(1.2 * tp, False))[1].success
+    _, rep = rc.waves_stage(seq, stack, frames=None, evidence=images(3.0 * tp, False))
+    assert not rep.success and "is not the images'" in rep.message
+    assert rep.details["peak_period_s"] == pytest.approx(tp)
+    # a peak at the band's long-wave edge bounds the sea's from below only
+    assert rc.waves_stage(seq, stack, frames=None, evidence=images(0.3 * tp, True))[1].success
+    assert not rc.waves_stage(seq, stack, frames=None, evidence=images(3.0 * tp, True))[1].success
 
 
 def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
