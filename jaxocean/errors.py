@@ -11,10 +11,12 @@
 
 from __future__ import annotations
 
+import math
+
 import jax
 import numpy as np
 
-__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite"]
+__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite", "check_nonnegative_number"]
 
 
 class InvalidValueError(ValueError):
@@ -51,3 +53,11 @@ def check_finite(x, name: str) -> None:
     if not np.all(np.isfinite(arr)):
         n = int(np.size(arr) - np.isfinite(arr).sum())
         raise InvalidValueError(f"{name} contains {n} NaN/inf value(s) of {arr.size}")
+
+
+def check_nonnegative_number(value, message: str) -> None:
+    """Raise ``ValueError(message + "; got " + repr(value))`` unless ``value`` is a finite real
+    scalar (Python or NumPy) ``>= 0``: a setting, not data (no arrays, never traced)."""
+    if not (isinstance(value, (int, float, np.floating, np.integer))
+            and math.isfinite(value) and value >= 0):
+        raise ValueError(f"{message}; got {value!r}")

@@ -441,6 +441,12 @@ def space_time_evidence(seq: Sequence):
     return spacetime.dispersion_check(images, camera, seq.times, mask=usable)
 
 
+def _evidence_of(seq: Sequence, evidence):
+    """A stage's ``evidence`` argument: ``"auto"`` computes :func:`space_time_evidence`,
+    anything else (a check, or None for none) is taken as given."""
+    return space_time_evidence(seq) if isinstance(evidence, str) and evidence == "auto" else evidence
+
+
 def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: int = 24, init=None,
                 noise: float = GEOMETRY_NOISE, correlation: float = GEOMETRY_CORRELATION, evidence="auto"):
     """Stage 4: the component waves behind the geometry sequence (``frames`` of them, spread
@@ -464,7 +470,8 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
     idx = _spread(len(seq.times), frames)
 
     def run():
-        check = space_time_evidence(seq) if isinstance(evidence, str) and evidence == "auto" else evidence
+        check = _evidence_of(seq, evidence)
+        shows_dispersion = None if check is None else bool(check.success)
         kw = {} if init is None else dict(init=init)
         length = float(correlation) * seq.camera.resolution[1]
         try:
@@ -475,7 +482,7 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
             flat = _flat_sea_fit(geometry.normal[idx], seq.camera, seq.times[idx])
             details = dict(n_waves=0, frames=len(idx), normal_error_rad=float(flat.normal_error),
                            normal_noise_rad=float(noise), normal_correlation_px=length, determined=0, capped_waves=0,
-                           surface="rows", images_show_dispersion=None if check is None else bool(check.success))
+                           surface="rows", images_show_dispersion=shows_dispersion)
             return flat, False, str(error), details
         n = int(result.n_waves)
         details = dict(n_waves=n, frames=len(idx), normal_error_rad=float(result.normal_error),
@@ -484,8 +491,8 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
                        surface=result.surface)
         why = [] if result.success else [f"stopped at the cap of {max_waves} waves" if n >= max_waves
                                          else "the waves do not explain the geometry within its noise"]
-        confirmed = check is None or bool(check.success)
-        details["images_show_dispersion"] = None if check is None else bool(check.success)
+        confirmed = shows_dispersion is not False
+        details["images_show_dispersion"] = shows_dispersion
         if not confirmed:
             why.append("the images show no dispersive waves to confirm them (space-time evidence: "
                        f"{check.message})")
@@ -606,7 +613,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     min_frames = spacetime.MIN_FRAMES
 
     def run():
-        check = space_time_evidence(seq) if isinstance(evidence, str) and evidence == "auto" else evidence
+        check = _evidence_of(seq, evidence)
         state = fit.sea_state(waves)
         # a flat sea handed on (no wave found) is no sea state: its one zero-amplitude wave
         # has a period, but no wave of the sea

@@ -141,7 +141,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import angle_between
-from jaxocean.errors import is_concrete
+from jaxocean.errors import check_nonnegative_number, is_concrete
 from jaxocean.files import json_safe
 from jaxocean.fit import _geometry_error as geometry_error
 from jaxocean.fit import _image_inputs as inp
@@ -678,9 +678,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer))
                                   and math.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
-    if not (isinstance(normal_correlation, (int, float, np.floating, np.integer))
-            and math.isfinite(normal_correlation) and normal_correlation >= 0):
-        raise ValueError(f"normal_correlation must be a finite number of pixels >= 0; got {normal_correlation!r}")
+    check_nonnegative_number(normal_correlation, "normal_correlation must be a finite number of pixels >= 0")
     if normal_correlation > 0 and normal_noise is None:
         raise ValueError("normal_correlation is the correlation of normal_noise: pass normal_noise= too")
     if not isinstance(grid, int) or grid < 0 or not isinstance(n_starts, int) or n_starts < 1:

@@ -22,7 +22,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean._math import angle_between, sincos, smoothstep
-from jaxocean.errors import InvalidValueError, check_values, is_concrete
+from jaxocean.errors import InvalidValueError, check_nonnegative_number, check_values, is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
 from jaxocean.fit.waves._lm import (HEIGHT_WEIGHT, NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj,
@@ -269,7 +269,8 @@ def _kvec(om, th):
 def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init: Waves | str | None = None,
           net=None, net_threshold: float = 0.5,
           solver: str = "structured", max_waves: int = 96, criterion: str = "bic", noise=None,
-          noise_floor=None, noise_correlation: float = 0.0, batch: int = 12, inner_steps: int = 8, max_steps: int = 100, rtol=1e-6, atol=None,
+          noise_floor=None, noise_correlation: float = 0.0, batch: int = 12, inner_steps: int = 8,
+          max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
           surface: str = "auto", heights: bool | None = None, n_min=hierarchy.DEFAULT_N_MIN,
@@ -376,9 +377,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"n_waves must be a positive int or None; got {n_waves!r}")
     if noise is not None:
         check_values(np.asarray(noise) > 0, "noise must be > 0", noise)
-    if not (isinstance(noise_correlation, (int, float, np.floating, np.integer))
-            and math.isfinite(noise_correlation) and noise_correlation >= 0):
-        raise ValueError(f"noise_correlation must be a finite number of pixels >= 0; got {noise_correlation!r}")
+    check_nonnegative_number(noise_correlation, "noise_correlation must be a finite number of pixels >= 0")
     if noise_correlation > 0 and noise is None:
         raise ValueError("noise_correlation is the correlation of the stated noise: pass noise= too")
     if long_waves and solver != "structured":
