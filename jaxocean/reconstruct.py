@@ -57,7 +57,7 @@ from jaxocean.io.images import VIDEO_SUFFIXES
 from jaxocean.waves import Waves, wavenumber
 
 __all__ = ["STAGES", "StageReport", "Sequence", "Reconstruction", "load_sequence", "sea_view", "geometry_stage",
-           "space_time_evidence",
+           "space_time_evidence", "geometry_sea_spectrum",
            "lighting_stage", "waves_stage", "photometric_stage", "sea_stage", "outlook_stage", "reconstruct",
            "result_dict", "direction_deg"]
 
@@ -607,13 +607,22 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     computed from the images alone (sequences of at least ``spacetime.MIN_FRAMES`` frames).
     Success: the spectrum fit succeeded, the waves before it did (``waves_ok``) and the
     images show dispersive waves (when the check could run). ``evidence``: the check
-    (:func:`space_time_evidence`) when already computed, else ``"auto"``."""
+    (:func:`space_time_evidence`) when already computed, else ``"auto"``.
+
+    The geometry's own space-time spectrum (:func:`geometry_sea_spectrum`) is reported
+    beside (``geometry_spectrum``). Where the waves give no sea state (no wave confirmed, or
+    too few for a spectrum) it gives the headline numbers instead (``source``): the Hs of
+    the band the view resolves (a lower bound on the sea's), its peak period (a lower bound
+    where the peak sits at the band's long-wave edge) and the mean direction; success then
+    needs the images' dispersion check and the geometry spectrum's own (its off-shell floor
+    below half of its shell power)."""
     from jaxocean import fit, spacetime
 
     min_frames = spacetime.MIN_FRAMES
 
     def run():
         check = _evidence_of(seq, evidence)
+        geo_sea = geometry_sea_spectrum(seq, geometry, check)
         state = fit.sea_state(waves)
         # a flat sea handed on (no wave found) is no sea state: its one zero-amplitude wave
         # has a period, but no wave of the sea
@@ -622,7 +631,18 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         sf = None
         hs_std_waves = _hs_uncertainty(waves, std)
         nan = math.nan
-        if n_reliable >= fit.spectrum_fit.MIN_WAVES:
+        # the geometry's spectrum speaks where the waves cannot: none confirmed, or too few
+        from_geometry = (geo_sea is not None and geo_sea.success and check is not None and bool(check.success)
+                         and (not waves_ok or n_reliable < fit.spectrum_fit.MIN_WAVES))
+        if from_geometry:
+            hs, tp, theta, spread, gam = geo_sea.hs_band_m, geo_sea.peak_period_s, geo_sea.direction, nan, nan
+            observed = not geo_sea.peak_at_band_edge
+            if not observed and math.isfinite(check.peak_period_s):
+                # both peaks bound Tp from below (the images' is the slope's, whose peak lies at
+                # or above the elevation's frequency): the longer bound holds
+                tp = max(tp, float(check.peak_period_s))
+            hs_std, tp_std, theta_std, spread_std, gam_std = geo_sea.hs_band_std_m, nan, geo_sea.direction_std, nan, nan
+        elif n_reliable >= fit.spectrum_fit.MIN_WAVES:
             sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
             s = sf.spectrum
             hs, tp, theta, spread, gam = (float(x) for x in (s.hs, s.tp, s.theta_mean, s.s_max, s.gamma))
@@ -643,16 +663,19 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             direction_deg=direction_deg(theta, seq.compass), direction_std_deg=math.degrees(theta_std),
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
             spreading_s_max=spread, spreading_std=spread_std, gamma=gam, gamma_std=gam_std, peak_observed=observed,
-            bound=None if observed else ("Hs and Tp are bounds: the spectral peak lies outside the observed band"
-                                         if sf is not None else "no wave was found: no sea state" if no_waves
-                                         else "Hs and Tp are those of the fitted waves alone "
-                                         "(too few resolved waves for a spectrum)"),
+            source=("space-time spectrum of the geometry" if from_geometry else "spectrum fit of the waves"
+                    if sf is not None else None if no_waves else "the fitted waves"),
+            bound=(_geometry_bound(geo_sea) if from_geometry else None if observed
+                   else "Hs and Tp are bounds: the spectral peak lies outside the observed band"
+                   if sf is not None else "no wave was found: no sea state" if no_waves
+                   else "Hs and Tp are those of the fitted waves alone (too few resolved waves for a spectrum)"),
             omega_band=None if sf is None else [float(x) for x in sf.omega_band],
             waves_hs_m=nan if no_waves else float(state.hs), waves_tp_s=nan if no_waves else float(state.tp),
             resolved_waves=n_reliable,
             mean_square_slope=sum(_mean_square_slopes(geometry)),
             spectrum_success=sf is not None and bool(sf.success),
             spectrum_misfit=None if sf is None else float(sf.misfit),
+            geometry_spectrum=None if geo_sea is None else _geometry_sea_dict(geo_sea, seq.compass),
             dispersion=None if check is None else _check_dict(check),
             dispersion_peak_period_s=None if check is None else float(check.peak_period_s),
             dispersion_direction_deg=None if check is None else direction_deg(float(check.peak_direction),
@@ -661,6 +684,11 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         # too short a sequence for the space-time check: the evidence is missing, not negative
         ok = sea["spectrum_success"] and (check is None or bool(check.success)) and waves_ok
         why = []
+        if from_geometry:
+            # the geometry's spectrum, confirmed by the images: its own test stands
+            return (sea, check, sf), True, geo_sea.message, sea
+        if geo_sea is not None and not geo_sea.success and (not waves_ok or sf is None):
+            why.append(geo_sea.message)
         if not waves_ok:
             why.append("the wave fit failed, so the spectrum describes waves that do not explain the data")
         if sf is None:
@@ -674,6 +702,40 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         return (sea, check, sf), ok, "; ".join(why), sea
 
     return _timed("spectrum", run)
+
+
+def geometry_sea_spectrum(seq: Sequence, geometry, check=None):
+    """:func:`jaxocean.spacetime.sea_spectrum` of the geometry sequence (every frame), with
+    the Doppler velocity of the images' dispersion check ``check`` where it succeeded; None
+    for a sequence shorter than ``spacetime.MIN_FRAMES``."""
+    from jaxocean import spacetime
+
+    if len(seq.times) < spacetime.MIN_FRAMES:
+        return None
+    current = tuple(check.current) if check is not None and check.success else (0.0, 0.0)
+    return spacetime.sea_spectrum(np.asarray(geometry.normal), seq.camera, seq.times,
+                                  mask=np.asarray(geometry.mask), current=current)
+
+
+def _geometry_bound(geo_sea) -> str:
+    longest = geo_sea.band_m[0]
+    if geo_sea.peak_at_band_edge:
+        return (f"Hs is that of the waves {longest:.3g}-{geo_sea.band_m[1]:.2g} m long the view resolves, a lower "
+                f"bound; Tp is a lower bound (the longer of the geometry's and the images' peak periods): the "
+                f"spectral peak lies beyond the band's longest waves")
+    return (f"Hs is that of the waves {longest:.3g}-{geo_sea.band_m[1]:.2g} m long the view resolves "
+            f"(a lower bound; the peak lies inside the band)")
+
+
+def _geometry_sea_dict(geo_sea, compass: bool) -> dict:
+    return dict(hs_band_m=geo_sea.hs_band_m, hs_band_std_m=geo_sea.hs_band_std_m,
+                peak_period_s=geo_sea.peak_period_s, peak_at_band_edge=geo_sea.peak_at_band_edge,
+                direction_deg=direction_deg(geo_sea.direction, compass) if math.isfinite(geo_sea.direction) else None,
+                direction_std_deg=math.degrees(geo_sea.direction_std), spread_deg=math.degrees(geo_sea.spread),
+                tail_alpha=geo_sea.tail_alpha, floor_fraction=geo_sea.noise_fraction,
+                band_m=[float(x) for x in geo_sea.band_m], success=geo_sea.success, message=geo_sea.message,
+                k_rad_m=[float(x) for x in geo_sea.spectrum.get("k", [])],
+                elevation_m2=[float(x) for x in geo_sea.spectrum.get("elevation", [])])
 
 
 def _check_dict(check) -> dict:

@@ -29,6 +29,7 @@ import numpy as np
 from jaxocean import plots, render
 from jaxocean import spectrum as spec
 from jaxocean.files import atomic_write, write_json
+from jaxocean.waves import GRAVITY
 
 __all__ = ["write", "rerender"]
 
@@ -107,8 +108,15 @@ def _sea_figure(path, result):
         ax.stem(w, h, basefmt=" ")
     ax.set_xlabel("frequency omega [rad/s]")
     ax.set_ylabel("amplitude h [m]", color="C0")
+    geo = result.sea.get("geometry_spectrum") or {}
     if not real.any():
         ax.text(0.5, 0.5, "no wave found", ha="center", va="center", transform=ax.transAxes)
+        if geo.get("k_rad_m"):
+            # the geometry's own spectrum over the band, by frequency (omega = sqrt(g k))
+            om = np.sqrt(GRAVITY * np.asarray(geo["k_rad_m"]))
+            ax.twinx().step(om, geo["elevation_m2"], "C2", where="mid")
+            ax.set_xlim(0.0, 1.1 * om.max())
+            ax.set_title("no wave found; green: geometry's spectrum [m^2/bin]")
     if sfit is not None:
         om = np.linspace(max(0.2, 0.5 * w.min()), 1.5 * w.max(), 200)
         ax2 = ax.twinx()
@@ -116,7 +124,8 @@ def _sea_figure(path, result):
         ax2.set_ylabel("fitted JONSWAP S(omega) [m^2 s]", color="C1")
         lo, hi = sfit.omega_band
         ax.axvspan(lo, hi, color="0.9", zorder=-1)
-    ax.set_title(f"fitted waves ({len(h)}); grey: observed band")
+    if real.any() or not geo.get("k_rad_m"):
+        ax.set_title(f"fitted waves ({len(h)}); grey: observed band")
     pa = fig.add_subplot(1, 2, 2, projection="polar")
     compass = result.sequence.compass
     angles = (np.pi / 2 - th) if compass else th
@@ -124,6 +133,13 @@ def _sea_figure(path, result):
         pa.set_theta_zero_location("N")
         pa.set_theta_direction(-1)
     pa.scatter(angles, 2 * np.pi / w, s=20 + 400 * h / max(h.max(initial=0.0), 1e-9), alpha=0.6)
+    if not real.any() and geo.get("direction_deg") is not None:
+        # the geometry spectrum's mean direction (report convention) and its 1-sigma wedge
+        mean = np.radians(geo["direction_deg"])
+        sigma = np.radians(geo["direction_std_deg"])
+        period = geo["peak_period_s"]
+        pa.plot([mean, mean], [0.0, period], "C2", lw=2)
+        pa.fill_between(np.linspace(mean - sigma, mean + sigma, 30), 0.0, period, color="C2", alpha=0.2)
     pa.set_title("direction of travel (radius: period [s])" + (", from north" if compass else ", from +x"))
     fig.tight_layout()
     return plots.save_figure(fig, path)
@@ -173,17 +189,23 @@ def _html(data, figures) -> str:
         f"<tr><td>{html.escape(n)}</td><td class={'ok' if st['success'] else 'bad'}>"
         f"{'ok' if st['success'] else 'FAILED'}</td><td>{st['seconds']:.1f} s</td>"
         f"<td>{html.escape(_stage_note(st))}</td></tr>" for n, st in data["stages"].items())
-    bound = "" if s.get("peak_observed") else " (bound: the peak lies outside the observed band)"
+    bound = "" if s.get("peak_observed") and not s.get("bound") else (
+        f" ({html.escape(s['bound'])})" if s.get("bound") else " (bound: the peak lies outside the observed band)")
     if not s.get("success"):
         bound += " <b class=bad>(not a measurement: the spectrum stage failed)</b>"
     disp = s.get("dispersion") or {}
+    geo = s.get("geometry_spectrum") or {}
     headline = (f"<ul><li>Hs = {num(s.get('hs_m'))} m &plusmn; {num(s.get('hs_std_m'))}{bound}</li>"
                 f"<li>Tp = {num(s.get('tp_s'))} s &plusmn; {num(s.get('tp_std_s'))}{bound}</li>"
                 f"<li>mean direction of travel: {num(s.get('direction_deg'), '{:.0f}')} &plusmn; "
                 f"{num(s.get('direction_std_deg'), '{:.0f}')} deg "
                 f"({html.escape(s.get('direction_convention', ''))}); spreading s_max = "
                 f"{num(s.get('spreading_s_max'))} &plusmn; {num(s.get('spreading_std'))}</li>"
+                f"<li>source: {html.escape(s.get('source') or 'none')}</li>"
                 f"<li>mean square slope (geometry): {num(s.get('mean_square_slope'))}</li>"
+                + (f"<li>the geometry's space-time spectrum: {html.escape(geo['message'])}; mean direction "
+                   f"{num(geo.get('direction_deg'), '{:.0f}')} &plusmn; {num(geo.get('direction_std_deg'), '{:.0f}')} "
+                   f"deg</li>" if geo else "") +
                 f"<li>space-time spectrum: {num(disp.get('ratio'))} times more energy on the dispersion shell than "
                 f"without dispersion; its peak period {num(s.get('dispersion_peak_period_s'))} s, direction "
                 f"{num(s.get('dispersion_direction_deg'), '{:.0f}')} deg</li></ul>")

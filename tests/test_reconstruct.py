@@ -177,6 +177,43 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     assert all(math.isnan(sea_state[k]) for k in ("hs_m", "tp_s", "direction_deg", "waves_hs_m"))
 
 
+def test_the_geometry_spectrum_gives_the_sea_state_where_no_wave_was_confirmed(tmp_path):
+    # no wave confirmed, 16 s of geometry, images that show dispersion: the headline numbers
+    # come from the geometry's space-time spectrum, marked as what they are
+    files, scene_json, _, _ = _scene(tmp_path, res=64)
+    seq, _ = rc.load_sequence(files, scene_json, width=64, response="bruneton")
+    seq = seq._replace(times=np.arange(64) * 0.25)
+    truth = jo.make_waves([0.03, 0.02], [3.6, 4.4], [0.3, 1.1], [0.0, 1.0])  # 4.8 m and 3.2 m long
+    geos = [render.geometry(truth, seq.camera, t) for t in seq.times]
+    stack = SimpleNamespace(normal=np.stack([np.asarray(g.normal) for g in geos]),
+                            roughness=np.stack([np.asarray(g.roughness) for g in geos]),
+                            mask=np.stack([np.asarray(g.mask) for g in geos]))
+    flat = jo.make_waves([0.0], [1.0], [0.0])
+
+    def images(shows):
+        return SimpleNamespace(success=shows, message="stub", peak_period_s=2.0, peak_direction=0.5,
+                               peak_at_band_edge=True, current=np.zeros(2))
+
+    (sea, _, _), rep = rc.sea_stage(seq, flat, stack, waves_ok=False, evidence=images(True))
+    assert rep.success, rep.message
+    assert sea["source"] == "space-time spectrum of the geometry" and sea["geometry_spectrum"]["success"]
+    geo = sea["geometry_spectrum"]
+    hs_true = 4 * math.sqrt((0.03 ** 2 + 0.02 ** 2) / 2)  # both waves lie in the band
+    assert geo["band_m"][0] > 2 * math.pi * 9.81 / 3.6 ** 2 > 2 * math.pi * 9.81 / 4.4 ** 2 > geo["band_m"][1]
+    assert sea["hs_m"] == geo["hs_band_m"] and abs(sea["hs_m"] - hs_true) < 2 * sea["hs_std_m"]
+    # the energy-weighted direction of travel (library azimuth 0.55 rad), within its sigma
+    assert abs((sea["direction_deg"] - math.degrees(0.55) + 180) % 360 - 180) < sea["direction_std_deg"]
+    if geo["peak_at_band_edge"]:  # the longer of the two lower bounds on Tp
+        assert not sea["peak_observed"] and "lower bound" in sea["bound"]
+        assert sea["tp_s"] == max(geo["peak_period_s"], 2.0)
+    else:
+        assert sea["tp_s"] == pytest.approx(2 * math.pi / 3.6, rel=0.15)
+    # images that show no dispersion confirm nothing: no sea state
+    (sea, _, _), rep = rc.sea_stage(seq, flat, stack, waves_ok=False, evidence=images(False))
+    assert not rep.success and math.isnan(sea["hs_m"]) and sea["source"] is None
+    assert sea["geometry_spectrum"]["success"]  # reported beside, as evidence
+
+
 def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_path, monkeypatch):
     # a wave fit that succeeds on the geometry: the stage succeeds when the images carry
     # no space-time evidence either way (too few frames), and fails, saying why, when they
@@ -221,3 +258,8 @@ def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
                            sequence=SimpleNamespace(compass=True))
     path = report._sea_figure(tmp_path / "sea.png", flat)
     assert Path(path).stat().st_size > 0
+    # with the geometry's spectrum: its radial spectrum and its mean direction are drawn
+    flat.sea["geometry_spectrum"] = dict(k_rad_m=[0.5, 0.6, 0.7], elevation_m2=[1e-3, 5e-4, 2e-4],
+                                         direction_deg=150.0, direction_std_deg=30.0, peak_period_s=2.8)
+    path = report._sea_figure(tmp_path / "sea_geometry.png", flat)
+    assert Path(path).stat().st_size > Path(tmp_path / "sea.png").stat().st_size
