@@ -689,7 +689,8 @@ def cmd_demo(args):
               flush=True)
         summary["reconstruct"] = r = demo.reconstruct_stage(out, scene, images)
         print(f"  Hs {r['hs_m']:.2f} m (true {r['truth']['hs']:.2f}), Tp {r['tp_s']:.1f} s (true "
-              f"{r['truth']['tp']:.1f})\n  report:        {r['report']}\n  figure:        {r['figure']}")
+              f"{r['truth']['tp']:.1f})" + (f"; {r['bound']}" if r["bound"] else "")
+              + f"\n  report:        {r['report']}\n  figure:        {r['figure']}")
         write_json(out / "summary.json", summary)
     if "real" in stages:
         if args.real is None:
@@ -697,7 +698,8 @@ def cmd_demo(args):
         else:
             print(f"real: reconstruct on the real footage in {args.real} ...", flush=True)
             summary["real"] = r = demo.real_stage(out, Path(args.real))
-            print(f"  report:        {r['report']}")
+            print(f"  Hs {r['hs_m']:.2f} m, Tp {r['tp_s']:.1f} s, toward {r['direction_deg']:.0f} deg"
+                  + (f"; {r['bound']}" if r["bound"] else "") + f"\n  report:        {r['report']}")
             write_json(out / "summary.json", summary)
     return EXIT_OK
 

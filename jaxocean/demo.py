@@ -181,12 +181,13 @@ def reconstruct_stage(out: Path, scene, images) -> dict:
             zip(np.asarray(true_fc.image), outlook["forecast"])]
     path = plots.contact_sheet(out / "reconstruct_vs_truth.png", rows, col_titles=["truth", "reconstructed"],
                                row_titles=[f"+{t - float(seq.times[-1]):.0f} s" for t in outlook["times"]],
-                               title=f"forecast from 8-bit PNG frames: Hs {got['hs_m']:.2f} m (true "
-                                     f"{true_sea['hs']:.2f}), Tp {got['tp_s']:.1f} s (true {true_sea['tp']:.1f})")
+                               title=f"forecast from 8-bit PNG frames: Hs {got['hs_m']:.2f} m, Tp "
+                                     f"{got['tp_s']:.1f} s{'' if got['peak_observed'] else ' (bounds)'}; true "
+                                     f"{true_sea['hs']:.2f} m, {true_sea['tp']:.1f} s")
     return dict(stages={n: dict(success=r.success, seconds=r.seconds, message=r.message)
                         for n, r in result.stages.items()},
-                hs_m=got["hs_m"], tp_s=got["tp_s"], truth=true_sea, report=str(out / "reconstruct" / "report.html"),
-                figure=str(path))
+                hs_m=got["hs_m"], tp_s=got["tp_s"], source=got["source"], bound=got["bound"], truth=true_sea,
+                report=str(out / "reconstruct" / "report.html"), figure=str(path))
 
 
 def real_stage(out: Path, clip_dir: Path) -> dict:
@@ -198,4 +199,4 @@ def real_stage(out: Path, clip_dir: Path) -> dict:
     return dict(stages={n: dict(success=r.success, seconds=r.seconds, message=r.message)
                         for n, r in result.stages.items()},
                 hs_m=result.sea["hs_m"], tp_s=result.sea["tp_s"], direction_deg=result.sea["direction_deg"],
-                report=str(out / "real" / "report.html"))
+                source=result.sea["source"], bound=result.sea["bound"], report=str(out / "real" / "report.html"))

@@ -610,8 +610,8 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     (:func:`space_time_evidence`) when already computed, else ``"auto"``.
 
     The geometry's own space-time spectrum (:func:`geometry_sea_spectrum`) is reported
-    beside (``geometry_spectrum``). Where the waves give no sea state (no wave confirmed, or
-    too few for a spectrum) it gives the headline numbers instead (``source``): the Hs of
+    beside (``geometry_spectrum``). Where no wave is confirmed (``waves_ok`` False) it
+    gives the headline numbers instead (``source``): the Hs of
     the band the view resolves (a lower bound on the sea's), its peak period (a lower bound
     where the peak sits at the band's long-wave edge) and the mean direction; success then
     needs the images' dispersion check and the geometry spectrum's own (its off-shell floor
@@ -631,9 +631,9 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         sf = None
         hs_std_waves = _hs_uncertainty(waves, std)
         nan = math.nan
-        # the geometry's spectrum speaks where the waves cannot: none confirmed, or too few
+        # the geometry's spectrum speaks where the waves cannot: none confirmed
         from_geometry = (geo_sea is not None and geo_sea.success and check is not None and bool(check.success)
-                         and (not waves_ok or n_reliable < fit.spectrum_fit.MIN_WAVES))
+                         and not waves_ok)
         if from_geometry:
             hs, tp, theta, spread, gam = geo_sea.hs_band_m, geo_sea.peak_period_s, geo_sea.direction, nan, nan
             observed = not geo_sea.peak_at_band_edge
@@ -687,7 +687,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         if from_geometry:
             # the geometry's spectrum, confirmed by the images: its own test stands
             return (sea, check, sf), True, geo_sea.message, sea
-        if geo_sea is not None and not geo_sea.success and (not waves_ok or sf is None):
+        if geo_sea is not None and not geo_sea.success and not waves_ok:
             why.append(geo_sea.message)
         if not waves_ok:
             why.append("the wave fit failed, so the spectrum describes waves that do not explain the data")
