@@ -105,8 +105,8 @@ def waves_stage(out: Path, *, n_waves: int = 4, seed: int = 0, resolution: int =
     # fitted window by their frequency uncertainty)
     true_geo = fc.forecast(truth, f_times, camera, plan="auto").geometry
     model, sigma, window = waves_fit.forecast_model(result, camera, times)
-    path = render.full_plan(model.omega.shape[0], render.MAX_REFINE_ITERATIONS if result.surface == "hits" else 0)
-    fit_geo = fc.forecast(model, f_times, camera, plan=path, window=window, frequency_sigma=sigma).geometry
+    fit_geo = fc.forecast(model, f_times, camera, plan=waves_fit.forecast_plan(result, model.omega.shape[0]),
+                          window=window, frequency_sigma=sigma).geometry
     err = np.asarray(fc.geometry_error(fit_geo, true_geo).normal, float)
     rows = [[plots.normal_to_rgb(true_geo.normal[i], true_geo.mask[i]),
              plots.normal_to_rgb(fit_geo.normal[i], fit_geo.mask[i])] for i in range(len(forecast_frames))]

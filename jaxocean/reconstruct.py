@@ -756,13 +756,14 @@ def _mean_square_slopes(geometry) -> tuple:
 
 
 def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.0, ahead=(2.0, 10.0, 30.0),
-                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0), model=None):
+                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0), model=None, plan="rows"):
     """Stage 6b: forecast frames ``ahead`` seconds after the last observed frame, and the
     last frame re-rendered from a camera ``height_factor`` times as high and under a new sun
     (``sun_elevation``, from behind the camera; an overcast fit gets a sun 20 times its sky);
     linear images in the footage's units (times ``exposure``). ``model``: None (forecast
     ``waves`` as they are) or ``(waves, frequency_sigma, window)`` of
-    :func:`jaxocean.fit.waves.forecast_model`: the least-squares forecast of a wave fit."""
+    :func:`jaxocean.fit.waves.forecast_model`: the least-squares forecast of a wave fit,
+    drawn with ``plan`` (:func:`jaxocean.fit.waves.forecast_plan`: the fit's surface path)."""
     from jaxocean import fit
 
     def run():
@@ -771,7 +772,8 @@ def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.
         if model is None:
             fcast = fc.forecast(waves, times, seq.camera, lighting)
         else:
-            fcast = fc.forecast(model[0], times, seq.camera, lighting, window=model[2], frequency_sigma=model[1])
+            fcast = fc.forecast(model[0], times, seq.camera, lighting, window=model[2], frequency_sigma=model[1],
+                                plan=plan)
         light = lighting
         if float(np.max(np.asarray(lighting.sun_color))) <= 0:
             light = lighting._replace(sun_color=20.0 * jnp.asarray(lighting.sky_color))
@@ -849,17 +851,18 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     # measured of its frequency. Stage 4's waves come with its long-wave band; waves refined
     # against the images (stage 5, same order, no band) with stage 5's own `determined` and
     # stage 4's frequency uncertainties
-    model = None
+    model, plan = None, "rows"
     if int(wfit.n_waves) > 0 and wfit.determined is not None:
-        from jaxocean.fit.waves import forecast_model
+        from jaxocean.fit.waves import forecast_model, forecast_plan
 
         basis = wfit
         if refined:
             basis = wfit._replace(waves=photo.waves, long_waves=None,
                                   determined=wfit.determined if photo.determined is None else photo.determined)
         model = forecast_model(basis, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
+        plan = forecast_plan(basis, model[0].omega.shape[0])
     outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0,
-                                 model=model)
+                                 model=model, plan=plan)
     say(rep)
     result = Reconstruction(seq, geometry, light, wfit, photo, dict(sea, waves=waves, check=check, spectrum_fit=sfit),
                             outlook, stages)

@@ -98,6 +98,15 @@ def test_forecast_model_is_the_fit_with_its_band_and_the_window_frequency_uncert
     assert float(jnp.max(jnp.abs(inside.normal - fitted))) < 1e-5
     with pytest.raises(ValueError, match="needs a fit of fit.waves"):
         fw.forecast_model(fit._replace(determined=None), c, TIMES)
+    # drawn on the fit's own surface path: a fit that ended on the hits path forecasts the
+    # hits path's normals inside its window
+    assert fw.forecast_plan(fit._replace(surface="rows"), 3).refine == 0
+    hits_plan = fw.forecast_plan(fit._replace(surface="hits"), model.omega.shape[0])
+    assert hits_plan.refine > 0 and hits_plan.active == tuple(range(model.omega.shape[0]))
+    on_hits = fc.forecast(model, TIMES[:2], c, window=window, frequency_sigma=sigma, plan=hits_plan).geometry
+    hits = fw.predict(model, c, TIMES[:2], surface="hits")[0]
+    assert float(jnp.max(jnp.abs(on_hits.normal - hits))) < 1e-5
+    assert float(jnp.max(jnp.abs(inside.normal[:2] - hits))) > 1e-3  # the rows path draws another surface
 
 
 @pytest.mark.parametrize("polish, n_expected", [(None, 3), (0.0, 8)])

@@ -107,15 +107,16 @@ explains them with some long waves, not with the true ones (``experiments/WAVES.
 Forecasting a fit (:func:`forecast_model`): the fitted waves with the long-wave band, and a
 frequency uncertainty per component -- the fit's own for determined waves, the window's
 Rayleigh cell (:func:`frequency_cell`) for the stand-ins -- for the least-squares forecast
-of :func:`jaxocean.forecast.forecast` (``window=``, ``frequency_sigma=``).
+of :func:`jaxocean.forecast.forecast` (``window=``, ``frequency_sigma=``), drawn on the fit's
+own surface path (:func:`forecast_plan`, ``plan=``).
 """
 
 from jaxocean.fit.waves._band import LongWaveBand
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import (WaveMatch, forecast_model, frequency_cell, match, noise_cells,
-                                       rayleigh_separation, resolvable, separable)
+from jaxocean.fit.waves._match import (WaveMatch, forecast_model, forecast_plan, frequency_cell, match,
+                                       noise_cells, rayleigh_separation, resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -146,5 +147,6 @@ __all__ = [
     "frequency_cell",
     "noise_cells",
     "forecast_model",
+    "forecast_plan",
     "check_inputs",
 ]

@@ -241,3 +241,13 @@ def forecast_model(result, camera, times):
         sigma = np.concatenate([sigma, frequency_cell(band.omega, camera, t)])
     model = Waves(*(np.asarray(x, np.asarray(result.waves.omega).dtype) for x in waves_))
     return model, sigma.astype(model.omega.dtype), (float(t[0]), float(t[-1]))
+
+
+def forecast_plan(result, n_waves: int):
+    """The render plan that draws a fit's forecast model (:func:`forecast_model`, ``n_waves``
+    components) on the surface path the fit explained its frames with: every wave, with the
+    renderer's hit refinement where the fit ended on the hits path (``result.surface ==
+    "hits"``), without it on the rows path."""
+    from jaxocean import render
+
+    return render.full_plan(n_waves, render.MAX_REFINE_ITERATIONS if result.surface == "hits" else 0)
