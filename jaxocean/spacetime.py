@@ -81,7 +81,8 @@ less the *floor* (the mean power of the frequencies clear of the shell by 1.5 bi
 tolerance, times the shell's bin count: noise white in time), doubled for the ``omega < 0``
 half, over ``k^2`` is the elevation variance. Summed: ``m0`` and ``Hs = 4 sqrt(m0)`` of the
 band (a lower bound on the sea's); the energy-weighted circular mean direction and spread;
-the radial spectrum's peak (a lower bound on Tp when it is the band's longest bin); the
+the radial spectrum's peak (a lower bound on Tp unless the spectrum turns down on its
+long-wave side: the band's longest bin below half of the peak); the
 Phillips tail level ``alpha = 4 m0 / (k_lo^-2 - k_hi^-2)`` of ``F(k) = alpha / (2 k^3)``.
 Uncertainties treat each bin's power as exponential (its standard deviation its mean), with
 the Hann windows' bin correlation (1.5 per axis): statistical only. ``success`` when the
@@ -254,8 +255,10 @@ class SeaSpectrum(NamedTuple):
     * ``hs_band_m``, ``hs_band_std_m``: ``4 sqrt(m0)`` of the band's elevation variance
       ``m0``, and its statistical 1-sigma (the spectral estimate's scatter alone).
     * ``peak_period_s``: the period of the radial elevation spectrum's peak within the band;
-      ``peak_at_band_edge``: that peak is the band's longest-wave bin, so the sea's own peak
-      may be longer (then ``peak_period_s`` is a lower bound on Tp).
+      ``peak_at_band_edge``: that peak is the band's longest-wave bin, or the spectrum does
+      not turn down toward the band's long-wave edge (the edge bin holds more than
+      :data:`PEAK_TURNOVER` of the peak's variance), so the sea's own peak may be longer
+      (then ``peak_period_s`` is a lower bound on Tp).
     * ``direction`` [rad, library azimuth of travel], ``direction_std``: the energy-weighted
       mean direction and its 1-sigma; ``spread`` [rad]: the circular standard deviation.
     * ``tail_alpha``: the Phillips level ``alpha`` of an omnidirectional tail
@@ -284,6 +287,10 @@ class SeaSpectrum(NamedTuple):
     success: bool
     message: str
 
+
+#: :func:`sea_spectrum` takes a peak inside the band for the sea's only where the band's
+#: longest-wave bin holds less than this fraction of the peak's elevation variance
+PEAK_TURNOVER = 0.5
 
 #: Hann windows in t, x and y correlate neighbouring bins: the variance of a sum of bins is
 #: this factor (1.5 per axis, the window's equivalent noise bandwidth) above that of as many
@@ -384,7 +391,9 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     radial = np.bincount(index, weights=elevation, minlength=len(edges))
     i_peak = int(np.argmax(radial))
     k_peak = float(edges[i_peak] + 0.5 * band.dk)
-    at_edge = i_peak == 0
+    # a peak inside the band is the sea's only where the spectrum turns down on its long-wave
+    # side: a flat top at the band's edge (a network's smoothing, the noise) is no peak
+    at_edge = i_peak == 0 or radial[0] > PEAK_TURNOVER * radial[i_peak]
     tail_alpha = 4.0 * m0 / (band.k_lo ** -2 - band.k_hi ** -2)
     success = bool(noise_fraction < max_noise_fraction)
     period = 2 * math.pi / math.sqrt(GRAVITY * k_peak)

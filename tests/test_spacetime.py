@@ -178,3 +178,18 @@ def test_sea_spectrum_refuses_bad_input(normals_sequence):
     # a 2 s record tells no wave of the band from a still pattern
     short = spacetime.sea_spectrum(normals_sequence[:8], camera, LONG_TIMES[:8])
     assert not short.success and math.isnan(short.hs_band_m) and "still pattern" in short.message
+
+
+def test_a_flat_top_at_the_band_edge_is_no_observed_peak():
+    # an 18 m wave in the band's longest bin beside a larger 12.7 m one in the next: the
+    # maximum is inside the band, but the spectrum does not turn down toward its edge, so the
+    # peak period is only a lower bound
+    camera = cam.make_camera(**CAMERA)
+    omega = [math.sqrt(GRAVITY * 2 * math.pi / lam) for lam in (18.0, 12.7)]
+    waves = make_waves([0.1, 0.15], omega, [1.0, 0.8], [0.0, 1.0])
+    plan = render.full_plan(2)
+    normals = np.stack([np.asarray(render.geometry(waves, camera, t, plan=plan).normal) for t in LONG_TIMES])
+    sea = spacetime.sea_spectrum(normals, camera, LONG_TIMES)
+    elevation = sea.spectrum["elevation"]
+    assert np.argmax(elevation) == 1 and elevation[0] > spacetime.PEAK_TURNOVER * elevation[1]
+    assert sea.success and sea.peak_at_band_edge and "Tp is longer" in sea.message
