@@ -689,7 +689,7 @@ def cmd_demo(args):
               flush=True)
         summary["reconstruct"] = r = demo.reconstruct_stage(out, scene, images)
         print(f"  Hs {r['hs_m']:.2f} m (true {r['truth']['hs']:.2f}), Tp {r['tp_s']:.1f} s (true "
-              f"{r['truth']['tp']:.1f})" + (f"; {r['bound']}" if r["bound"] else "")
+              f"{r['truth']['tp']:.1f})" + _sea_caveat(r)
               + f"\n  report:        {r['report']}\n  figure:        {r['figure']}")
         write_json(out / "summary.json", summary)
     if "real" in stages:
@@ -699,9 +699,16 @@ def cmd_demo(args):
             print(f"real: reconstruct on the real footage in {args.real} ...", flush=True)
             summary["real"] = r = demo.real_stage(out, Path(args.real))
             print(f"  Hs {r['hs_m']:.2f} m, Tp {r['tp_s']:.1f} s, toward {r['direction_deg']:.0f} deg"
-                  + (f"; {r['bound']}" if r["bound"] else "") + f"\n  report:        {r['report']}")
+                  + _sea_caveat(r) + f"\n  report:        {r['report']}")
             write_json(out / "summary.json", summary)
     return EXIT_OK
+
+
+def _sea_caveat(r) -> str:
+    """What a demo's sea-state line must say beside its numbers: a failed spectrum stage,
+    and the bound."""
+    failed = "" if r["stages"]["spectrum"]["success"] else " (the spectrum stage failed: not a measurement)"
+    return failed + (f"; {r['bound']}" if r["bound"] else "")
 
 
 def cmd_fit_lighting(args):

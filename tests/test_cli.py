@@ -478,3 +478,12 @@ def test_compile_cache_enable_sets_jax_and_respects_off(monkeypatch, tmp_path):
     assert compile_cache.enable(tmp_path / "x") == tmp_path / "x"
     assert calls == [("jax_compilation_cache_dir", str(tmp_path / "x")),
                      ("jax_persistent_cache_min_compile_time_secs", compile_cache.MIN_COMPILE_TIME_S)]
+
+
+def test_demo_sea_lines_say_when_the_spectrum_failed_and_what_is_a_bound():
+    from jaxocean import cli
+
+    failed = cli._sea_caveat({"stages": {"spectrum": {"success": False}}, "bound": None})
+    assert "failed: not a measurement" in failed
+    bound = cli._sea_caveat({"stages": {"spectrum": {"success": True}}, "bound": "Hs is a lower bound"})
+    assert bound == "; Hs is a lower bound"
