@@ -718,13 +718,11 @@ def geometry_sea_spectrum(seq: Sequence, geometry, check=None):
 
 
 def _geometry_bound(geo_sea) -> str:
-    longest = geo_sea.band_m[0]
+    hs = f"Hs is that of the waves {geo_sea.band_m[0]:.3g}-{geo_sea.band_m[1]:.2g} m long the view resolves"
     if geo_sea.peak_at_band_edge:
-        return (f"Hs is that of the waves {longest:.3g}-{geo_sea.band_m[1]:.2g} m long the view resolves, a lower "
-                f"bound; Tp is a lower bound (the longer of the geometry's and the images' peak periods): the "
-                f"spectral peak lies beyond the band's longest waves")
-    return (f"Hs is that of the waves {longest:.3g}-{geo_sea.band_m[1]:.2g} m long the view resolves "
-            f"(a lower bound; the peak lies inside the band)")
+        return (hs + ", a lower bound; Tp is a lower bound (the longer of the geometry's and the images' peak "
+                "periods): the spectral peak lies beyond the band's longest waves")
+    return hs + " (a lower bound; the peak lies inside the band)"
 
 
 def _geometry_sea_dict(geo_sea, compass: bool) -> dict:

@@ -200,16 +200,14 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
     if camera.projection != "perspective":
         raise ValueError("dispersion_check needs a perspective camera (a rectified sequence)")
     times = _checked_times(times, images.shape[0], "dispersion_check")
-    if isinstance(current, str) and current != "fit":
-        raise ValueError(f"current must be 'fit' or a velocity (U_x, U_y) in m/s; got {current!r}")
-    _check_current(current)
+    _check_current(current, fit_allowed=True)
     band = _band_power(images[..., None], mask, camera, times, grid, spacing, max_footprint, tolerance,
                        clip_percentile)
     if not isinstance(band, _Band):
         return _failed(*band)
     P, om, kxb, kyb, kb = band.power, band.omega, band.kx, band.ky, band.k
     d_omega, dk, k_lo, k_hi, grid_info = band.d_omega, band.dk, band.k_lo, band.k_hi, band.grid
-    kx, ky, kk, in_band, grid = band.kx_grid, band.ky_grid, np.hypot(band.kx_grid, band.ky_grid), band.band, band.points
+    kx, ky, kk, in_band, grid = band.kx_grid, band.ky_grid, np.hypot(band.kx_grid, band.ky_grid), band.band, band.band.shape[0]
     total = P.sum()
     if not total > 0:
         return _failed(grid_info, "the sequence does not change in time on the ground grid")
@@ -331,9 +329,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
         raise ValueError("sea_spectrum needs a perspective camera")
     T = normals.shape[0]
     times = _checked_times(times, T, "sea_spectrum")
-    if isinstance(current, str):
-        raise ValueError(f"current must be a velocity (U_x, U_y) in m/s; got {current!r}")
-    _check_current(current)
+    _check_current(current, fit_allowed=False)
     U = np.asarray(current, np.float64)
     usable = np.all(np.isfinite(normals), -1) & (np.nan_to_num(normals[..., 2]) > 1e-3)
     if mask is not None:
@@ -344,17 +340,15 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
                        None)
     nan = math.nan
     if not isinstance(band, _Band):
-        return SeaSpectrum(nan, nan, nan, False, nan, nan, nan, nan, nan, (nan, nan), {}, U, band[0], False,
-                           "no sea spectrum: " + band[1])
+        return _no_sea(U, *band)
     # wave vectors whose shell reaches down to the lowest frequencies are left out: there a
     # still pattern (or any slow change) counts as on the shell
     k_lo = _k_clear_of_zero(band.d_omega, band.dk, tolerance)
     keep = band.k >= k_lo
     if not np.any(keep) or not band.k_hi > 1.5 * max(k_lo, band.k_lo):
-        return SeaSpectrum(nan, nan, nan, False, nan, nan, nan, nan, nan, (nan, nan), {}, U, band.grid, False,
-                           f"no sea spectrum: the record ({band.grid['frames']} frames over "
-                           f"{band.grid['frames'] * band.grid['dt_s']:.3g} s) separates no wave of the band from a "
-                           f"still pattern")
+        return _no_sea(U, band.grid, f"the record ({band.grid['frames']} frames over "
+                                     f"{band.grid['frames'] * band.grid['dt_s']:.3g} s) separates no wave of the band "
+                                     f"from a still pattern")
     band = band._replace(power=band.power[:, keep], kx=band.kx[keep], ky=band.ky[keep], k=band.k[keep],
                          k_lo=max(k_lo, band.k_lo))
     P, om, kb = band.power, band.omega, band.k
@@ -373,8 +367,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     elevation = 2.0 * signal / kb ** 2
     m0 = float(elevation.sum())
     if not m0 > 0:
-        return SeaSpectrum(nan, nan, nan, False, nan, nan, nan, nan, noise_fraction, band_m, {}, U, band.grid, False,
-                           "no sea spectrum: no power on the dispersion shell above its floor")
+        return _no_sea(U, band.grid, "no power on the dispersion shell above its floor", noise_fraction, band_m)
     # each bin's power scatters like an exponential variable (std = mean)
     var_signal = ((P ** 2) * on).sum(0) + n_on ** 2 * floor ** 2 / np.maximum(n_off, 1)
     m0_std = math.sqrt(float((4.0 * var_signal / kb ** 4).sum()) * _HANN_CORRELATION)
@@ -446,6 +439,12 @@ def plot_dispersion(check: DispersionCheck, path, *, title: str | None = None):
 # --------------------------------------------------------------------------- helpers
 
 
+def _no_sea(current, grid_info, reason, noise_fraction=math.nan, band_m=(math.nan, math.nan)) -> SeaSpectrum:
+    nan = math.nan
+    return SeaSpectrum(nan, nan, nan, False, nan, nan, nan, nan, noise_fraction, band_m, {}, current, grid_info, False,
+                       "no sea spectrum: " + reason)
+
+
 def _checked_times(times, T, who):
     """``times`` as float64 ``(T,)``, checked: ``T >= MIN_FRAMES``, increasing, uniform."""
     times = np.asarray(times, np.float64)
@@ -461,9 +460,14 @@ def _checked_times(times, T, who):
     return times
 
 
-def _check_current(current):
-    if not isinstance(current, str) and np.shape(current) != (2,):
-        raise ValueError(f"current must be 'fit' or a velocity (U_x, U_y) in m/s; got shape {np.shape(current)}")
+def _check_current(current, fit_allowed: bool):
+    """``current`` is a velocity ``(U_x, U_y)``, or ``"fit"`` where ``fit_allowed``."""
+    allowed = "'fit' or a velocity (U_x, U_y) in m/s" if fit_allowed else "a velocity (U_x, U_y) in m/s"
+    if isinstance(current, str):
+        if not (fit_allowed and current == "fit"):
+            raise ValueError(f"current must be {allowed}; got {current!r}")
+    elif np.shape(current) != (2,):
+        raise ValueError(f"current must be {allowed}; got shape {np.shape(current)}")
 
 
 class _Band(NamedTuple):
@@ -477,7 +481,6 @@ class _Band(NamedTuple):
     band: np.ndarray  # (G, G) bool: the FFT grid's wave vectors in the band
     kx_grid: np.ndarray  # (G, G)
     ky_grid: np.ndarray
-    points: int
     d_omega: float
     dk: float
     k_lo: float
@@ -553,8 +556,8 @@ def _band_power(values, mask, camera, times, grid, spacing, max_footprint, toler
     kk = np.hypot(kx, ky)
     band = (kk >= k_lo) & (kk <= k_hi)  # (G, G)
     half = omega >= 0
-    return _Band(power[half][:, band], omega[half], kx[band], ky[band], kk[band], band, kx, ky, int(grid), d_omega,
-                 dk, k_lo, k_hi, grid_info)
+    return _Band(power[half][:, band], omega[half], kx[band], ky[band], kk[band], band, kx, ky, d_omega, dk, k_lo,
+                 k_hi, grid_info)
 
 
 def _failed(grid_info, reason) -> DispersionCheck:
