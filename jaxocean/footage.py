@@ -1,0 +1,291 @@
+"""Footage as the reconstruction reads it: frames and their camera resampled into one ideal
+camera, as linear radiance (stage 1 of ``jaxocean reconstruct``, :mod:`jaxocean.reconstruct`).
+
+Protocol
+--------
+:func:`load_sequence(frames, camera_path, ...)` -> ``(Sequence, StageReport)``:
+
+* ``frames``: PNG / JPEG / 16-bit PNG / EXR files, or one video; RGB or gray. Display values
+  become linear radiance through a documented response (:mod:`jaxocean.radiometry`: sRGB by
+  default, a gamma, or the library's tone map); the exposure stays unknown (the fitted
+  colours absorb it). Saturated and black pixels are masked.
+* ``camera_path``: a camera file (:mod:`jaxocean.io.camera_file`: pinhole intrinsics,
+  Brown-Conrady distortion, a pose per frame) or a synthetic ``scene.json``. Frames without
+  a pose get pitch and roll from the visible horizon (:mod:`jaxocean.horizon`) at a given
+  camera height.
+* Every frame is resampled (:mod:`jaxocean.rectify`) into one ideal library
+  :class:`~jaxocean.camera.Camera`: no lens distortion, no roll, one pose. By default it is
+  :func:`sea_view`: the sea from just below the horizon to the lowest view every frame has,
+  ``width`` pixels across and a height that is a multiple of 16.
+
+The :class:`Sequence` holds the linear images ``(T, H, W, 3)``, the usable-pixel mask, the
+display values for reports, the camera, the times [s] and, for the space-time evidence, the
+same frames' luminance at a finer width. Metres, seconds, radians.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+from typing import Any, NamedTuple, Sequence as Seq
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxocean import camera as cam
+from jaxocean._stages import StageReport, timed
+from jaxocean.errors import InvalidValueError
+from jaxocean.io.images import VIDEO_SUFFIXES
+
+__all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
+           "EVIDENCE_WIDTH", "BLACK_LEVEL", "StageReport"]
+
+#: default working width [px] of the rectified view; the height follows the view's aspect,
+#: rounded to a multiple of 16 (the geometry network halves the size four times)
+DEFAULT_WIDTH = 128
+#: the rectified view's top edge sits this far [rad] below the horizon (the sky carries no
+#: wave information and, in footage, is often clipped)
+HORIZON_MARGIN = 0.05
+#: and its bottom edge this far [rad] inside the lowest view of every frame
+BOTTOM_MARGIN = 0.03
+#: width [px] of the view the space-time evidence is computed in (at most the source's)
+EVIDENCE_WIDTH = 320
+#: display values at or below this are black (the bottom code of an 8-bit file): masked
+BLACK_LEVEL = 0.5 / 255
+
+
+class Sequence(NamedTuple):
+    """Stage 1's output: the observed sequence in one ideal camera.
+
+    * ``images``   ``(T, H, W, 3)`` linear radiance (gray footage: R = G = B = luminance),
+      up to the unknown exposure.
+    * ``usable``   ``(T, H, W)`` bool: inside the source frame and not saturated.
+    * ``display``  ``(T, H, W, 3)`` the rectified display values in [0, 1] (for reports).
+    * ``camera``   the ideal :class:`~jaxocean.camera.Camera` every frame was resampled into.
+    * ``times``    ``(T,)`` [s], strictly increasing.
+    * ``gray``     the footage was grayscale.
+    * ``compass``  the camera file gave compass headings (directions reported from north).
+    * ``files``    the frame files used.
+    * ``response`` the :class:`jaxocean.radiometry.Response` that made display values linear.
+    * ``fine``     ``(images (T, H2, W2), usable (T, H2, W2), camera)``: the same frames'
+      luminance rectified at ``evidence_width`` (the space-time evidence needs the
+      footage's own resolution, which the working view gives up), or None.
+    """
+
+    images: np.ndarray
+    usable: np.ndarray
+    display: np.ndarray
+    camera: cam.Camera
+    times: np.ndarray
+    gray: bool
+    compass: bool
+    files: tuple
+    response: Any = None
+    fine: Any = None
+
+
+
+def sea_view(camera_file, *, width: int = DEFAULT_WIDTH, horizon_margin: float = HORIZON_MARGIN,
+             bottom_margin: float = BOTTOM_MARGIN) -> cam.Camera:
+    """The ideal camera a camera file's frames are resampled into: the frames' mean height,
+    heading and ground position, no roll, and a pitch and vertical field of view that span
+    from ``horizon_margin`` below the horizon down to ``bottom_margin`` inside the lowest
+    view any frame has (so every pixel is seen in every frame, barring roll at the corners);
+    ``width`` pixels across, the height from the source's aspect (a multiple of 16)."""
+    from jaxocean import lens
+
+    poses = camera_file.poses
+    W_src, H_src = camera_file.image_size
+    # the depression angle of the bottom-centre pixel in each frame
+    uv = jnp.asarray([[(W_src - 1) / 2.0, H_src - 1.0]])
+    lows = []
+    for i in range(len(camera_file.times)):
+        pose = lens.Pose(*(np.asarray(f)[i] for f in poses))
+        ray = np.asarray(lens.pixel_rays(uv, pose, camera_file.intrinsics, camera_file.distortion))[0]
+        lows.append(-math.asin(float(np.clip(ray[2], -1, 1))))
+    bottom = min(lows) - bottom_margin
+    top = horizon_margin
+    if bottom <= top + 0.1:
+        raise InvalidValueError(f"the frames see too little sea below the horizon (lowest view "
+                                f"{math.degrees(min(lows)):.1f} deg below it) for a sea view")
+    fov, pitch = bottom - top, (bottom + top) / 2
+    H = _working_height(width, W_src, H_src)
+    heading = math.atan2(float(np.mean(np.sin(poses.heading))), float(np.mean(np.cos(poses.heading))))
+    return cam.make_camera(height=float(np.mean(poses.height)), pitch=pitch,
+                           yaw=float(lens.yaw_from_heading(heading)), fov=fov, resolution=(H, int(width)),
+                           x=float(np.mean(poses.east)), y=float(np.mean(poses.north)))
+
+
+def _working_height(width: int, W_src: int, H_src: int) -> int:
+    """The source's aspect at ``width`` pixels, rounded to a multiple of 16 (the geometry
+    network halves the image four times)."""
+    if width % 16:
+        raise ValueError(f"the working width must be a multiple of 16 (the geometry network halves the image "
+                         f"four times); got {width}")
+    return max(16, int(round(width * H_src / W_src / 16)) * 16)
+
+
+def _scene_of(data, path: Path):
+    """The :class:`~jaxocean.io.scene.Scene` of a camera JSON that is a synthetic
+    ``scene.json`` (a ``camera`` and no ``intrinsics``), else None."""
+    from jaxocean.io.scene import SceneError, SceneFileError, scene_from_dict
+
+    if not (isinstance(data, dict) and "camera" in data and "intrinsics" not in data):
+        return None
+    try:
+        return scene_from_dict(data)
+    except SceneError as error:
+        raise SceneFileError(path, str(error)) from error
+
+
+def _frame_files(frames, listed: Seq[Path], where) -> list:
+    """Match the given frame paths to the camera file's list (by resolved path, else by
+    name); every given frame must be listed."""
+    if not frames:
+        return list(range(len(listed)))
+    by_path = {Path(p).resolve(): i for i, p in enumerate(listed)}
+    by_name = {Path(p).name: i for i, p in enumerate(listed)}
+    out = []
+    for f in frames:
+        i = by_path.get(Path(f).resolve(), by_name.get(Path(f).name))
+        if i is None:
+            raise InvalidValueError(f"frame {f} is not listed in the camera file {where}")
+        out.append(i)
+    if np.any(np.diff(out) <= 0):
+        raise InvalidValueError("frames must be given in the camera file's (time) order, each once")
+    return out
+
+
+def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: str = "srgb", gamma: float = 2.2,
+                  step: int = 1, max_frames: int | None = None, height: float | None = None,
+                  full_view: bool = False, evidence_width: int | None = EVIDENCE_WIDTH):
+    """Stage 1 of ``reconstruct`` (module docstring). ``frames``: paths (or one video path, or empty to take
+    the camera file's list); ``camera_path``: a camera file or a ``scene.json`` (then the
+    frames must be the scene's, one per time). ``step`` / ``max_frames`` thin the sequence.
+    ``height``: the camera height [m] when the camera file gives no pose (pitch and roll
+    then come from the horizon). ``full_view``: keep the camera's own view (sky and all)
+    instead of :func:`sea_view`. ``evidence_width``: the width of ``Sequence.fine`` (None:
+    no fine sequence). Returns ``(Sequence, StageReport)``."""
+    from jaxocean import lens, radiometry, rectify
+    from jaxocean.io import camera_file as cf_io
+
+    camera_path = Path(camera_path)
+    frames = [Path(f) for f in (frames or [])]
+    if step < 1:
+        raise ValueError(f"step must be >= 1; got {step}")
+
+    video = len(frames) == 1 and frames[0].suffix.lower() in VIDEO_SUFFIXES + (".gif",)
+
+    def run():
+        details, scene_camera = {}, None
+        resp = radiometry.Response(response, gamma)
+
+        def load(paths):
+            # black pixels (vignetted corners, crushed shadows) carry no radiance either
+            return radiometry.load_frames(paths, response=resp, low=BLACK_LEVEL)
+
+        loaded = load(frames) if video else None
+        n_video = None if loaded is None else len(loaded.linear)
+        json_path, data = cf_io.read_camera_json(camera_path)  # read once: a scene or a camera file
+        scene = _scene_of(data, json_path)
+        if scene is not None:
+            if scene.camera is None or scene.times is None:
+                raise InvalidValueError(f"{camera_path} has no camera or no times")
+            times = np.asarray(scene.times, np.float64)
+            listed = frames or sorted(camera_path.parent.glob("frame_*.exr")) or sorted(
+                camera_path.parent.glob("frame_*.png"))
+            count = n_video if video else len(listed)
+            if count != len(times):
+                raise InvalidValueError(f"{count} frames given for the {len(times)} times of {camera_path}")
+            scene_camera = scene.camera
+            H, W = scene.camera.resolution
+            pose0 = lens.pose_of(scene.camera)
+            poses = lens.Pose(*(np.full(len(times), float(v)) for v in pose0))
+            camera_file = cf_io.CameraFile(camera_path, (W, H), lens.pinhole_intrinsics(scene.camera),
+                                           lens.Distortion(), tuple(listed) * (len(times) if video else 1), times,
+                                           poses, False)
+        else:
+            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=height is None,
+                                                      check_files=not video)
+            if video:
+                if n_video != len(camera_file.times):
+                    raise InvalidValueError(f"the video {frames[0]} has {n_video} frames; the camera file "
+                                            f"{camera_path} lists {len(camera_file.times)}")
+            else:
+                camera_file = cf_io.select(camera_file, _frame_files(frames, camera_file.files, camera_path))
+        idx = np.arange(0, len(camera_file.times), step)[:max_frames]
+        if len(idx) < 2:
+            raise InvalidValueError(f"reconstruct needs at least 2 frames; {len(idx)} selected")
+        camera_file = cf_io.select(camera_file, idx)
+        if video:
+            loaded = loaded._replace(display=None if loaded.display is None else loaded.display[idx],
+                                     linear=loaded.linear[idx], usable=loaded.usable[idx])
+        else:
+            loaded = load(list(camera_file.files))
+        if loaded.display is None:  # OpenEXR: radiance; shown through the library's tone map
+            resp = radiometry.Response("bruneton")
+            loaded = loaded._replace(display=np.asarray(radiometry.to_display(loaded.linear, resp), np.float32))
+        W_src, H_src = camera_file.image_size
+        if loaded.linear.shape[1:3] != (H_src, W_src):
+            raise InvalidValueError(f"the frames are {loaded.linear.shape[2]}x{loaded.linear.shape[1]} pixels; the "
+                                    f"camera file {camera_path} says {W_src}x{H_src}")
+        if camera_file.poses is None:
+            from jaxocean import horizon as hz
+
+            pitch, roll = [], []
+            for i in range(len(idx)):
+                h = hz.estimate_horizon(loaded.linear[i], camera_file.intrinsics, camera_file.distortion, height)
+                if not h.success:
+                    raise InvalidValueError(f"frame {camera_file.files[i]} has no pose and its horizon could not "
+                                            f"be found: {h.message}")
+                pitch.append(h.pitch), roll.append(h.roll)
+            n = len(idx)
+            camera_file = camera_file._replace(poses=lens.Pose(np.full(n, float(height)), np.asarray(pitch),
+                                                               np.asarray(roll), np.zeros(n), np.zeros(n),
+                                                               np.zeros(n)), headings=False)
+            details["pose_from_horizon"] = True
+        H = _working_height(width, W_src, H_src)
+        if full_view:
+            camera = rectify.virtual_camera(camera_file, resolution=(H, int(width)))
+        elif scene_camera is not None:
+            # the scene's own view, at the working width
+            camera = scene_camera if scene_camera.resolution == (H, width) else dataclasses.replace(
+                scene_camera, resolution=(H, int(width)))
+        else:
+            camera = sea_view(camera_file, width=width)
+        linear = loaded.linear if loaded.linear.ndim == 4 else loaded.linear[..., None]
+        display = loaded.display if loaded.display.ndim == 4 else loaded.display[..., None]
+        stack = np.concatenate([linear, display, loaded.usable[..., None].astype(linear.dtype)], -1)
+        rect = rectify.rectify(stack, camera_file.poses, camera_file.intrinsics, camera_file.distortion, camera)
+        c = linear.shape[-1]
+        images, disp = rect.images[..., :c], rect.images[..., c:2 * c]
+        usable = rect.valid & (rect.images[..., -1] > 0.999)
+        if c == 1:
+            images, disp = (np.repeat(a, 3, -1) for a in (images, disp))
+        fine = None
+        if evidence_width is not None:
+            fine_width = min(16 * (int(evidence_width) // 16), 16 * (W_src // 16))
+            fine_camera = dataclasses.replace(camera, resolution=(_working_height(fine_width, W_src, H_src),
+                                                                  fine_width))
+            gray = linear[..., 0] if c == 1 else np.asarray(radiometry.luminance(linear))
+            fr = rectify.rectify(np.stack([gray, loaded.usable.astype(gray.dtype)], -1), camera_file.poses,
+                                 camera_file.intrinsics, camera_file.distortion, fine_camera)
+            fine = (np.asarray(fr.images[..., 0], np.float32), np.asarray(fr.valid & (fr.images[..., 1] > 0.999)),
+                    fine_camera)
+        seq = Sequence(np.asarray(images, np.float32), np.asarray(usable), np.clip(np.asarray(disp, np.float32), 0, 1),
+                       camera, np.asarray(camera_file.times, np.float64), bool(loaded.gray),
+                       bool(camera_file.headings), tuple(str(f) for f in camera_file.files), resp, fine)
+        sea = np.asarray(cam.intersect_sea(camera).mask)
+        frac = float(usable[:, sea].mean()) if sea.any() else 0.0
+        details.update(frames=len(idx), resolution=list(camera.resolution), source_size=[W_src, H_src],
+                       response=response, gray=bool(loaded.gray), usable_sea_fraction=frac,
+                       camera=cam.camera_to_dict(camera, degrees=True),
+                       duration_s=float(seq.times[-1] - seq.times[0]))
+        ok = frac >= 0.5
+        msg = (f"{len(idx)} frames at {camera.resolution[1]}x{camera.resolution[0]}, {frac:.0%} of the sea usable"
+               if ok else f"only {frac:.0%} of the sea pixels are usable (saturated or outside the frames)")
+        return seq, ok, msg, details
+
+    return timed("radiometry", run)
+
