@@ -7,7 +7,7 @@ Protocol
 
 * ``frames``: PNG / JPEG / 16-bit PNG / EXR files, or one video; RGB or gray. Display values
   become linear radiance through a documented response (:mod:`jaxocean.radiometry`: sRGB by
-  default, a gamma, or the library's tone map); the exposure stays unknown (the fitted
+  default, a gamma, linear, or the library's tone map); the exposure stays unknown (the fitted
   colours absorb it). Saturated and black pixels are masked.
 * ``camera_path``: a camera file (:mod:`jaxocean.io.camera_file`: pinhole intrinsics,
   Brown-Conrady distortion, a pose per frame) or a synthetic ``scene.json``. Frames without
