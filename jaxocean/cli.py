@@ -54,13 +54,13 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
+from jaxocean import _cli_inputs as inputs
 from jaxocean import compile_cache
 from jaxocean.files import json_safe, write_json
 
@@ -76,70 +76,6 @@ _OUT_DIR_NOTE = ("The output directory holds one scene: rendering into a directo
                  "frames beyond the new count are removed) and leaves every other file alone.")
 
 
-def _resolution(text: str):
-    try:
-        parts = [int(p) for p in text.lower().replace("x", " ").split()]
-    except ValueError:
-        parts = []
-    if len(parts) == 1:
-        parts = parts * 2
-    if len(parts) != 2 or min(parts) < 1:
-        raise argparse.ArgumentTypeError(f"resolution must be N or HxW with positive integers; got {text!r}")
-    return tuple(parts)
-
-
-def _parse_list(text: str, convert, valid, expected: str):
-    """Comma- or space-separated values: ``convert`` each; all must pass ``valid``."""
-    try:
-        values = [convert(p) for p in text.replace(",", " ").split()]
-    except ValueError:
-        values = []
-    if not values or not all(valid(v) for v in values):
-        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}")
-    return tuple(values)
-
-
-def _index_list(text: str):
-    return _parse_list(text, int, lambda v: v >= 0, "comma-separated frame indices >= 0, e.g. 0,1,5")
-
-
-def _number_list(text: str):
-    return _parse_list(text, float, math.isfinite, "comma-separated finite numbers, e.g. 0,1.5,10")
-
-
-def _positive_int(text: str):
-    try:
-        value = int(text)
-    except ValueError:
-        value = 0
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer; got {text!r}")
-    return value
-
-
-class _DeprecatedAlias(argparse.Action):
-    """A former option name kept working: stores into the new option's ``dest`` and says so."""
-
-    def __init__(self, option_strings, dest, *, new: str, **kwargs):
-        self.new = new
-        kwargs.update(default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # hidden; the new option's default holds
-        super().__init__(option_strings, dest, **kwargs)
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        print(f"jaxocean: note: {option_string} is deprecated; use {self.new}", file=sys.stderr)
-        setattr(namespace, self.dest, values)
-
-
-def _positive(text: str):
-    try:
-        value = float(text)
-    except ValueError:
-        value = math.nan
-    if not value > 0 or not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a positive number; got {text!r}")
-    return value
-
-
 def _add_camera_edits(p, *, resolution: bool = True):
     g = p.add_argument_group("camera (each option replaces that field of the scene's camera)")
     g.add_argument("--camera-height", type=float, help="camera height above the sea [m]")
@@ -147,7 +83,7 @@ def _add_camera_edits(p, *, resolution: bool = True):
     g.add_argument("--camera-fov-deg", type=float, help="vertical field of view [deg]")
     g.add_argument("--camera-yaw-deg", type=float, help="viewing azimuth [deg from +x]")
     if resolution:
-        g.add_argument("--res", type=_resolution, help="output resolution N or HxW")
+        g.add_argument("--res", type=inputs.resolution_arg, help="output resolution N or HxW")
 
 
 def _add_lighting_edits(p):
@@ -165,20 +101,20 @@ def _add_scene_options(p):
     g.add_argument("--gamma", type=float, default=3.3, help="JONSWAP peak enhancement; 1 = Pierson-Moskowitz")
     g.add_argument("--wave-direction", type=float, default=20.0, help="mean wave direction [deg from +x]")
     g.add_argument("--spreading", type=float, default=10.0, help="Mitsuyasu s_max (larger = narrower)")
-    g.add_argument("--waves", type=_positive_int, default=60, help="number of wave trains (default 60)")
+    g.add_argument("--waves", type=inputs.positive_int, default=60, help="number of wave trains (default 60)")
     g.add_argument("--seed", type=int, default=0, help="random seed for the wave draw")
     g.add_argument("--camera-height", type=float, default=12.0, help="camera height above the sea [m]")
     g.add_argument("--camera-pitch-deg", type=float, default=20.0, help="camera pitch below the horizon [deg]")
     g.add_argument("--camera-fov-deg", type=float, default=45.0, help="vertical field of view [deg]")
     g.add_argument("--camera-yaw-deg", type=float, default=0.0, help="viewing azimuth [deg from +x] (default 0)")
-    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=_DeprecatedAlias, new="--camera-pitch-deg")
-    g.add_argument("--fov", dest="camera_fov_deg", type=float, action=_DeprecatedAlias, new="--camera-fov-deg")
-    g.add_argument("--res", type=_resolution, default=(128, 192), help="HxW pixels (default 128x192)")
+    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-pitch-deg")
+    g.add_argument("--fov", dest="camera_fov_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-fov-deg")
+    g.add_argument("--res", type=inputs.resolution_arg, default=(128, 192), help="HxW pixels (default 128x192)")
     g.add_argument("--sun-azimuth", type=float, default=10.0, help="sun azimuth [deg from +x]; the camera looks "
                    "along +x unless --camera-yaw-deg turns it")
     g.add_argument("--sun-elevation", type=float, default=25.0, help="sun elevation [deg]")
-    g.add_argument("--frames", type=_positive_int, default=24, help="number of frames (default 24)")
-    g.add_argument("--dt", type=_positive, default=0.1, help="time between frames [s] (default 0.1)")
+    g.add_argument("--frames", type=inputs.positive_int, default=24, help="number of frames (default 24)")
+    g.add_argument("--dt", type=inputs.positive_float, default=0.1, help="time between frames [s] (default 0.1)")
 
 
 def build_parser():
@@ -198,11 +134,11 @@ def build_parser():
                                    "lighting (see jaxocean.io.dataset.SceneRanges for the ranges). Killing it and "
                                    "running the same command again finishes the dataset.")
     p.add_argument("--out", required=True, help="dataset directory")
-    p.add_argument("--scenes", type=_positive_int, default=2000, help="number of scenes (default 2000)")
-    p.add_argument("--frames", type=_positive_int, default=10, help="frames per scene (default 10)")
-    p.add_argument("--res", type=_resolution, default=(128, 128), help="resolution N or HxW (default 128)")
+    p.add_argument("--scenes", type=inputs.positive_int, default=2000, help="number of scenes (default 2000)")
+    p.add_argument("--frames", type=inputs.positive_int, default=10, help="frames per scene (default 10)")
+    p.add_argument("--res", type=inputs.resolution_arg, default=(128, 128), help="resolution N or HxW (default 128)")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--waves", type=_positive_int, default=None, help="wave trains per scene (default 60)")
+    p.add_argument("--waves", type=inputs.positive_int, default=None, help="wave trains per scene (default 60)")
     p.add_argument("--ranges", help="JSON file overriding SceneRanges fields, e.g. {\"hs\": [0.5, 2.0]}")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -248,7 +184,7 @@ def build_parser():
                                    "Angles in degrees. " + _OUT_DIR_NOTE)
     p.add_argument("scene", help="scene directory or scene.json")
     p.add_argument("--out", required=True, help="output directory")
-    p.add_argument("--frames", type=_index_list, help="indices of the scene's frames, e.g. 0,1 (default all)")
+    p.add_argument("--frames", type=inputs.index_list, help="indices of the scene's frames, e.g. 0,1 (default all)")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)
     _add_camera_edits(p)
     _add_lighting_edits(p)
@@ -262,7 +198,7 @@ def build_parser():
                                    "converge (the JSON is written anyway). Compilation takes a minute on a CPU.")
     p.add_argument("scene", help="scene directory (scene.json + frame_XXXXX.exr)")
     p.add_argument("--out", required=True, help="output JSON file (e.g. waves.json)")
-    p.add_argument("--frames", type=_index_list, help="frame indices to fit, e.g. 0,1,2 (default all)")
+    p.add_argument("--frames", type=inputs.index_list, help="frame indices to fit, e.g. 0,1,2 (default all)")
     p.add_argument("--n-waves", type=int, help="fit exactly this many waves (default: chosen by BIC)")
     p.add_argument("--max-waves", type=int, default=96, help="most waves the order selection tries (default 96)")
     p.add_argument("--noise", type=float, help="noise sigma of the normals' x/y components when known (order "
@@ -296,9 +232,9 @@ def build_parser():
     p.add_argument("--allow-failed", action="store_true", help="forecast the waves of a fit-waves result that "
                    "reported failure (refused otherwise: its waves need not explain the frames)")
     when = p.add_mutually_exclusive_group(required=True)
-    when.add_argument("--frames", type=_index_list, help="frame indices, e.g. 0,100,500")
-    when.add_argument("--times", type=_number_list, help="times [s], e.g. 0,10,50")
-    p.add_argument("--fps", type=_positive, help="frames per second for --frames (default: the JSON's frame "
+    when.add_argument("--frames", type=inputs.index_list, help="frame indices, e.g. 0,100,500")
+    when.add_argument("--times", type=inputs.number_list, help="times [s], e.g. 0,10,50")
+    p.add_argument("--fps", type=inputs.positive_float, help="frames per second for --frames (default: the JSON's frame "
                                                  "interval; frame 0 is its first time)")
     p.add_argument("--undamped", action="store_true",
                    help="with a fit-waves result: extrapolate every fitted wave's phase as fitted, without the "
@@ -324,12 +260,12 @@ def build_parser():
     p.add_argument("--width", type=int, default=128, help="width [px] of the rectified working view (default 128)")
     p.add_argument("--response", default="srgb", choices=("srgb", "gamma", "linear", "bruneton"),
                    help="display response of 8/16-bit frames (default srgb)")
-    p.add_argument("--gamma", type=_positive, default=2.2, help="exponent for --response gamma (default 2.2)")
+    p.add_argument("--gamma", type=inputs.positive_float, default=2.2, help="exponent for --response gamma (default 2.2)")
     p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
     p.add_argument("--max-frames", type=int, help="use at most this many frames")
     p.add_argument("--wave-frames", type=int, default=16, help="frames the wave fits use, spread evenly (default 16)")
     p.add_argument("--max-waves", type=int, default=24, help="most waves the wave fit tries (default 24)")
-    p.add_argument("--camera-height", type=_positive, help="camera height [m] when the camera file gives no pose "
+    p.add_argument("--camera-height", type=inputs.positive_float, help="camera height [m] when the camera file gives no pose "
                                                            "(pitch and roll then come from the horizon)")
     sky = p.add_mutually_exclusive_group()
     sky.add_argument("--overcast", dest="overcast", action="store_true", default=None,
@@ -342,221 +278,11 @@ def build_parser():
                    "(the default) or gpu (larger, more accurate, ~2.5x the time per frame)")
     from jaxocean.nn import cli as nn_cli
 
-    COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits, camera_from_args=_camera_from_args))
+    COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits, camera_from_args=inputs.camera_from_args))
     return ap
 
 
-# ----------------------------------------------------------------------------- input checks
-
-# What a render holds, in float32 values: per pixel and frame the image (3) and the
-# Geometry's normal (3), roughness (1), slope variance (2), mask (1), rest position (2),
-# world position (3) and footprint (1); per pixel, one frame's working set. Measured on the
-# CPU backend (peak RSS above the baseline, 60 waves, 128x192 to 512x768 pixels): 54 bytes
-# per pixel and frame and 1.8-2.0 KB per pixel, besides ~200 MB for the compiled program.
-_VALUES_PER_PIXEL_FRAME = 16
-_WORKING_VALUES_PER_PIXEL = 512
-
-
-def _render_bytes(resolution, n_frames: int) -> int:
-    """Estimated peak memory [bytes] of rendering ``n_frames`` frames of ``resolution``."""
-    pixels = int(resolution[0]) * int(resolution[1])
-    return 4 * pixels * (_VALUES_PER_PIXEL_FRAME * int(n_frames) + _WORKING_VALUES_PER_PIXEL)
-
-
-def _available_memory():
-    """``(bytes, what)``: the memory a render may use -- the host's available memory
-    (``/proc/meminfo`` MemAvailable, else the physical memory) and, on an accelerator, its
-    memory limit, whichever is smaller -- or ``(None, None)`` when neither can be told."""
-    limits = []
-    try:
-        with open("/proc/meminfo", encoding="ascii") as meminfo:
-            for line in meminfo:
-                if line.startswith("MemAvailable:"):
-                    limits.append((int(line.split()[1]) * 1024, "the available memory (MemAvailable)"))
-                    break
-    except (OSError, ValueError, IndexError):
-        pass
-    if not limits:
-        try:
-            limits.append((os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "the physical memory"))
-        except (ValueError, OSError, AttributeError):
-            pass
-    try:
-        import jax
-
-        stats = jax.local_devices()[0].memory_stats() or {}
-        if stats.get("bytes_limit"):
-            limits.append((int(stats["bytes_limit"]), f"the {jax.local_devices()[0].platform} memory limit"))
-    except Exception:  # a backend without memory statistics: the host's figure stands
-        pass
-    return min(limits) if limits else (None, None)
-
-
-def _gigabytes(n: float) -> str:
-    gib = n / 2**30
-    return f"{gib:,.0f} GiB" if gib >= 100 else f"{gib:.3g} GiB"
-
-
-def _check_memory(resolution, n_frames: int, what: str) -> None:
-    """ValueError (exit 2) before any work when the render cannot fit in memory."""
-    need = _render_bytes(resolution, n_frames)
-    limit, source = _available_memory()
-    if limit is not None and need > limit:
-        raise ValueError(f"{what}: {resolution[0]}x{resolution[1]} pixels x {n_frames} frame(s) needs about "
-                         f"{_gigabytes(need)} of memory, more than {source} ({_gigabytes(limit)}); "
-                         f"use a smaller --res or fewer frames")
-
-
-def _check_out_dir(path) -> Path:
-    """``--out`` of a command that writes a directory: not an existing file."""
-    path = Path(path)
-    if path.exists() and not path.is_dir():
-        raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory of frames)")
-    return path
-
-
-def _check_out_file(path) -> Path:
-    """``--out`` of a command that writes one JSON file: not an existing directory."""
-    path = Path(path)
-    if path.is_dir():
-        raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / 'fit.json'}")
-    return path
-
-
-def _json_kind(data: dict) -> str | None:
-    """What a JSON object that is not a scene file is, when it is one jaxocean writes."""
-    if "version" in data:
-        return None
-    if "lighting" in data and ("rms_residual" in data or "loss" in data):
-        return "a lighting fit result (jaxocean fit-lighting)"
-    if {"scenes", "frames", "ranges"} <= data.keys():
-        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
-    if "files" in data:
-        return "a dataset manifest (manifest.json)"
-    if {"train", "val", "test"} <= data.keys():
-        return "a dataset's splits (splits.json)"
-    if "outputs" in data and "frames" in data:
-        return "a demo summary (summary.json; its scene is the render directory beside it)"
-    return None
-
-
-def _refuse_other_json(path, needs: str) -> None:
-    """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene."""
-    path = Path(path)
-    if not path.is_file():
-        return
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
-        return  # read_scene reports it
-    kind = _json_kind(data) if isinstance(data, dict) else None
-    if kind is not None:
-        raise ValueError(f"{path}: this is {kind}; {needs}")
-
-
 # ----------------------------------------------------------------------------- commands
-
-
-def _scene_from_args(args):
-    import jax
-
-    from jaxocean import camera, shading, spectrum
-    from jaxocean.io.dataset import SceneSample
-
-    spec = spectrum.Spectrum(hs=args.hs, tp=args.tp, gamma=args.gamma, theta_mean=np.deg2rad(args.wave_direction),
-                             s_max=args.spreading)
-    waves = spectrum.sample_waves(jax.random.key(args.seed), spec, args.waves).waves
-    cam = camera.make_camera(height=args.camera_height, pitch=np.deg2rad(args.camera_pitch_deg),
-                             fov=np.deg2rad(args.camera_fov_deg), yaw=np.deg2rad(args.camera_yaw_deg),
-                             resolution=args.res)
-    light = shading.make_lighting(sun_azimuth=np.deg2rad(args.sun_azimuth),
-                                  sun_elevation=np.deg2rad(args.sun_elevation))
-    import jax.numpy as jnp
-    return SceneSample(waves, spec, cam, light, jnp.arange(args.frames, dtype=jnp.float32) * args.dt)
-
-
-def _scene_from_file(path):
-    from jaxocean.io.dataset import SceneSample
-    from jaxocean.io.scene import read_scene
-
-    _refuse_other_json(path, "render needs a scene.json (waves, camera, lighting and times) or its directory")
-    sc = read_scene(path)
-    missing = [n for n in ("waves", "camera", "lighting", "times") if getattr(sc, n) is None]
-    if missing:
-        raise ValueError(f"{path}: scene has no {', '.join(missing)}; render needs waves, camera, lighting and times")
-    return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
-
-
-def _read_json(path, what: str) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such {what}")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable JSON {what} ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: a {what} must be a JSON object")
-    return data
-
-
-def _lighting_from_file(path):
-    """The lighting of a ``fit-lighting`` JSON (or of a scene.json's ``lighting``)."""
-    from jaxocean.fit.lighting import lighting_from_dict
-
-    data = _read_json(path, "lighting file")
-    try:
-        return lighting_from_dict(data)
-    except (TypeError, ValueError) as error:
-        raise ValueError(f"{path}: {error}") from None
-
-
-def _radians(degrees):
-    return None if degrees is None else math.radians(degrees)
-
-
-def _camera_from_args(args, base, resolution, where: str):
-    """``base`` with the --camera-* / --res options applied; without a base, a new camera from
-    the options (height and pitch needed; fov 45 deg, yaw 0 by default) of ``--res`` or else
-    ``resolution``."""
-    from jaxocean import camera as cam
-    from jaxocean.fit.reedit import edit_camera
-
-    if base is not None:
-        return edit_camera(base, height=args.camera_height, pitch=_radians(args.camera_pitch_deg),
-                           fov=_radians(args.camera_fov_deg), yaw=_radians(args.camera_yaw_deg),
-                           resolution=getattr(args, "res", None))
-    resolution = getattr(args, "res", None) or resolution
-    missing = [flag for flag, value in (("--camera-height", args.camera_height),
-                                        ("--camera-pitch-deg", args.camera_pitch_deg)) if value is None]
-    if missing:
-        raise ValueError(f"{where} has no camera: give {' and '.join(missing)} (--camera-fov-deg defaults to 45, "
-                         f"--camera-yaw-deg to 0){' or --scene' if where.startswith('frame') else ''}")
-    if resolution is None:
-        raise ValueError(f"{where} has no camera: give --res too")
-    return cam.make_camera(height=args.camera_height, pitch=math.radians(args.camera_pitch_deg),
-                           fov=math.radians(45.0 if args.camera_fov_deg is None else args.camera_fov_deg),
-                           yaw=_radians(args.camera_yaw_deg or 0.0), resolution=resolution)
-
-
-def _lighting_from_args(args, base):
-    """``--lighting`` (else ``base``, else the default lighting) with --sun-* applied."""
-    from jaxocean import shading
-    from jaxocean.fit.reedit import edit_lighting
-
-    light = _lighting_from_file(args.lighting) if args.lighting else base
-    light = shading.make_lighting() if light is None else light
-    return edit_lighting(light, sun_azimuth=_radians(args.sun_azimuth), sun_elevation=_radians(args.sun_elevation))
-
-
-def _check_frames(frames, n: int, where: str):
-    """``frames`` (or all ``n``) as a list, every index < n."""
-    if frames is None:
-        return list(range(n))
-    bad = [f for f in frames if f >= n]
-    if bad:
-        raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")
-    return list(frames)
 
 
 def _rgb(values) -> str:
@@ -568,12 +294,12 @@ def cmd_render(args):
 
     from jaxocean.io.dataset import render_scene
 
-    out = _check_out_dir(args.out)
+    out = inputs.check_out_dir(args.out)
     if not args.scene:
-        _check_memory(args.res, args.frames, "render")
-    scene = _scene_from_file(args.scene) if args.scene else _scene_from_args(args)
+        inputs.check_memory(args.res, args.frames, "render")
+    scene = inputs.scene_from_file(args.scene) if args.scene else inputs.scene_from_args(args)
     if args.scene:
-        _check_memory(scene.camera.resolution, int(np.size(scene.times)), f"render {args.scene}")
+        inputs.check_memory(scene.camera.resolution, int(np.size(scene.times)), f"render {args.scene}")
     t0 = time.perf_counter()
     images, geo = jax.device_get(render_scene(scene))
     render_s = time.perf_counter() - t0
@@ -587,8 +313,8 @@ def cmd_render(args):
 def cmd_simulate(args):
     from jaxocean.io.dataset import SceneRanges, simulate
 
-    _check_out_dir(args.out)
-    _check_memory(args.res, args.frames, "simulate")
+    inputs.check_out_dir(args.out)
+    inputs.check_memory(args.res, args.frames, "simulate")
     ranges = SceneRanges()
     if args.ranges:
         ranges = SceneRanges.from_json({**ranges.to_json(), **json.loads(Path(args.ranges).read_text())})
@@ -636,9 +362,9 @@ def cmd_demo(args):
                          f"waves")
     if "real" in stages and args.real is not None and not (Path(args.real) / "camera.json").is_file():
         raise ValueError(f"--real {args.real}: no camera.json there")
-    out = _check_out_dir(args.out)
-    _check_memory(args.res, args.frames, "demo")
-    scene = _scene_from_args(args)
+    out = inputs.check_out_dir(args.out)
+    inputs.check_memory(args.res, args.frames, "demo")
+    scene = inputs.scene_from_args(args)
     print(f"demo: {args.waves} waves from JONSWAP(Hs={args.hs} m, Tp={args.tp} s, gamma={args.gamma}), "
           f"{args.frames} frames of {args.res[0]}x{args.res[1]}")
     t0 = time.perf_counter()
@@ -716,7 +442,7 @@ def cmd_fit_lighting(args):
     from jaxocean.camera import camera_to_dict
     from jaxocean.io import read_frame, read_scene
 
-    _check_out_file(args.out)
+    inputs.check_out_file(args.out)
     frame = read_frame(args.frame, warn_incomplete=False)
     if frame.normal is None:
         raise ValueError(f"{args.frame}: the frame has no normal channels (normal.X/Y/Z, roughness, mask); "
@@ -729,7 +455,7 @@ def cmd_fit_lighting(args):
     scene = read_scene(args.scene) if args.scene else None
     if scene is not None and scene.camera is None:
         raise ValueError(f"{args.scene}: the scene has no camera")
-    camera = _camera_from_args(args, None if scene is None else scene.camera, tuple(frame.image.shape[:2]),
+    camera = inputs.camera_from_args(args, None if scene is None else scene.camera, tuple(frame.image.shape[:2]),
                                where=f"frame {args.frame}")
     print(f"fitting the lighting of {args.frame} ({frame.image.shape[0]}x{frame.image.shape[1]}; "
           f"compilation included)")
@@ -760,15 +486,15 @@ def cmd_reedit(args):
     from jaxocean.fit import reedit_scene
     from jaxocean.io import read_scene
 
-    _check_out_dir(args.out)
-    _refuse_other_json(args.scene, "reedit needs a scene: a scene directory or scene.json with waves, camera, "
+    inputs.check_out_dir(args.out)
+    inputs.refuse_other_json(args.scene, "reedit needs a scene: a scene directory or scene.json with waves, camera, "
                                    "lighting and times")
     scene = read_scene(args.scene)
     n = 1 if scene.times is None else int(np.size(scene.times))
-    frames = _check_frames(args.frames, n, f"scene {args.scene}")
+    frames = inputs.check_frames(args.frames, n, f"scene {args.scene}")
     if scene.camera is not None:
-        _check_memory(args.res or scene.camera.resolution, len(frames), "reedit")
-    lighting = _lighting_from_file(args.lighting) if args.lighting else None
+        inputs.check_memory(args.res or scene.camera.resolution, len(frames), "reedit")
+    lighting = inputs.lighting_from_file(args.lighting) if args.lighting else None
     t0 = time.perf_counter()
     out = reedit_scene(args.scene, args.out, camera_height=args.camera_height, camera_pitch_deg=args.camera_pitch_deg,
                        camera_fov_deg=args.camera_fov_deg, camera_yaw_deg=args.camera_yaw_deg, resolution=args.res,
@@ -838,8 +564,8 @@ def cmd_fit_waves(args):
         raise ValueError(f"--noise-correlation must be a finite number of pixels >= 0; got {args.noise_correlation}")
     if args.noise_correlation > 0 and args.noise is None:
         raise ValueError("--noise-correlation is the correlation of --noise: give --noise too")
-    _check_out_file(args.out)
-    _refuse_other_json(args.scene, "fit-waves needs a scene directory (scene.json and its frame_XXXXX.exr files)")
+    inputs.check_out_file(args.out)
+    inputs.refuse_other_json(args.scene, "fit-waves needs a scene directory (scene.json and its frame_XXXXX.exr files)")
     scene_dir = Path(args.scene)
     scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
     scene = read_scene(scene_dir)
@@ -847,7 +573,7 @@ def cmd_fit_waves(args):
     if missing:
         raise ValueError(f"{scene_dir}: the scene has no {' and '.join(missing)}; fit-waves needs both")
     all_times = np.asarray(scene.times, np.float64)
-    frames = _check_frames(args.frames, all_times.size, f"scene {scene_dir}")
+    frames = inputs.check_frames(args.frames, all_times.size, f"scene {scene_dir}")
     if len(frames) < 2:
         raise ValueError(f"fit-waves needs at least two frames (the waves' frequencies come from their motion); "
                          f"got {len(frames)}")
@@ -921,8 +647,8 @@ def cmd_forecast(args):
     from jaxocean.io.dataset import SceneSample
     from jaxocean.waves import Waves
 
-    _check_out_dir(args.out)
-    _refuse_other_json(args.waves, "forecast needs waves (a fit-waves result or a scene.json)")
+    inputs.check_out_dir(args.out)
+    inputs.refuse_other_json(args.waves, "forecast needs waves (a fit-waves result or a scene.json)")
     scene = read_scene(args.waves)
     if scene.waves is None:
         raise ValueError(f"{args.waves}: no waves to forecast (expected a fit-waves JSON or a scene.json)")
@@ -949,9 +675,9 @@ def cmd_forecast(args):
             times = frame_times(known, frame_ids)
         else:
             raise ValueError(f"{args.waves} holds no frame clock (two or more times); give --fps or --times")
-    camera = _camera_from_args(args, scene.camera, None, where=f"{args.waves}")
-    _check_memory(camera.resolution, len(times), "forecast")
-    lighting = _lighting_from_args(args, scene.lighting)
+    camera = inputs.camera_from_args(args, scene.camera, None, where=f"{args.waves}")
+    inputs.check_memory(camera.resolution, len(times), "forecast")
+    lighting = inputs.lighting_from_args(args, scene.lighting)
     model, damp = scene.waves, {}
     stored = wave_fit.get("forecast") if isinstance(wave_fit, dict) else None
     if stored is not None and not args.undamped:
@@ -990,7 +716,7 @@ def cmd_forecast(args):
 def cmd_reconstruct(args) -> int:
     from jaxocean import reconstruct
 
-    out = _check_out_dir(args.out)
+    out = inputs.check_out_dir(args.out)
     for name in ("step", "wave_frames", "max_waves", "width"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1; got {getattr(args, name)}")

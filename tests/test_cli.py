@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxocean import cli, compile_cache
+from jaxocean import _cli_inputs, cli, compile_cache
 
 
 @pytest.mark.parametrize("command", ["render", "simulate", "check", "demo", "fit-lighting", "reedit", "fit-waves",
@@ -317,8 +317,8 @@ def test_render_refuses_sizes_memory_cannot_hold(tmp_path, capsys, monkeypatch):
     assert err.startswith("jaxocean: error: render: 99999x99999 pixels x 24 frame(s) needs about") and "GiB" in err
     assert err.count("\n") == 1 and not out.exists()
     # the estimate is compared with what the machine reports, here a 50 MiB limit
-    monkeypatch.setattr(cli, "_available_memory", lambda: (50 * 2**20, "the test's limit"))
-    assert cli._render_bytes((256, 256), 100) > 50 * 2**20
+    monkeypatch.setattr(_cli_inputs, "available_memory", lambda: (50 * 2**20, "the test's limit"))
+    assert _cli_inputs.render_bytes((256, 256), 100) > 50 * 2**20
     assert cli.main(["simulate", "--out", str(out), "--res", "256", "--frames", "100", "--quiet"]) == 2
     assert "more than the test's limit (0.0488 GiB)" in capsys.readouterr().err and not out.exists()
 

@@ -1,0 +1,308 @@
+"""The command line's readers and checks of its input (:mod:`jaxocean.cli`).
+
+* Argument types for ``argparse``: :func:`resolution_arg` (``N`` or ``HxW``),
+  :func:`index_list`, :func:`number_list`, :func:`positive_int`, :func:`positive_float`,
+  and :class:`DeprecatedAlias` (a former option name that still works and says so).
+* Checks made before any work, raising ``ValueError`` (exit 2) with a message naming the
+  input: :func:`check_memory` (a render's estimated peak memory, :func:`render_bytes`,
+  against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
+  :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
+  :func:`json_kind`), :func:`check_frames`.
+* Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``),
+  :func:`read_json`, :func:`lighting_from_file`, :func:`camera_from_args` and
+  :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
+
+Angles on the command line are degrees; the library's values are radians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
+           "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
+           "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "read_json", "lighting_from_file",
+           "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
+
+
+def resolution_arg(text: str):
+    try:
+        parts = [int(p) for p in text.lower().replace("x", " ").split()]
+    except ValueError:
+        parts = []
+    if len(parts) == 1:
+        parts = parts * 2
+    if len(parts) != 2 or min(parts) < 1:
+        raise argparse.ArgumentTypeError(f"resolution must be N or HxW with positive integers; got {text!r}")
+    return tuple(parts)
+
+
+def parse_list(text: str, convert, valid, expected: str):
+    """Comma- or space-separated values: ``convert`` each; all must pass ``valid``."""
+    try:
+        values = [convert(p) for p in text.replace(",", " ").split()]
+    except ValueError:
+        values = []
+    if not values or not all(valid(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected {expected}; got {text!r}")
+    return tuple(values)
+
+
+def index_list(text: str):
+    return parse_list(text, int, lambda v: v >= 0, "comma-separated frame indices >= 0, e.g. 0,1,5")
+
+
+def number_list(text: str):
+    return parse_list(text, float, math.isfinite, "comma-separated finite numbers, e.g. 0,1.5,10")
+
+
+def positive_int(text: str):
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer; got {text!r}")
+    return value
+
+
+class DeprecatedAlias(argparse.Action):
+    """A former option name kept working: stores into the new option's ``dest`` and says so."""
+
+    def __init__(self, option_strings, dest, *, new: str, **kwargs):
+        self.new = new
+        kwargs.update(default=argparse.SUPPRESS, help=argparse.SUPPRESS)  # hidden; the new option's default holds
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"jaxocean: note: {option_string} is deprecated; use {self.new}", file=sys.stderr)
+        setattr(namespace, self.dest, values)
+
+
+def positive_float(text: str):
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not value > 0 or not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a positive number; got {text!r}")
+    return value
+
+
+
+# What a render holds, in float32 values: per pixel and frame the image (3) and the
+# Geometry's normal (3), roughness (1), slope variance (2), mask (1), rest position (2),
+# world position (3) and footprint (1); per pixel, one frame's working set. Measured on the
+# CPU backend (peak RSS above the baseline, 60 waves, 128x192 to 512x768 pixels): 54 bytes
+# per pixel and frame and 1.8-2.0 KB per pixel, besides ~200 MB for the compiled program.
+_VALUES_PER_PIXEL_FRAME = 16
+_WORKING_VALUES_PER_PIXEL = 512
+
+
+def render_bytes(resolution, n_frames: int) -> int:
+    """Estimated peak memory [bytes] of rendering ``n_frames`` frames of ``resolution``."""
+    pixels = int(resolution[0]) * int(resolution[1])
+    return 4 * pixels * (_VALUES_PER_PIXEL_FRAME * int(n_frames) + _WORKING_VALUES_PER_PIXEL)
+
+
+def available_memory():
+    """``(bytes, what)``: the memory a render may use -- the host's available memory
+    (``/proc/meminfo`` MemAvailable, else the physical memory) and, on an accelerator, its
+    memory limit, whichever is smaller -- or ``(None, None)`` when neither can be told."""
+    limits = []
+    try:
+        with open("/proc/meminfo", encoding="ascii") as meminfo:
+            for line in meminfo:
+                if line.startswith("MemAvailable:"):
+                    limits.append((int(line.split()[1]) * 1024, "the available memory (MemAvailable)"))
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    if not limits:
+        try:
+            limits.append((os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"), "the physical memory"))
+        except (ValueError, OSError, AttributeError):
+            pass
+    try:
+        import jax
+
+        stats = jax.local_devices()[0].memory_stats() or {}
+        if stats.get("bytes_limit"):
+            limits.append((int(stats["bytes_limit"]), f"the {jax.local_devices()[0].platform} memory limit"))
+    except Exception:  # a backend without memory statistics: the host's figure stands
+        pass
+    return min(limits) if limits else (None, None)
+
+
+def gigabytes(n: float) -> str:
+    gib = n / 2**30
+    return f"{gib:,.0f} GiB" if gib >= 100 else f"{gib:.3g} GiB"
+
+
+def check_memory(resolution, n_frames: int, what: str) -> None:
+    """ValueError (exit 2) before any work when the render cannot fit in memory."""
+    need = render_bytes(resolution, n_frames)
+    limit, source = available_memory()
+    if limit is not None and need > limit:
+        raise ValueError(f"{what}: {resolution[0]}x{resolution[1]} pixels x {n_frames} frame(s) needs about "
+                         f"{gigabytes(need)} of memory, more than {source} ({gigabytes(limit)}); "
+                         f"use a smaller --res or fewer frames")
+
+
+def check_out_dir(path) -> Path:
+    """``--out`` of a command that writes a directory: not an existing file."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory of frames)")
+    return path
+
+
+def check_out_file(path) -> Path:
+    """``--out`` of a command that writes one JSON file: not an existing directory."""
+    path = Path(path)
+    if path.is_dir():
+        raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / 'fit.json'}")
+    return path
+
+
+def json_kind(data: dict) -> str | None:
+    """What a JSON object that is not a scene file is, when it is one jaxocean writes."""
+    if "version" in data:
+        return None
+    if "lighting" in data and ("rms_residual" in data or "loss" in data):
+        return "a lighting fit result (jaxocean fit-lighting)"
+    if {"scenes", "frames", "ranges"} <= data.keys():
+        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
+    if "files" in data:
+        return "a dataset manifest (manifest.json)"
+    if {"train", "val", "test"} <= data.keys():
+        return "a dataset's splits (splits.json)"
+    if "outputs" in data and "frames" in data:
+        return "a demo summary (summary.json; its scene is the render directory beside it)"
+    return None
+
+
+def refuse_other_json(path, needs: str) -> None:
+    """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene."""
+    path = Path(path)
+    if not path.is_file():
+        return
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return  # read_scene reports it
+    kind = json_kind(data) if isinstance(data, dict) else None
+    if kind is not None:
+        raise ValueError(f"{path}: this is {kind}; {needs}")
+
+
+# ----------------------------------------------------------------------------- scenes, cameras and lighting
+
+
+def scene_from_args(args):
+    import jax
+
+    from jaxocean import camera, shading, spectrum
+    from jaxocean.io.dataset import SceneSample
+
+    spec = spectrum.Spectrum(hs=args.hs, tp=args.tp, gamma=args.gamma, theta_mean=np.deg2rad(args.wave_direction),
+                             s_max=args.spreading)
+    waves = spectrum.sample_waves(jax.random.key(args.seed), spec, args.waves).waves
+    cam = camera.make_camera(height=args.camera_height, pitch=np.deg2rad(args.camera_pitch_deg),
+                             fov=np.deg2rad(args.camera_fov_deg), yaw=np.deg2rad(args.camera_yaw_deg),
+                             resolution=args.res)
+    light = shading.make_lighting(sun_azimuth=np.deg2rad(args.sun_azimuth),
+                                  sun_elevation=np.deg2rad(args.sun_elevation))
+    import jax.numpy as jnp
+    return SceneSample(waves, spec, cam, light, jnp.arange(args.frames, dtype=jnp.float32) * args.dt)
+
+
+def scene_from_file(path):
+    from jaxocean.io.dataset import SceneSample
+    from jaxocean.io.scene import read_scene
+
+    refuse_other_json(path, "render needs a scene.json (waves, camera, lighting and times) or its directory")
+    sc = read_scene(path)
+    missing = [n for n in ("waves", "camera", "lighting", "times") if getattr(sc, n) is None]
+    if missing:
+        raise ValueError(f"{path}: scene has no {', '.join(missing)}; render needs waves, camera, lighting and times")
+    return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
+
+
+def read_json(path, what: str) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such {what}")
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as error:
+        raise ValueError(f"{path}: not a readable JSON {what} ({error})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a {what} must be a JSON object")
+    return data
+
+
+def lighting_from_file(path):
+    """The lighting of a ``fit-lighting`` JSON (or of a scene.json's ``lighting``)."""
+    from jaxocean.fit.lighting import lighting_from_dict
+
+    data = read_json(path, "lighting file")
+    try:
+        return lighting_from_dict(data)
+    except (TypeError, ValueError) as error:
+        raise ValueError(f"{path}: {error}") from None
+
+
+def radians_or_none(degrees):
+    return None if degrees is None else math.radians(degrees)
+
+
+def camera_from_args(args, base, resolution, where: str):
+    """``base`` with the --camera-* / --res options applied; without a base, a new camera from
+    the options (height and pitch needed; fov 45 deg, yaw 0 by default) of ``--res`` or else
+    ``resolution``."""
+    from jaxocean import camera as cam
+    from jaxocean.fit.reedit import edit_camera
+
+    if base is not None:
+        return edit_camera(base, height=args.camera_height, pitch=radians_or_none(args.camera_pitch_deg),
+                           fov=radians_or_none(args.camera_fov_deg), yaw=radians_or_none(args.camera_yaw_deg),
+                           resolution=getattr(args, "res", None))
+    resolution = getattr(args, "res", None) or resolution
+    missing = [flag for flag, value in (("--camera-height", args.camera_height),
+                                        ("--camera-pitch-deg", args.camera_pitch_deg)) if value is None]
+    if missing:
+        raise ValueError(f"{where} has no camera: give {' and '.join(missing)} (--camera-fov-deg defaults to 45, "
+                         f"--camera-yaw-deg to 0){' or --scene' if where.startswith('frame') else ''}")
+    if resolution is None:
+        raise ValueError(f"{where} has no camera: give --res too")
+    return cam.make_camera(height=args.camera_height, pitch=math.radians(args.camera_pitch_deg),
+                           fov=math.radians(45.0 if args.camera_fov_deg is None else args.camera_fov_deg),
+                           yaw=radians_or_none(args.camera_yaw_deg or 0.0), resolution=resolution)
+
+
+def lighting_from_args(args, base):
+    """``--lighting`` (else ``base``, else the default lighting) with --sun-* applied."""
+    from jaxocean import shading
+    from jaxocean.fit.reedit import edit_lighting
+
+    light = lighting_from_file(args.lighting) if args.lighting else base
+    light = shading.make_lighting() if light is None else light
+    return edit_lighting(light, sun_azimuth=radians_or_none(args.sun_azimuth), sun_elevation=radians_or_none(args.sun_elevation))
+
+
+def check_frames(frames, n: int, where: str):
+    """``frames`` (or all ``n``) as a list, every index < n."""
+    if frames is None:
+        return list(range(n))
+    bad = [f for f in frames if f >= n]
+    if bad:
+        raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")
+    return list(frames)
