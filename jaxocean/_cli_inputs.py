@@ -295,7 +295,8 @@ def lighting_from_args(args, base):
 
     light = lighting_from_file(args.lighting) if args.lighting else base
     light = shading.make_lighting() if light is None else light
-    return edit_lighting(light, sun_azimuth=radians_or_none(args.sun_azimuth), sun_elevation=radians_or_none(args.sun_elevation))
+    return edit_lighting(light, sun_azimuth=radians_or_none(args.sun_azimuth),
+                         sun_elevation=radians_or_none(args.sun_elevation))
 
 
 def check_frames(frames, n: int, where: str):

@@ -107,7 +107,8 @@ def _add_scene_options(p):
     g.add_argument("--camera-pitch-deg", type=float, default=20.0, help="camera pitch below the horizon [deg]")
     g.add_argument("--camera-fov-deg", type=float, default=45.0, help="vertical field of view [deg]")
     g.add_argument("--camera-yaw-deg", type=float, default=0.0, help="viewing azimuth [deg from +x] (default 0)")
-    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-pitch-deg")
+    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=inputs.DeprecatedAlias,
+                   new="--camera-pitch-deg")
     g.add_argument("--fov", dest="camera_fov_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-fov-deg")
     g.add_argument("--res", type=inputs.resolution_arg, default=(128, 192), help="HxW pixels (default 128x192)")
     g.add_argument("--sun-azimuth", type=float, default=10.0, help="sun azimuth [deg from +x]; the camera looks "
@@ -234,8 +235,9 @@ def build_parser():
     when = p.add_mutually_exclusive_group(required=True)
     when.add_argument("--frames", type=inputs.index_list, help="frame indices, e.g. 0,100,500")
     when.add_argument("--times", type=inputs.number_list, help="times [s], e.g. 0,10,50")
-    p.add_argument("--fps", type=inputs.positive_float, help="frames per second for --frames (default: the JSON's frame "
-                                                 "interval; frame 0 is its first time)")
+    p.add_argument("--fps", type=inputs.positive_float,
+                   help="frames per second for --frames (default: the JSON's frame "
+                        "interval; frame 0 is its first time)")
     p.add_argument("--undamped", action="store_true",
                    help="with a fit-waves result: extrapolate every fitted wave's phase as fitted, without the "
                         "long-wave band. Default: the least-squares forecast (jaxocean.forecast), the fit's waves "
@@ -260,13 +262,15 @@ def build_parser():
     p.add_argument("--width", type=int, default=128, help="width [px] of the rectified working view (default 128)")
     p.add_argument("--response", default="srgb", choices=("srgb", "gamma", "linear", "bruneton"),
                    help="display response of 8/16-bit frames (default srgb)")
-    p.add_argument("--gamma", type=inputs.positive_float, default=2.2, help="exponent for --response gamma (default 2.2)")
+    p.add_argument("--gamma", type=inputs.positive_float, default=2.2,
+                   help="exponent for --response gamma (default 2.2)")
     p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
     p.add_argument("--max-frames", type=int, help="use at most this many frames")
     p.add_argument("--wave-frames", type=int, default=16, help="frames the wave fits use, spread evenly (default 16)")
     p.add_argument("--max-waves", type=int, default=24, help="most waves the wave fit tries (default 24)")
-    p.add_argument("--camera-height", type=inputs.positive_float, help="camera height [m] when the camera file gives no pose "
-                                                           "(pitch and roll then come from the horizon)")
+    p.add_argument("--camera-height", type=inputs.positive_float,
+                   help="camera height [m] when the camera file gives no pose "
+                        "(pitch and roll then come from the horizon)")
     sky = p.add_mutually_exclusive_group()
     sky.add_argument("--overcast", dest="overcast", action="store_true", default=None,
                      help="no sun term (default: decided from the footage)")
@@ -278,7 +282,8 @@ def build_parser():
                    "(the default) or gpu (larger, more accurate, ~2.5x the time per frame)")
     from jaxocean.nn import cli as nn_cli
 
-    COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits, camera_from_args=inputs.camera_from_args))
+    COMMANDS.update(nn_cli.register(sub, add_camera_options=_add_camera_edits,
+                                    camera_from_args=inputs.camera_from_args))
     return ap
 
 

@@ -3,7 +3,8 @@ camera, as linear radiance (stage 1 of ``jaxocean reconstruct``, :mod:`jaxocean.
 
 Protocol
 --------
-:func:`load_sequence(frames, camera_path, ...)` -> ``(Sequence, StageReport)``:
+:func:`load_sequence(frames, camera_path, ...)` -> ``(Sequence, StageReport)``
+(:class:`jaxocean._stages.StageReport`):
 
 * ``frames``: PNG / JPEG / 16-bit PNG / EXR files, or one video; RGB or gray. Display values
   become linear radiance through a documented response (:mod:`jaxocean.radiometry`: sRGB by
@@ -34,12 +35,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import camera as cam
-from jaxocean._stages import StageReport, timed
+from jaxocean._stages import timed
 from jaxocean.errors import InvalidValueError
 from jaxocean.io.images import VIDEO_SUFFIXES
 
 __all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
-           "EVIDENCE_WIDTH", "BLACK_LEVEL", "StageReport"]
+           "EVIDENCE_WIDTH", "BLACK_LEVEL"]
 
 #: default working width [px] of the rectified view; the height follows the view's aspect,
 #: rounded to a multiple of 16 (the geometry network halves the size four times)

@@ -46,16 +46,14 @@ from jaxocean import shading
 from jaxocean._math import slope_from_normal
 from jaxocean._stages import StageReport, timed
 from jaxocean.files import json_safe
-from jaxocean.footage import (BLACK_LEVEL, BOTTOM_MARGIN, DEFAULT_WIDTH, EVIDENCE_WIDTH, HORIZON_MARGIN, Sequence,
-                              load_sequence, sea_view)
+from jaxocean.footage import DEFAULT_WIDTH, Sequence, load_sequence, sea_view
 from jaxocean.waves import Waves, wavenumber
 
-# the input stage's names are re-exported: every stage is reachable from this module
+# the input stage (jaxocean.footage) is re-exported: every stage is reachable from this module
 __all__ = ["STAGES", "StageReport", "Sequence", "Reconstruction", "load_sequence", "sea_view", "geometry_stage",
            "space_time_evidence", "geometry_sea_spectrum",
            "lighting_stage", "waves_stage", "photometric_stage", "sea_stage", "outlook_stage", "reconstruct",
-           "result_dict", "direction_deg", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN", "EVIDENCE_WIDTH",
-           "BLACK_LEVEL"]
+           "result_dict", "direction_deg"]
 
 STAGES = ("radiometry", "geometry", "lighting", "waves", "photometric", "spectrum", "forecast")
 

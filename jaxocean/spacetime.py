@@ -338,7 +338,6 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     slopes = np.where(usable[..., None], -np.nan_to_num(normals[..., :2]) / nz[..., None], 0.0)
     band = _band_power(slopes.astype(np.float32), usable, camera, times, grid, spacing, max_footprint, tolerance,
                        None)
-    nan = math.nan
     if not isinstance(band, _Band):
         return _no_sea(U, *band)
     # wave vectors whose shell reaches down to the lowest frequencies are left out: there a
@@ -362,7 +361,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     floor = np.where(n_off > 0, (P * off).sum(0) / np.maximum(n_off, 1), 0.0)
     shell = (P * on).sum(0)
     signal = np.maximum(shell - floor * n_on, 0.0)
-    noise_fraction = float((floor * n_on).sum() / shell.sum()) if shell.sum() > 0 else nan
+    noise_fraction = float((floor * n_on).sum() / shell.sum()) if shell.sum() > 0 else math.nan
     # the omega >= 0 half holds half of every wave's power; elevation = slope / k
     elevation = 2.0 * signal / kb ** 2
     m0 = float(elevation.sum())

@@ -12,6 +12,7 @@ import pytest
 
 import jaxocean as jo
 from jaxocean import camera as cam
+from jaxocean import footage
 from jaxocean import lens
 from jaxocean import reconstruct as rc
 from jaxocean import render
@@ -71,7 +72,7 @@ def test_sea_view_of_real_footage_lies_inside_every_frame():
     camera_file = cf.read_camera_file(CLIP / "camera.json")
     view = rc.sea_view(camera_file, width=64)
     # top edge below the horizon by the margin, the source's aspect
-    assert float(view.pitch) - float(view.fov) / 2 == pytest.approx(rc.HORIZON_MARGIN, abs=1e-6)
+    assert float(view.pitch) - float(view.fov) / 2 == pytest.approx(footage.HORIZON_MARGIN, abs=1e-6)
     assert view.resolution == (48, 64)
     heading = lens.heading_from_yaw(float(view.yaw))
     assert math.degrees(float(heading)) % 360 == pytest.approx(57.0, abs=4.0)  # ENE, as the file says
