@@ -9,7 +9,8 @@ scene's first ``T`` frames (``T = model.config.frames``) of noise-free geometry 
   scene's roughness, then :func:`jaxocean.fit.correct_amplitudes` with no wave marked
   reliable: the paper's eq. 2 correction as this library reads it);
 * **fit.waves (default)** -- :func:`jaxocean.fit.waves` from its spectral start;
-* **fit.waves (net start)** -- ``fit.waves(..., init="net")``.
+* **fit.waves (net start)** -- ``fit.waves(..., init="net")`` (which prunes by default;
+  ``--prune`` prunes the default start's fit too).
 
 Columns, per row: MSE and MAE of h [m], omega [rad/s], theta [rad] over the waves matched
 one to one to the scene's true *resolvable* waves (:func:`jaxocean.fit.waves.match`,
@@ -97,7 +98,7 @@ def spectrum_corrected(w: Waves, camera, rough):
     return fit.correct_amplitudes(w, sea.spectrum, reliable=None)
 
 
-PRUNE = False  # --prune: both fit rows with fit.waves(..., prune=True)
+PRUNE = None  # each fit's default (the net start prunes, the default start does not); --prune: both
 
 
 def run_scene(model, data, s, T, methods) -> dict:
@@ -231,7 +232,7 @@ def main(argv=None):
                    help="both fit rows with prune=True (results as wave_net_prune.json / .png)")
     args = p.parse_args(argv)
     global PRUNE
-    PRUNE = args.prune
+    PRUNE = True if args.prune else None
     name = "wave_net_prune" if args.prune else "wave_net"
     data = Dataset(args.data)
     model = wn.load(args.model)

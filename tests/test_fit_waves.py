@@ -441,6 +441,24 @@ def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
     assert bool(pruned.success)
 
 
+def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
+    # the strongest wave split into two 0.05 rad/s apart (0.07 Rayleigh limits): both fit
+    # the data to the floor, and the Wald statistic (second order) keeps the twin; pruning
+    # merges it into the stronger wave, which then carries the true amplitude
+    c, truth, normals, rough = ortho_scene
+    init = make_waves([0.0225, 0.02, 0.012, 0.0075], [2.8, 3.6, 4.9, 2.85], [0.4, 2.1, -1.2, 0.4],
+                      [0.5, 4.0, 2.0, 0.5])
+    assert fw.rayleigh_separation(init, init, c, TIMES)[0, 3] < 1.0
+    kept = fw.waves(normals, rough, c, TIMES, init=init)
+    assert int(kept.n_waves) == 4 and np.max(np.abs(fw.match(kept.waves, truth).abs_error.amplitude)) > 5e-3
+    merged = fw.waves(normals, rough, c, TIMES, init=init, prune=True, verbose=True)
+    out = capsys.readouterr().out
+    assert "merging 1 of 4 waves" in out and "pruning" not in out  # the Wald step kept the twin
+    assert int(merged.n_waves) == 3 and bool(merged.success)
+    m = fw.match(merged.waves, truth)
+    assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4
+
+
 def _m_and_floor(normals, c):
     m = 2.0 * float(jnp.sum(_inputs.valid_weights(normals, c)))
     # the default floor: the per-component sigma whose mean angle is the noise-free success bound
