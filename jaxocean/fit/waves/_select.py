@@ -3,9 +3,10 @@
 Protocol: :func:`waves` takes a scene and returns a :class:`jaxocean.fit.waves.WaveFit`
 (and the :class:`OrderSelection` path with ``return_selection=True``). Candidates come from
 the spectral estimate of the residual plus a polar grid of long waves, are scored and
-refined one by one on a subsample, solved jointly for their amplitudes, added in batches
-while the information criterion improves, and the whole set is refined by the structured
-Levenberg-Marquardt of :mod:`jaxocean.fit.waves._lm`.
+refined one by one on a subsample and solved jointly for their amplitudes
+(:mod:`jaxocean.fit.waves._candidates`), added in batches while the information criterion
+improves, the whole set is refined by the structured Levenberg-Marquardt of
+:mod:`jaxocean.fit.waves._lm`, and optionally pruned (:mod:`jaxocean.fit.waves._prune`).
 """
 
 from __future__ import annotations
@@ -21,18 +22,20 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
-from jaxocean._math import angle_between, sincos, smoothstep
+from jaxocean._math import angle_between
 from jaxocean.errors import InvalidValueError, check_nonnegative_number, check_values, is_concrete
-from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, clean_inputs, slope_field, subsample,
+from jaxocean.fit.waves._inputs import (all_samples, check_inputs, clean_inputs, slope_field, subsample,
                                         valid_weights)
 from jaxocean.fit.waves._lm import (HEIGHT_WEIGHT, NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, dense_jtj,
                                     fit_result, maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
-                                       surface_refine, to_waves, wrap_angle)
+                                       surface_refine, to_waves)
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import noise_cells, rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
+from jaxocean.fit.waves._candidates import joint_amplitudes, refine_candidates, score_candidates
+from jaxocean.fit.waves._prune import correlated_discount, unseparated_weaker, wald_keep
 from jaxocean.waves import GRAVITY, Waves, too_steep, validate, wavelength
 
 
@@ -71,140 +74,6 @@ class OrderSelection(NamedTuple):
     criterion: np.ndarray
     rss: np.ndarray
     accepted: np.ndarray
-
-
-# =============================================================================== candidate scoring
-
-
-def _single_wave_stats(om, th, s: Samples, n_min, n_max):
-    """Sufficient statistics of the single-wave least-squares fit of residual slopes
-    ``s.target`` along ``k_hat``: ``(su, sv, uu, vv, uv)`` with templates
-    ``u = w k sin psi0``, ``v = w k cos psi0`` (weights ``s.sw^2``)."""
-    k = om * om / GRAVITY
-    c, sn = jnp.cos(th), jnp.sin(th)
-    amp = smoothstep(n_min, n_max, (2 * jnp.pi / k) / s.fp) * k
-    psi0 = om * s.t - k * (c * s.xy[:, 0] + sn * s.xy[:, 1])
-    rk = s.target[:, 0] * c + s.target[:, 1] * sn
-    sp, cp = sincos(psi0)
-    wa = s.sw * s.sw * amp
-    wa2 = wa * amp
-    return (jnp.sum(wa * sp * rk), jnp.sum(wa * cp * rk), jnp.sum(wa2 * sp * sp), jnp.sum(wa2 * cp * cp),
-            jnp.sum(wa2 * sp * cp))
-
-
-def _energy_ab(stats):
-    su, sv, uu, vv, uv = stats
-    det = uu * vv - uv * uv
-    ok = det > 1e-9 * (uu * vv) + 1e-30
-    det = jnp.where(ok, det, 1.0)
-    a = jnp.where(ok, (vv * su - uv * sv) / det, 0.0)
-    b = jnp.where(ok, (uu * sv - uv * su) / det, 0.0)
-    return a * su + b * sv, a, b
-
-
-@functools.partial(jax.jit, static_argnums=(3, 4))
-def _score(omega, theta, s: Samples, n_min, n_max):
-    """Energy each single candidate wave removes from the residual slopes, and its (a, b)."""
-
-    def one(x):
-        return _energy_ab(_single_wave_stats(x[0], x[1], s, n_min, n_max))
-
-    return jax.lax.map(one, (omega, theta), batch_size=32)
-
-
-def _single_wave_jac(p, s: Samples, n_min, n_max):
-    """Residual ``(S, 2)`` and Jacobian ``(S, 2, 4)`` of one linear slope template
-    ``w k (a sin psi0 + b cos psi0) k_hat`` against ``s.target``; ``p = (a, b, log omega,
-    theta)``."""
-    a, b, u, th = p[0], p[1], p[2], p[3]
-    om = jnp.exp(u)
-    k = om * om / GRAVITY
-    c, sn = jnp.cos(th), jnp.sin(th)
-    x = (2 * jnp.pi / k) / s.fp
-    width = n_max - n_min
-    q = jnp.clip((x - n_min) / width, 0.0, 1.0)
-    w = q * q * (3.0 - 2.0 * q)
-    dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max))
-    proj = c * s.xy[:, 0] + sn * s.xy[:, 1]
-    psi0 = om * s.t - k * proj
-    sp, cp = sincos(psi0)
-    amp = w * k
-    lin = a * sp + b * cp
-    dlin = a * cp - b * sp  # d lin / d psi0
-    khat = jnp.stack([c, sn])
-    kperp = jnp.stack([-sn, c])
-    model = (amp * lin)[:, None] * khat
-    r = (model - s.target) * s.sw[:, None]
-    d_amp_du = k * dw_du + 2.0 * amp
-    dpsi_du = om * s.t - 2.0 * k * proj
-    dpsi_dth = k * (sn * s.xy[:, 0] - c * s.xy[:, 1])
-    ja = (amp * sp)[:, None] * khat
-    jb = (amp * cp)[:, None] * khat
-    ju = (d_amp_du * lin + amp * dlin * dpsi_du)[:, None] * khat
-    jt = (amp * dlin * dpsi_dth)[:, None] * khat + (amp * lin)[:, None] * kperp
-    J = jnp.stack([ja, jb, ju, jt], -1) * s.sw[:, None, None]
-    return r, J
-
-
-@functools.partial(jax.jit, static_argnums=(3, 4, 5))
-def _refine_candidates(omega, theta, s: Samples, n_min, n_max, iters):
-    """Single-wave Levenberg-Marquardt in (a, b, log omega, theta) on the residual slopes,
-    vmapped over candidates; returns refined (omega, theta), removed energy, (a, b)."""
-
-    def one(om, th):
-        e0, a0, b0 = _energy_ab(_single_wave_stats(om, th, s, n_min, n_max))
-        p0 = jnp.stack([a0, b0, jnp.log(om), th])
-
-        def rss(p):
-            r, _ = _single_wave_jac(p, s, n_min, n_max)
-            return jnp.sum(r * r)
-
-        def step(carry, _):
-            p, f, lam = carry
-            r, J = _single_wave_jac(p, s, n_min, n_max)
-            J = J.reshape(-1, 4)
-            A = J.T @ J
-            g = J.T @ r.reshape(-1)
-            d = jnp.maximum(jnp.diag(A), 1e-12 * jnp.max(jnp.diag(A)) + 1e-30)
-            dp = -jnp.linalg.solve(A + lam * jnp.diag(d), g)
-            dp = dp.at[2:].set(jnp.clip(dp[2:], -0.05, 0.05))
-            p_new = p + jnp.where(jnp.all(jnp.isfinite(dp)), dp, 0.0)
-            f_new = rss(p_new)
-            ok = f_new < f
-            return (jnp.where(ok, p_new, p), jnp.where(ok, f_new, f), jnp.where(ok, lam * 0.3, lam * 4.0)), None
-
-        (p, _, _), _ = jax.lax.scan(step, (p0, rss(p0), jnp.asarray(1e-3, p0.dtype)), None, length=iters)
-        e, a, b = _energy_ab(_single_wave_stats(jnp.exp(p[2]), p[3], s, n_min, n_max))
-        return jnp.exp(p[2]), wrap_angle(p[3]), e, a, b
-
-    return jax.vmap(one)(omega, theta)
-
-
-@functools.partial(jax.jit, static_argnums=(4, 5))
-def _joint_ab(omega, theta, valid, s: Samples, n_min, n_max):
-    """Joint least-squares (a, b) of ``B`` candidate waves on residual slopes, and each
-    one's partial energy (the RSS increase if it alone were dropped): sidelobes and
-    repeats of one wave lose their energy once the main lobe is in the same solve."""
-    B = omega.shape[0]
-    k = omega * omega / GRAVITY
-    khat = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)  # (B, 2)
-    amp = smoothstep(n_min, n_max, (2 * jnp.pi / k)[None, :] / s.fp[:, None]) * k * valid  # (S, B)
-    psi0 = omega * s.t[:, None] - (s.xy @ (k[:, None] * khat).T)  # (S, B)
-    sw = s.sw[:, None, None]
-    sp, cp = sincos(psi0)
-    U = jnp.concatenate([(amp * sp)[:, None, :] * khat.T[None], (amp * cp)[:, None, :]
-                         * khat.T[None]], -1) * sw  # (S, 2, 2B)
-    U = U.reshape(-1, 2 * B)
-    r = (s.target * s.sw[:, None]).reshape(-1)
-    G = U.T @ U
-    G = G + 1e-7 * jnp.diag(jnp.diag(G)) + jnp.diag(jnp.where(jnp.tile(valid, 2) > 0, 0.0, 1.0)).astype(G.dtype)
-    x = jnp.linalg.solve(G, U.T @ r)
-    Ginv = jnp.linalg.inv(G)
-    idx = jnp.stack([jnp.arange(B), jnp.arange(B) + B], -1)  # (B, 2)
-    blocks = Ginv[idx[:, :, None], idx[:, None, :]]  # (B, 2, 2)
-    xb = x[idx]  # (B, 2)
-    partial = jnp.einsum("bi,bi->b", xb, jnp.linalg.solve(blocks, xb[..., None])[..., 0])
-    return x[:B], x[B:], partial
 
 
 @functools.partial(jax.jit, static_argnums=(4, 5, 6))
@@ -506,7 +375,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         n = w.omega.shape[0]
         if not noise_correlation > 0 or n == 0:
             return 0.0
-        return _correlated_discount(y, jtj, jnp.arange(n_pad) < n + n_band, n, cells_of(w), m)
+        return correlated_discount(y, jtj, jnp.arange(n_pad) < n + n_band, n, cells_of(w), m)
 
     def rss_of(out):
         # out.loss = 0.5 |r|^2 with residuals scaled by 1/sqrt(P): the RSS is loss * m
@@ -602,7 +471,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         c_res = np.concatenate([np.repeat(res_scale, est.peak_power.shape[1]), np.full(hint_om.shape, res_scale[0]),
                                 np.full(long_om.shape, res_scale[-1])])
         c_om = jnp.where(jnp.asarray(valid), c_om, 1.0)
-        energy, _, _ = _score(c_om, c_th, smp_score, n_min, n_max)
+        energy, _, _ = score_candidates(c_om, c_th, smp_score, n_min, n_max)
         energy = np.where(valid, np.asarray(energy), -np.inf)
         # distinct candidates: the strongest first, dropping repeats of a wave vector within
         # the resolution of the grid that found it
@@ -621,7 +490,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         t_b = time.perf_counter()
         timing["detect"] += t_b - t_a
         smp_ref = subsample(smp, 2 * score_samples)
-        r_om, r_th, e_ref, _, _ = (np.asarray(x) for x in _refine_candidates(
+        r_om, r_th, e_ref, _, _ = (np.asarray(x) for x in refine_candidates(
             jnp.asarray(_pad_to(np.asarray(c_om)[pj], n_cand, 1.0)),
             jnp.asarray(_pad_to(np.asarray(c_th)[pj], n_cand, 0.0)), smp_ref, n_min, n_max, 8))
         e_ref = np.where(np.arange(n_cand) < pj.size, e_ref, -np.inf)
@@ -696,7 +565,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # one joint linear solve of the chosen candidates: drop those whose share of the
         # explained energy does not pay the criterion's penalty
         nb = bucket_size(ch.size)
-        a_j, b_j, part = (np.asarray(x) for x in _joint_ab(
+        a_j, b_j, part = (np.asarray(x) for x in joint_amplitudes(
             jnp.asarray(_pad_to(r_om[ch], nb, 1.0), dtype), jnp.asarray(_pad_to(r_th[ch], nb, 0.0), dtype),
             jnp.asarray(np.arange(nb) < ch.size, dtype), smp_ref, n_min, n_max))
         a_j, b_j, part = a_j[:ch.size], b_j[:ch.size], part[:ch.size] * (e_all[ch] / np.maximum(e_ref[ch], 1e-300))
@@ -808,7 +677,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     if n_waves is None and prune:
         for _ in range(2):
             n_cur = current.omega.shape[0]
-            keep = _wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
+            keep = wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
                               criterion, noise, floor2, cells_of(current))[:n_cur]
             if keep.all() or keep.sum() == 0:
                 break
@@ -830,7 +699,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # pair's weaker wave is dropped in one refit, kept if the criterion does not get worse
         n_cur = current.omega.shape[0]
         fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
-        merge = _unseparated_weaker(fitted, camera, times, n_max)
+        merge = unseparated_weaker(fitted, camera, times, n_max)
         if merge.any():
             pruned = jax.tree.map(lambda x: x[np.nonzero(~merge)[0]], fitted)
             trial = final_fit(pruned, best["band"])
@@ -938,81 +807,6 @@ def _nnls_tail(w: Waves, roughness, camera, n_min, n_max, dtype, n_virtual=24):
         v, _ = nnls(B[rows], np.maximum(target[rows], 0.0))
         tail = B @ v
     return jnp.asarray(np.where(rows, tail, 0.0), dtype)
-
-
-def _deletion_cost(y, jtj, active, n):
-    """``(n,)``: the increase of ``|r|^2`` (the solver's scaled residual) that deleting each
-    of the first ``n`` waves (``a = b = 0``, the rest refitted) would cost, to second order:
-    ``x^T cov_xx^-1 x`` with ``x = (a, b)`` and ``cov = (J^T J)^-1`` over every parameter
-    (NaN where the solve fails, 0 for inactive waves)."""
-    n_all = active.shape[0]
-    p = 4 * n_all
-    act = np.asarray(active)
-    A = np.asarray(jtj, np.float64)
-    # a column without information (omega and theta of a wave whose amplitude went to 0)
-    # is scaled as an identity row instead of dividing by its zero norm
-    has = np.diag(A) > 1e-300
-    d = np.where(has, np.sqrt(np.where(has, np.diag(A), 1.0)), 1.0)
-    scaled = np.where(has[:, None] & has[None, :], A / d[:, None] / d[None, :], np.eye(p))
-    cov = np.linalg.pinv(scaled + 1e-9 * np.eye(p)) / d[:, None] / d[None, :]
-    yy = np.asarray(y, np.float64).reshape(4, n_all)
-    cost = np.zeros(n)
-    for i in np.nonzero(act[:n])[0]:
-        idx = [i, n_all + i]
-        C = cov[np.ix_(idx, idx)]
-        x = yy[:2, i]
-        try:
-            cost[i] = float(x @ np.linalg.solve(C, x))
-        except np.linalg.LinAlgError:
-            cost[i] = np.nan
-    return cost
-
-
-def _correlated_discount(y, jtj, active, n, cells, m):
-    """The RSS a model's first ``n`` waves explain that noise correlated across the image
-    could have made: ``sum_i D_i (1 - 1 / c_i)`` with ``D_i`` the RSS increase of deleting
-    wave ``i`` (:func:`_deletion_cost`, residuals scaled by ``1/sqrt(P)``, ``P = m / 2``) and
-    ``c_i`` its pixels per independent observation (:func:`noise_cells`). Added to the RSS it
-    makes each wave's chi^2 gain ``D_i / (c_i sigma^2)``: the generalised least-squares
-    chi^2 of waves that each sit in one band of the noise's spectrum. 0 when every
-    ``c_i = 1`` (white noise)."""
-    cells = np.asarray(cells, np.float64)[:n]
-    if n == 0 or np.all(cells <= 1.0):
-        return 0.0
-    cost = np.nan_to_num(_deletion_cost(y, jtj, active, n), nan=0.0) * (m / 2.0)
-    return float(np.sum(np.maximum(cost, 0.0) * (1.0 - 1.0 / cells)))
-
-
-def _wald_keep(y, jtj, active, half, n_obs, criterion, noise, floor2, cells=None):
-    """Keep a wave when deleting it (a = b = 0) would cost more than the criterion's penalty
-    (with correlated noise, in units of each wave's noise: ``cells`` times the per-pixel
-    variance)."""
-    n = active.shape[0]
-    act = np.asarray(active)
-    m = n_obs
-    # residual variance in the solver's units (residuals scaled by 1/sqrt(P), P = m / 2)
-    sigma2 = max(2.0 * float(half) / max(m - 4 * act.sum(), 1.0), floor2 / (m / 2.0))
-    if noise is not None:
-        sigma2 = float(noise) ** 2 / (m / 2.0)
-    sigma2 = max(sigma2, 1e-300)
-    cells = np.ones(n) if cells is None else np.concatenate([np.asarray(cells, np.float64),
-                                                              np.ones(max(n - len(cells), 0))])[:n]
-    # x^T cov^-1 x is the RSS increase of deleting the wave; in units of sigma^2 it is the
-    # Wald statistic, compared with the criterion's penalty for 4 parameters
-    wald = _deletion_cost(y, jtj, active, n)
-    pen = 8.0 if criterion == "aic" else 4.0 * math.log(m)
-    return ~np.isfinite(wald) | (wald / (sigma2 * cells) >= pen) | ~act
-
-
-def _unseparated_weaker(w: Waves, camera, times, n_max) -> np.ndarray:
-    """``(N,)`` bool: the waves within one Rayleigh limit (:func:`rayleigh_separation`) of
-    a stronger wave that is itself kept, going from the strongest down."""
-    sep = rayleigh_separation(w, w, camera, times, n_max=n_max)
-    drop = np.zeros(w.omega.shape[0], bool)
-    for i in np.argsort(-np.abs(np.asarray(w.amplitude)), kind="stable"):
-        drop[i] = bool(np.any((sep[i] < 1.0) & ~drop & (np.arange(drop.size) != i)
-                              & (np.abs(np.asarray(w.amplitude)) >= abs(float(w.amplitude[i])))))
-    return drop
 
 
 def _sorted(result: WaveFit, n: int) -> WaveFit:
