@@ -6,7 +6,6 @@ the solver compiles once for the module.
 """
 
 import json
-import math
 
 import jax
 import jax.numpy as jnp
@@ -17,6 +16,7 @@ from jax.test_util import check_grads
 from jaxocean import camera as cam
 from jaxocean import render, shading
 from jaxocean.errors import InvalidValueError
+from jaxocean.fit import _photometric_model as photometric_model
 from jaxocean.fit import photometric_fit as ph
 from jaxocean.fit.lighting import lighting_error
 from jaxocean.fit.waves import match
@@ -183,8 +183,8 @@ def test_structured_jacobian_matches_finite_differences(scene, monkeypatch):
     monkeypatch.setattr(ph, "_solve", spy)
     _fit(scene, rounds=1)
     y, d, st = res["y"], res["d"], res["st"]
-    r, J = jax.jit(ph._frame_jacobian, static_argnames="st")(y, 1, d, st)
-    frame = jax.jit(lambda z: ph._frame_residual(z, 1, d, st).reshape(-1))
+    r, J = jax.jit(photometric_model.frame_jacobian, static_argnames="st")(y, 1, d, st)
+    frame = jax.jit(lambda z: photometric_model.frame_residual(z, 1, d, st).reshape(-1))
     np.testing.assert_allclose(np.asarray(r), np.asarray(frame(y)), rtol=0, atol=1e-14)
     eps = 1e-6
     fd = np.stack([(np.asarray(frame(y.at[k].add(eps))) - np.asarray(frame(y.at[k].add(-eps)))) / (2 * eps)

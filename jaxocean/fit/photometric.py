@@ -69,6 +69,8 @@ shading. On the hits path (``refine > 0``) forward mode runs through the whole r
 Trial steps are accepted on the exact loss. The ``outliers`` are the used pixels whose
 final weight is below ``OUTLIER_WEIGHT`` (for Cauchy ``|r| > 4.8 sigma``); with
 ``robust=None`` they are marked by the Cauchy rule at the final scale, the weights are 1.
+The model and its Jacobian are :mod:`jaxocean.fit._photometric_model`; the robust weights
+and the noise and spread estimates :mod:`jaxocean.fit._robust`.
 
 ``loss`` and ``loss_init``: the mean over used pixels of the robust function ``(c sigma)^2
 rho(u)`` (``rho`` ~ ``u^2 / 2`` for small ``u``; plain ``r^2 / 2`` for ``robust=None``), both
@@ -127,17 +129,18 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import camera as cam
-from jaxocean import hierarchy, render, shading, surface
+from jaxocean import render, shading
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.errors import InvalidValueError, is_concrete
-from jaxocean.fit._photometry import pq_to_sun, sun_to_pq
+from jaxocean.fit._photometry import sun_to_pq
+from jaxocean.fit._photometric_model import (COLOR_NAMES, Data, Static, all_residuals, frame_jacobian, layout,
+                                            model_frames, pack_params, unpack)
 from jaxocean.fit._plausibility import parameter_std
+from jaxocean.fit._robust import (CODES, OUTLIER_WEIGHT, ROBUST_LOSSES, SCALE_FLOOR, irls_weights, noise_estimate,
+                                  robust_statistics, signal_scale)
 from jaxocean.fit.lighting import lighting_to_dict
 from jaxocean.fit.solvers import FitError
-from jaxocean.fit.waves._inputs import Samples
-from jaxocean.fit.waves._model import jacobian as wave_jacobian
 from jaxocean.fit.waves._model import pack, to_waves
-from jaxocean.nn.geometry import LUMINANCE
 from jaxocean.shading import Lighting
 from jaxocean.waves import Waves, validate
 
@@ -163,10 +166,6 @@ __all__ = [
 ]
 
 PHOTOMETRIC_FIELDS = ("waves", "lighting", "exposure")
-#: robust loss -> tuning constant c (95% efficiency at Gaussian noise)
-ROBUST_LOSSES = {"cauchy": 2.385, "huber": 1.345, "tukey": 4.685}
-#: a used pixel is an outlier when its final IRLS weight is below this
-OUTLIER_WEIGHT = 0.2
 #: success needs robust_scale <= SCALE_FACTOR * max(noise, NOISE_FLOOR)
 SCALE_FACTOR = 1.5
 NOISE_FLOOR = 1e-3
@@ -181,13 +180,6 @@ STRUCTURE_RATIO = 1.05
 #: the fitted slope energy
 DETERMINED_STD = {"amplitude": 0.2, "log_omega": 0.02, "theta": 0.05}
 DETERMINED_ENERGY = 0.9
-#: the IRLS scale never goes below this (comparison-space units)
-SCALE_FLOOR = 1e-6
-_MAD = 1.4826
-_TRIM = 0.9  # noise and spread estimates: mean |x| below this quantile of |x| ...
-_TRIMMED_HALF_NORMAL = 0.6573  # ... over its value for unit Gaussian noise, 2 (phi(0) - phi(1.645)) / 0.9
-_BLOCK = 8  # forward-mode Jacobian columns per vmapped block (see solvers.value_and_jacobian)
-_COLOR_NAMES = ("sun_color", "sky_color", "sea_color")
 
 
 class PhotometricFit(NamedTuple):
@@ -238,281 +230,10 @@ class PhotometricFit(NamedTuple):
     determined_energy: float = 1.0
 
 
-class _Static(NamedTuple):
-    """Hashable configuration of the jitted pieces."""
-
-    n_waves: int
-    fit_waves: bool
-    fit_sun: bool
-    colors: tuple  # fitted colour names
-    gray: bool
-    fit_exposure: bool
-    n_exposure: int  # fitted log exposures: 1, or one per frame
-    gauge: bool
-    plan: render.RenderPlan
-
-
-class _Data(NamedTuple):
-    """Arrays of one fit (a pytree)."""
-
-    target: jax.Array  # (T, H, W, C) c(image)
-    used: jax.Array  # (T, H, W) float 0/1
-    times: jax.Array  # (T,)
-    camera: cam.Camera
-    scale: jax.Array  # (C,) sea median
-    hg: jax.Array  # () horizon gradient
-    waves0: jax.Array  # (4N,) packed start waves
-    pq0: jax.Array  # (2,)
-    colors0: jax.Array  # (3, 3) start colours (floored), rows sun / sky / sea
-    log_exposure0: jax.Array  # ()
-    basis: jax.Array  # (k, k - 1) zero-mean basis (gauge) or (k, k) identity
-
-
-# --------------------------------------------------------------------------- model
-
-
-def _model_frames(waves_, light, exposure, camera, times, hg, gray, plan):
-    """``exposure * render`` of every frame, ``(T, H, W, C)`` (``C = 1`` gray); ``exposure``
-    ``()`` or one per frame ``(T,)``."""
-    def one(args):
-        t, e = args
-        img = e * render.render(waves_, camera, light, t, horizon_gradient=hg, plan=plan)
-        return img @ jnp.asarray(LUMINANCE, img.dtype)[:, None] if gray else img
-
-    return jax.lax.map(one, (times, jnp.broadcast_to(exposure, times.shape)))
-
-
-def _frame_exposure(exposure, i):
-    """Frame ``i``'s exposure of a common ``()`` or per-frame ``(T,)`` exposure."""
-    return exposure[i] if exposure.ndim else exposure
-
-
-def _n_color_params(st: _Static) -> int:
-    return len(st.colors) * (1 if st.gray else 3)
-
-
-def _layout(st: _Static):
-    """Slices of the parameter vector: waves, sun (p, q), colour coordinates, log exposure."""
-    sizes = [("waves", 4 * st.n_waves if st.fit_waves else 0), ("sun", 2 if st.fit_sun else 0),
-             ("colors", (_n_color_params(st) - (1 if st.gauge else 0)) if st.colors else 0),
-             ("exposure", st.n_exposure if st.fit_exposure else 0)]
-    out, i = {}, 0
-    for name, n in sizes:
-        out[name] = slice(i, i + n)
-        i += n
-    return out, i
-
-
-def _unpack(y, d: _Data, st: _Static):
-    """``(waves, lighting, exposure)`` of parameters ``y``."""
-    lay, _ = _layout(st)
-    yw = y[lay["waves"]] if st.fit_waves else d.waves0
-    waves_ = to_waves(yw, st.n_waves)
-    pq = y[lay["sun"]] if st.fit_sun else d.pq0
-    az, el = pq_to_sun(pq)
-    colors = [d.colors0[i] for i in range(3)]
-    if st.colors:
-        s = d.basis @ y[lay["colors"]]
-        per = 1 if st.gray else 3
-        for j, name in enumerate(st.colors):
-            i = _COLOR_NAMES.index(name)
-            colors[i] = colors[i] * jnp.exp(s[j * per:(j + 1) * per])
-    if st.fit_exposure:
-        log_e = y[lay["exposure"]]
-        exposure = jnp.exp(log_e[0] if st.n_exposure == 1 else log_e)
-    else:
-        exposure = jnp.exp(d.log_exposure0)
-    return waves_, Lighting(az, el, *colors), exposure
-
-
-def _pack(d: _Data, st: _Static):
-    lay, n = _layout(st)
-    parts = []
-    if st.fit_waves:
-        parts.append(d.waves0)
-    if st.fit_sun:
-        parts.append(d.pq0)
-    if st.colors:
-        parts.append(jnp.zeros(lay["colors"].stop - lay["colors"].start, d.target.dtype))
-    if st.fit_exposure:
-        parts.append(jnp.broadcast_to(d.log_exposure0, (st.n_exposure,)))
-    return jnp.concatenate(parts).astype(d.target.dtype)
-
-
-def _frame_residual(y, i, d: _Data, st: _Static):
-    """Comparison-space residual of frame ``i``, ``(H, W, C)`` (unweighted)."""
-    waves_, light, exposure = _unpack(y, d, st)
-    img = _frame_exposure(exposure, i) * render.render(waves_, d.camera, light, d.times[i], horizon_gradient=d.hg,
-                                                      plan=st.plan)
-    if st.gray:
-        img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
-    return compress(img, d.scale) - d.target[i]
-
-
-def _all_residuals(y, d: _Data, st: _Static):
-    return jax.lax.map(lambda i: _frame_residual(y, i, d, st), jnp.arange(d.target.shape[0]))
-
-
-def _blocked_jvps(fn, primal, tangents):
-    """``(fn(primal), stack of jvp(fn, primal, tangent))`` for a pytree ``tangents`` with a
-    leading axis ``K``: ``_BLOCK`` tangents per vmapped block, the blocks in a ``lax.map``
-    (one compiled copy of the JVP; blocks of 8 also avoid the XLA:CPU float32 miscompile
-    of wide vmapped JVPs described in :mod:`jaxocean.fit.solvers`). Outputs ``(K, ...)``."""
-    K = jax.tree_util.tree_leaves(tangents)[0].shape[0]
-    nb = -(-K // _BLOCK)
-    pad = nb * _BLOCK - K
-    blocks = jax.tree.map(lambda a: jnp.concatenate([a, jnp.zeros((pad,) + a.shape[1:], a.dtype)])
-                          .reshape((nb, _BLOCK) + a.shape[1:]), tangents)
-    out, cols = jax.lax.map(lambda V: jax.vmap(lambda v: jax.jvp(fn, (primal,), (v,)), out_axes=(None, 0))(V),
-                            blocks)
-    return out[0], cols.reshape((nb * _BLOCK,) + cols.shape[2:])[:K]
-
-
-def _frame_jacobian_dense(y, i, d: _Data, st: _Static):
-    """``(r (M,), J (M, P))`` of frame ``i`` by forward mode through the whole renderer
-    (every parameter's tangent through the wave sums: the hits path's Jacobian)."""
-    fn = lambda z: _frame_residual(z, i, d, st).reshape(-1)  # noqa: E731
-    r, cols = _blocked_jvps(fn, y, jnp.eye(y.shape[0], dtype=y.dtype))
-    return r, cols.T
-
-
-def _frame_jacobian(y, i, d: _Data, st: _Static):
-    """``(r (M,), J (M, P))`` of frame ``i``, exact, for the rows path by the chain rule
-    through the geometry (each wave touches only its own sines):
-
-    * ``d r / d normal`` (two tangents on the unit sphere) and ``d r / d slope_variance``
-      (two) per pixel, and the lighting and exposure columns: forward mode through
-      :func:`jaxocean.render.shade` alone, the geometry held;
-    * ``d normal_xy / d wave`` per pixel: the wave fit's hand-written Jacobian of the rows
-      path's normal (:func:`jaxocean.fit.waves._model.jacobian`);
-    * ``d slope_variance / d wave`` per row: forward mode through the row roughness.
-
-    Without fitted waves only the shading's columns. The hits path (``refine > 0``) uses
-    :func:`_frame_jacobian_dense`."""
-    if st.plan.refine != 0:
-        return _frame_jacobian_dense(y, i, d, st)
-    lay, P = _layout(st)
-    n = st.n_waves if st.fit_waves else 0
-    dtype = y.dtype
-    waves_, _, _ = _unpack(y, d, st)
-    t = d.times[i]
-    geo = render.geometry(waves_, d.camera, t, plan=st.plan)
-    normal, sv = geo.normal, geo.slope_variance
-    H, W = d.camera.resolution
-
-    def shaded(args):
-        nrm, var, z = args
-        _, light, exposure = _unpack(z, d, st)
-        img = _frame_exposure(exposure, i) * render.shade(nrm, None, d.camera, light, slope_variance=var,
-                                                          horizon_gradient=d.hg)
-        if st.gray:
-            img = img @ jnp.asarray(LUMINANCE, img.dtype)[:, None]
-        return compress(img, d.scale) - d.target[i]
-
-    # tangents: normal along x and y on the unit sphere, slope variance x and y, then the
-    # non-wave parameters
-    nz = jnp.maximum(normal[..., 2], 1e-6)
-    zero_n, zero_v = jnp.zeros_like(normal), jnp.zeros_like(sv)
-    ex = jnp.stack([jnp.ones_like(nz), jnp.zeros_like(nz), -normal[..., 0] / nz], -1)
-    ey = jnp.stack([jnp.zeros_like(nz), jnp.ones_like(nz), -normal[..., 1] / nz], -1)
-    one_x = jnp.zeros_like(sv).at[..., 0].set(1.0)
-    one_y = jnp.zeros_like(sv).at[..., 1].set(1.0)
-    n_other = P - 4 * n
-    other = jnp.eye(P, dtype=dtype)[4 * n:]  # (n_other, P)
-    t_n = jnp.concatenate([jnp.stack([ex, ey, zero_n, zero_n]), jnp.broadcast_to(zero_n, (n_other,) + normal.shape)])
-    t_v = jnp.concatenate([jnp.stack([zero_v, zero_v, one_x, one_y]), jnp.broadcast_to(zero_v, (n_other,) + sv.shape)])
-    t_y = jnp.concatenate([jnp.zeros((4, P), dtype), other])
-    r, cols = _blocked_jvps(shaded, (normal, sv, y), (t_n, t_v, t_y))  # r (H, W, C), cols (4 + n_other, H, W, C)
-    S, C = H * W, r.shape[-1]
-    J_other = jnp.moveaxis(cols[4:], 0, -1).reshape(S * C, n_other)
-    if not st.fit_waves:
-        return r.reshape(-1), J_other
-
-    # d normal_xy / d wave per pixel (the wave fit's rows-path model)
-    hit = cam.intersect_sea(d.camera)
-    samples = Samples(t=jnp.full((S,), t, dtype), xy=hit.xy.reshape(S, 2),
-                      fp=jnp.broadcast_to(hit.footprint[:, W // 2][:, None], (H, W)).reshape(S),
-                      target=jnp.zeros((S, 2), dtype), sw=jnp.ones((S,), dtype), ray=jnp.zeros((S, 2), dtype))
-    _, jn = wave_jacobian(y[:4 * n].reshape(4, n), jnp.ones(n, dtype), samples, hierarchy.DEFAULT_N_MIN,
-                          hierarchy.DEFAULT_N_MAX)
-    jn = jn.reshape(H, W, 2, 4 * n) * hit.mask[..., None, None]
-    # d slope_variance / d wave per row
-    fp_row = hit.footprint[:, W // 2]
-
-    def row_sv(yw):
-        w = to_waves(yw, n)
-        return jnp.stack(surface.slope_variance(w, hierarchy.weights(w, fp_row)), -1)  # (H, 2)
-
-    _, jsv = _blocked_jvps(row_sv, y[:4 * n], jnp.eye(4 * n, dtype=dtype))  # (4N, H, 2)
-    jsv = jnp.moveaxis(jsv, 0, -1) * jnp.any(hit.mask, axis=1)[:, None, None]  # (H, 2, 4N)
-    jw = (cols[0][..., None] * jn[:, :, None, 0] + cols[1][..., None] * jn[:, :, None, 1]
-          + cols[2][..., None] * jsv[:, None, None, 0] + cols[3][..., None] * jsv[:, None, None, 1])  # (H, W, C, 4N)
-    return r.reshape(-1), jnp.concatenate([jw.reshape(S * C, 4 * n), J_other], axis=1)
-
-
-# --------------------------------------------------------------------------- robust weights
-
-# robust loss codes (a runtime argument: one compiled program serves every loss)
-_CODES = (None, "cauchy", "huber", "tukey")
-_C = (ROBUST_LOSSES["cauchy"], ROBUST_LOSSES["cauchy"], ROBUST_LOSSES["huber"], ROBUST_LOSSES["tukey"])
-
-
-def _pixel_u(r, scale, code):
-    """``u = rms_channels(r) / (c sigma)`` per pixel ``(T, H, W)``; ``c`` of ``code``
-    (Cauchy's for least squares)."""
-    c = jnp.asarray(_C, r.dtype)[code]
-    return jnp.sqrt(jnp.mean(r * r, axis=-1)) / (c * scale)
-
-
-def _weight(u, code):
-    return jnp.select([code == 0, code == 1, code == 2],
-                      [jnp.ones_like(u), 1.0 / (1.0 + u * u), jnp.minimum(1.0, 1.0 / jnp.maximum(u, 1e-30))],
-                      jnp.where(u < 1.0, (1.0 - u * u) ** 2, 0.0))
-
-
-def _rho(u, code):
-    """Robust function per unit ``(c sigma)^2``."""
-    return jnp.select([code == 0, code == 1, code == 2],
-                      [0.5 * u * u, 0.5 * jnp.log1p(u * u), jnp.where(u <= 1.0, 0.5 * u * u, u - 0.5)],
-                      jnp.where(u < 1.0, (1.0 - (1.0 - u * u) ** 3) / 6.0, 1.0 / 6.0))
-
-
-def _mad(r, used):
-    """``1.4826 median |r|`` over used pixels and channels."""
-    a = jnp.where(used[..., None] > 0, jnp.abs(r), jnp.nan)
-    return _MAD * jnp.nanmedian(a)
-
-
-def _robust_loss(r, used, scale, code):
-    c = jnp.asarray(_C, r.dtype)[code]
-    u = _pixel_u(r, scale, code)
-    return jnp.sum(used * _rho(u, code)) * (c * scale) ** 2 / jnp.maximum(jnp.sum(used), 1.0)
-
-
-@jax.jit
-def _irls_weights(r, used, code, floor):
-    """``(scale, weights (T, H, W))`` of residuals ``r``: one IRLS round's; the scale is
-    floored at ``floor`` (the noise level)."""
-    scale = jnp.maximum(_mad(r, used), jnp.maximum(floor, SCALE_FLOOR))
-    return scale, used * _weight(_pixel_u(r, scale, code), code)
-
-
-@jax.jit
-def _statistics(r, r_init, used, code, floor):
-    """Scale, weights, outliers, the two losses and the outlier fraction at the answer."""
-    scale, w = _irls_weights(r, used, code, floor)
-    rule = used * _weight(_pixel_u(r, scale, jnp.maximum(code, 1)), jnp.maximum(code, 1))
-    outliers = (used > 0) & (rule < OUTLIER_WEIGHT)
-    loss = _robust_loss(r, used, scale, code)
-    loss_init = _robust_loss(r_init, used, scale, code)
-    frac = jnp.sum(outliers) / jnp.maximum(jnp.sum(used), 1.0)
-    return w, outliers, loss, loss_init, scale, frac
-
-
 # --------------------------------------------------------------------------- solver
 
 
-def _normal_equations(y, w, d: _Data, st: _Static):
+def _normal_equations(y, w, d: Data, st: Static):
     """``(0.5 sum w r^2, J^T W J, J^T W r)`` over frames, ``w (T, H, W)`` pixel weights,
     normalised by the number of used pixel-channels."""
     P = y.shape[0]
@@ -521,7 +242,7 @@ def _normal_equations(y, w, d: _Data, st: _Static):
 
     def body(carry, i):
         f, jtj, jtr = carry
-        r, J = _frame_jacobian(y, i, d, st)
+        r, J = frame_jacobian(y, i, d, st)
         wv = jnp.repeat(w[i].reshape(-1), C) * norm
         return (f + 0.5 * jnp.sum(wv * r * r), jtj + (J * wv[:, None]).T @ J, jtr + J.T @ (wv * r)), None
 
@@ -530,13 +251,13 @@ def _normal_equations(y, w, d: _Data, st: _Static):
     return out
 
 
-def _weighted_loss(y, w, d: _Data, st: _Static):
-    r = _all_residuals(y, d, st)
+def _weighted_loss(y, w, d: Data, st: Static):
+    r = all_residuals(y, d, st)
     C = d.target.shape[-1]
     return 0.5 * jnp.sum(w[..., None] * r * r) / jnp.maximum(C * jnp.sum(d.used), 1.0)
 
 
-def _lm(y0, w, d: _Data, st: _Static, max_steps: int, rtol: float):
+def _lm(y0, w, d: Data, st: Static, max_steps: int, rtol: float):
     """Levenberg-Marquardt on ``0.5 sum w r^2`` (weights fixed): Nielsen damping, Marquardt
     scaling; the normal equations are recomputed only after an accepted step (at the top of
     the next step: one compiled copy of the Jacobian). Returns ``(y, f, steps, J^T W J)``,
@@ -577,14 +298,14 @@ def _lm(y0, w, d: _Data, st: _Static, max_steps: int, rtol: float):
 
 
 _solve = jax.jit(_lm, static_argnames=("st", "max_steps", "rtol"))
-_residuals = jax.jit(_all_residuals, static_argnames=("st",))
+_residuals = jax.jit(all_residuals, static_argnames=("st",))
 
 
-def _align_scale(y, d: _Data, st: _Static):
+def _align_scale(y, d: Data, st: Static):
     """``y`` with the fitted common scale (exposure, else the colours) set so that the
     model's sea median matches the images' (mean over channels of the log ratio); the
     model is read back from its residual, ``s expm1(r + c(image))``."""
-    lay, _ = _layout(st)
+    lay, _ = layout(st)
     if not st.fit_exposure and not (st.colors and not st.gauge):
         return y
     r = _residuals(y, d, st)
@@ -596,38 +317,6 @@ def _align_scale(y, d: _Data, st: _Static):
 
 
 # --------------------------------------------------------------------------- statistics
-
-
-def _trimmed_sigma(x, valid):
-    """Standard deviation of zero-mean ``x`` from the mean of ``|x|`` over the ``valid``
-    entries below the 90th percentile of ``|x|``, divided by that truncated mean of a unit
-    half-normal (0.6573): robust to 10% outliers, and unlike a median it does not collapse to
-    0 on 8-bit data whose values are mostly equal."""
-    a = jnp.where(valid, jnp.abs(x), jnp.nan)
-    q = jnp.nanquantile(a, _TRIM)
-    keep = valid & (jnp.abs(x) <= q)
-    return jnp.sum(jnp.where(keep, jnp.abs(x), 0.0)) / jnp.maximum(jnp.sum(keep), 1) / _TRIMMED_HALF_NORMAL
-
-
-@jax.jit
-def _noise_estimate(target, used):
-    """Immerkaer's noise estimate of ``target (T, H, W, C)`` over used 3x3 neighbourhoods."""
-    k = ((1.0, -2.0, 1.0), (-2.0, 4.0, -2.0), (1.0, -2.0, 1.0))
-    T, H, W, C = target.shape
-    conv = sum(k[i][j] * target[:, i:H - 2 + i, j:W - 2 + j] for i in range(3) for j in range(3))
-    ok = functools.reduce(jnp.logical_and, [used[:, i:H - 2 + i, j:W - 2 + j] > 0 for i in range(3) for j in range(3)])
-    sigma = _trimmed_sigma(conv, jnp.broadcast_to(ok[..., None], conv.shape)) / 6.0
-    return jnp.where(jnp.any(ok), sigma, jnp.nan)
-
-
-@jax.jit
-def _signal_scale(target, used):
-    """Spread of ``target`` about its per-row median over used pixels (all frames, columns)."""
-    T, H, W, C = target.shape
-    valid = jnp.broadcast_to(used[..., None] > 0, target.shape)
-    t = jnp.where(valid, target, jnp.nan)
-    rows = jnp.nanmedian(jnp.moveaxis(t, 1, 0).reshape(H, T * W, C), axis=1)  # (H, C)
-    return _trimmed_sigma(jnp.where(valid, target - rows[None, :, None, :], 0.0), valid)
 
 
 def estimate_noise(images, mask=None, sea_scale=None):
@@ -645,7 +334,7 @@ def estimate_noise(images, mask=None, sea_scale=None):
         raise ValueError(f"mask must be {images.shape[:3]}; got {used.shape}")
     if sea_scale is None:
         sea_scale = _sea_median(images, used)
-    return _noise_estimate(compress(images, jnp.asarray(sea_scale, images.dtype)), used)
+    return noise_estimate(compress(images, jnp.asarray(sea_scale, images.dtype)), used)
 
 
 def _sea_median(images, used):
@@ -794,12 +483,12 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     if overcast:
         colors0 = colors0.at[0].set(0.0)
     fit_lighting = "lighting" in fit
-    colors = (("sky_color", "sea_color") if overcast else _COLOR_NAMES) if fit_lighting else ()
+    colors = (("sky_color", "sea_color") if overcast else COLOR_NAMES) if fit_lighting else ()
     if colors:
         floor = 1e-4 * jnp.max(colors0)
         if not float(floor) > 0:
             raise InvalidValueError("the start lighting has every colour at 0: nothing to scale from")
-        rows = [_COLOR_NAMES.index(n) for n in colors]
+        rows = [COLOR_NAMES.index(n) for n in colors]
         colors0 = colors0.at[jnp.asarray(rows)].set(jnp.maximum(colors0[jnp.asarray(rows)], floor))
     fit_exposure = "exposure" in fit
     gauge = bool(colors) and fit_exposure
@@ -812,27 +501,27 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     n = int(waves.omega.shape[0])
     if rtol is None:
         rtol = 1e-9 if dtype == jnp.float64 else 1e-6
-    st = _Static(n_waves=n, fit_waves="waves" in fit, fit_sun=fit_lighting and not overcast, colors=colors,
+    st = Static(n_waves=n, fit_waves="waves" in fit, fit_sun=fit_lighting and not overcast, colors=colors,
                  gray=gray, fit_exposure=fit_exposure, n_exposure=int(times.shape[0]) if per_frame_exposure else 1,
                  gauge=gauge, plan=render.full_plan(n, int(refine)))
 
     scale = _sea_median(images, used)
     target = compress(images, scale)
-    d = _Data(target=target, used=used, times=times, camera=camera, scale=scale,
+    d = Data(target=target, used=used, times=times, camera=camera, scale=scale,
               hg=jnp.asarray(horizon_gradient, dtype), waves0=pack(waves).astype(dtype),
               pq0=sun_to_pq(lighting.sun_azimuth, lighting.sun_elevation).astype(dtype), colors0=colors0,
               log_exposure0=jnp.asarray(math.log(exposure), dtype), basis=basis)
 
-    code = jnp.asarray(_CODES.index(robust), jnp.int32)
+    code = jnp.asarray(CODES.index(robust), jnp.int32)
     estimated = noise is None
-    noise_val = _noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
+    noise_val = noise_estimate(target, used) if estimated else jnp.asarray(noise, dtype)
     floor = jnp.where(jnp.isfinite(noise_val), noise_val, 0.0)
-    y_init = _pack(d, st)
+    y_init = pack_params(d, st)
     y = _align_scale(y_init, d, st)
     steps, prev = 0, math.inf
     for rnd in range(1 if robust is None else int(rounds)):
         t0 = time.perf_counter()
-        sc, w = _irls_weights(_residuals(y, d, st), used, code, floor)
+        sc, w = irls_weights(_residuals(y, d, st), used, code, floor)
         y, f, n_steps, jtj = _solve(y, w, d, st, int(max_steps), float(rtol))
         steps += int(n_steps)
         sc = float(sc)
@@ -842,10 +531,10 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         if int(n_steps) <= 1 and abs(sc - prev) <= 0.01 * sc:
             break
         prev = sc
-    w, outliers, loss, loss_init, rscale, frac = _statistics(_residuals(y, d, st), _residuals(y_init, d, st), used,
+    w, outliers, loss, loss_init, rscale, frac = robust_statistics(_residuals(y, d, st), _residuals(y_init, d, st), used,
                                                              code, floor)
-    waves_fit, light_fit, exp_fit = _unpack(y, d, st)
-    signal = _signal_scale(target, used)
+    waves_fit, light_fit, exp_fit = unpack(y, d, st)
+    signal = signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
     if st.fit_waves:
         determined, energy = _determined(y, jtj, jnp.asarray(sigma, dtype), used, target.shape[-1], n)
@@ -934,7 +623,7 @@ def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1
     used = _used_pixels(images, camera, mask, sky)
     images = jnp.where(used[..., None] > 0, images, 0.0)
     scale = _sea_median(images, used) if sea_scale is None else jnp.asarray(sea_scale, dtype)
-    model = _model_frames(waves, lighting, jnp.asarray(exposure, dtype), camera, times,
+    model = model_frames(waves, lighting, jnp.asarray(exposure, dtype), camera, times,
                           jnp.asarray(horizon_gradient, dtype), gray, render.full_plan(waves.omega.shape[0], refine))
     return used[..., None] * (compress(model, scale) - compress(images, scale))
 
@@ -950,7 +639,7 @@ def rerender(result: PhotometricFit, camera, times, *, horizon_gradient=0.0, gra
     exposure = jnp.asarray(result.exposure)
     if exposure.ndim and exposure.shape != times.shape:
         exposure = jnp.asarray(mean_exposure(result), times.dtype)
-    out = _model_frames(result.waves, result.lighting, exposure, camera, times,
+    out = model_frames(result.waves, result.lighting, exposure, camera, times,
                         jnp.asarray(horizon_gradient, times.dtype), gray,
                         render.full_plan(result.waves.omega.shape[0], refine))
     return out[..., 0] if gray else out
