@@ -710,6 +710,23 @@ def test_surface_is_checked():
         fw.refine(normals, rough, c, TIMES, truth, surface="hits", solver="lm")
 
 
+def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
+    # eight waves 30-70 m long (2.5-6 views) dominate the residual's spectrum: its strongest
+    # candidates are all near-copies of them, which cannot become waves; the three waves the
+    # image resolves must still be found (not "no wave found: a flat sea")
+    c = ortho()
+    lam = np.array([30.0, 40.0, 50.0, 60.0, 45.0, 35.0, 70.0, 55.0])
+    long = make_waves(list(0.004 * lam), list(np.sqrt(GRAVITY * 2 * np.pi / lam)), list(np.linspace(-1, 1, 8)),
+                      list(np.random.default_rng(0).uniform(0, 2 * np.pi, 8)))
+    truth = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), few_waves(), long)
+    assert fw.resolvable(truth, c).tolist() == [True] * 3 + [False] * 8
+    normals, rough = fw.predict(truth, c, TIMES)
+    fit = fw.waves(normals, rough, c, TIMES)
+    m = fw.match(fit.waves, few_waves())
+    assert m.missed.size == 0
+    assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound()
+
+
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):
     c, truth, normals, rough = ortho_scene
     with_band, _ = ortho_fit
