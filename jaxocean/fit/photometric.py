@@ -531,8 +531,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         if int(n_steps) <= 1 and abs(sc - prev) <= 0.01 * sc:
             break
         prev = sc
-    w, outliers, loss, loss_init, rscale, frac = robust_statistics(_residuals(y, d, st), _residuals(y_init, d, st), used,
-                                                             code, floor)
+    w, outliers, loss, loss_init, rscale, frac = robust_statistics(_residuals(y, d, st), _residuals(y_init, d, st),
+                                                                   used, code, floor)
     waves_fit, light_fit, exp_fit = unpack(y, d, st)
     signal = signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)

@@ -396,8 +396,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     # the network's waves are candidates of the first round, not a starting model: started
     # from them the fit keeps their spurious slots (measured on a clean 4-wave swell: 44
     # waves, amplitudes 0.053 m off, against the default start's 4 waves within 2e-4 m)
-    net_hint = _net_start(init, net, net_threshold, normals, roughness, camera, times) if isinstance(init, str) else None
+    net_hint = None
     if isinstance(init, str):
+        net_hint = _net_start(init, net, net_threshold, normals, roughness, camera, times)
         init = None
         prune = True if prune is None else prune
     current = empty if init is None else Waves(*[jnp.asarray(x, dtype) for x in validate(init, max_steepness=None)])
