@@ -721,10 +721,12 @@ def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
     truth = jax.tree.map(lambda x, y: jnp.concatenate([x, y]), few_waves(), long)
     assert fw.resolvable(truth, c).tolist() == [True] * 3 + [False] * 8
     normals, rough = fw.predict(truth, c, TIMES)
-    fit = fw.waves(normals, rough, c, TIMES)
+    # a stated noise (2e-3 per component) ends the selection once the waves are found; the
+    # slopes alone (no integrated heights) keep the test short
+    fit = fw.waves(normals, rough, c, TIMES, noise=2e-3, heights=False)
     m = fw.match(fit.waves, few_waves())
     assert m.missed.size == 0
-    assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound()
+    assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound(2e-3)
 
 
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):

@@ -697,41 +697,39 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     best = final_fit(current, band)
     total_steps += int(best["steps"])
     if n_waves is None and prune:
-        for _ in range(2):
+        def try_without(drop, why):
+            """Refit without the waves ``drop`` marks; keep that model if the criterion does
+            not get worse. Returns whether it was kept."""
+            nonlocal current, best, total_steps
             n_cur = current.omega.shape[0]
-            keep = wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
-                              criterion, noise, floor2, cells_of(current))[:n_cur]
-            if keep.all() or keep.sum() == 0:
-                break
             fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
-            pruned = jax.tree.map(lambda x: x[np.nonzero(keep)[0]], fitted)
+            pruned = jax.tree.map(lambda x: x[np.nonzero(~drop)[0]], fitted)
             trial = final_fit(pruned, best["band"])
             total_steps += int(trial["steps"])
             better = crit(trial, pruned) <= crit(best, current)
             if verbose:
-                print(f"  pruning {int((~keep).sum())} of {n_cur} waves (Wald statistic below the penalty): "
-                      f"{'kept' if better else 'reverted'}", flush=True)
-            if not better:
+                print(f"  {why.format(int(drop.sum()), n_cur)}: {'kept' if better else 'reverted'}", flush=True)
+            if better:
+                current, best = pruned, trial
+            return better
+
+        for _ in range(2):
+            n_cur = current.omega.shape[0]
+            keep = wald_keep(best["y"], best["jtj"], best["active"], best["half"], 2.0 * float(best["n_valid"]),
+                             criterion, noise, floor2, cells_of(current))[:n_cur]
+            if keep.all() or keep.sum() == 0 or not try_without(~keep, "pruning {} of {} waves (Wald statistic "
+                                                                        "below the penalty)"):
                 break
-            current, best = pruned, trial
         # the Wald statistic is a second-order estimate: for two waves the window does not
         # separate, it misses that the stronger can move to take over the weaker (measured:
         # a 0.013 m wave 0.05 rad/s beside a 0.072 m one, Wald statistic 2.4e4 times the
         # penalty, while the true single wave explains the data to the floor). Each such
         # pair's weaker wave is dropped in one refit, kept if the criterion does not get worse
         n_cur = current.omega.shape[0]
-        fitted = jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"]))
-        merge = unseparated_weaker(fitted, camera, times, n_max)
+        merge = unseparated_weaker(jax.tree.map(lambda x: x[:n_cur], to_waves(best["y"], best["n_pad"])), camera,
+                                   times, n_max)
         if merge.any():
-            pruned = jax.tree.map(lambda x: x[np.nonzero(~merge)[0]], fitted)
-            trial = final_fit(pruned, best["band"])
-            total_steps += int(trial["steps"])
-            better = crit(trial, pruned) <= crit(best, current)
-            if verbose:
-                print(f"  merging {int(merge.sum())} of {n_cur} waves into a stronger wave the window does not "
-                      f"separate them from: {'kept' if better else 'reverted'}", flush=True)
-            if better:
-                current, best = pruned, trial
+            try_without(merge, "merging {} of {} waves into a stronger wave the window does not separate them from")
     y, jtj, half, success, hist = best["y"], best["jtj"], best["half"], best["success"], best["hist"]
     active, n_valid = best["active"], best["n_valid"]
     rw = rw if rough_info else 0.0
