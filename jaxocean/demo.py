@@ -95,7 +95,8 @@ def waves_stage(out: Path, *, n_waves: int = 4, seed: int = 0, resolution: int =
     # the sea as render draws it (the hits path where the swell moves the pixels' hits)
     normals, roughness = waves_fit.predict(truth, camera, times, surface="auto")
     t0 = time.perf_counter()
-    # prune: drop waves the Wald statistic calls insignificant (refit, kept if the BIC agrees)
+    # prune: drop waves the Wald statistic calls insignificant, then the weaker wave of each pair
+    # the window does not separate (each refit, kept if the BIC agrees)
     result = fit.waves(normals, roughness, camera, times, prune=True)
     wall = time.perf_counter() - t0
     match = fit.match(result.waves, truth)
