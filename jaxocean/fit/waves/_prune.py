@@ -86,8 +86,8 @@ def unseparated_weaker(w: Waves, camera, times, n_max) -> np.ndarray:
     """``(N,)`` bool: the waves within one Rayleigh limit (:func:`rayleigh_separation`) of
     a stronger wave that is itself kept, going from the strongest down."""
     sep = rayleigh_separation(w, w, camera, times, n_max=n_max)
-    drop = np.zeros(w.omega.shape[0], bool)
-    for i in np.argsort(-np.abs(np.asarray(w.amplitude)), kind="stable"):
-        drop[i] = bool(np.any((sep[i] < 1.0) & ~drop & (np.arange(drop.size) != i)
-                              & (np.abs(np.asarray(w.amplitude)) >= abs(float(w.amplitude[i])))))
+    amp = np.abs(np.asarray(w.amplitude))
+    drop = np.zeros(amp.size, bool)
+    for i in np.argsort(-amp, kind="stable"):
+        drop[i] = bool(np.any((sep[i] < 1.0) & ~drop & (np.arange(amp.size) != i) & (amp >= amp[i])))
     return drop

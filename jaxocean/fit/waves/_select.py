@@ -498,12 +498,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             # were all 70-90 m long in a 40 m view, and the fit reported a flat sea over its
             # 32 resolvable waves): then half of the candidates are the strongest the image
             # resolves
-            ok = np.asarray(c_om)[order] > 0
-            zero = jnp.zeros(int(ok.sum()), dtype)
-            seen = np.zeros(energy.shape, bool)
-            seen[order[ok]] = resolvable(Waves(zero, c_om[order[ok]], c_th[order[ok]], zero), camera, n_max=n_max)
-            if not seen[np.asarray(picked)].any():
-                picked = distinct([(order, n_cand // 2), (order[seen[order]], n_cand)])
+            def resolved(idx):
+                idx = idx[np.asarray(c_om)[idx] > 0]
+                zero = jnp.zeros(idx.size, dtype)
+                return idx[resolvable(Waves(zero, c_om[idx], c_th[idx], zero), camera, n_max=n_max)]
+
+            # the whole list is checked only when the pool holds no resolvable candidate
+            if not resolved(np.asarray(picked)).size:
+                picked = distinct([(order, n_cand // 2), (resolved(order), n_cand)])
         if not picked:
             if verbose:
                 print("  stop: the residual's spectrum holds no candidate with positive energy", flush=True)
