@@ -197,18 +197,26 @@ def GroupNorm(groups: int = 8, eps: float = 1e-5) -> Layer:
         return tuple(in_shape), {"scale": jnp.ones((C,), jnp.float32), "shift": jnp.zeros((C,), jnp.float32)}
 
     def apply(params, x, *, key=None, train=False):
-        # The statistics reduce a (N, pixels, groups, C / groups) view; the normalisation
-        # and the scale and shift are then one per-(image, channel) affine map of x, which
-        # halves the backward pass's passes over the activations against normalising the
-        # grouped view and scaling after.
+        # The statistics are sums over the pixels of a (N, pixels, C) view, one per channel,
+        # then over the channels of each group: XLA:CPU reduces the contiguous pixel axis
+        # faster than a (pixels, C / groups) pair of axes of a grouped view (8 x 64^2 x 32:
+        # forward 0.74 ms against 3.0 ms, gradient 1.2 ms against 2.6 ms). The normalisation, scale and shift are one per-(image, channel)
+        # affine map of x, which halves the backward pass's passes over the activations
+        # against normalising the grouped view and scaling after.
         N, C = x.shape[0], x.shape[-1]
-        g = x.reshape(N, -1, groups, C // groups)
-        mean = g.mean((1, 3), keepdims=True)
-        inv_std = lax.rsqrt(jnp.square(g - mean).mean((1, 3)) + eps)         # (N, groups)
-        a = jnp.repeat(inv_std, C // groups, axis=1) * params["scale"]        # (N, C)
-        b = params["shift"] - jnp.repeat(mean[:, 0, :, 0], C // groups, axis=1) * a
-        per_image = (N,) + (1,) * (x.ndim - 2) + (C,)
-        return x * a.reshape(per_image) + b.reshape(per_image)
+        per_group = C // groups
+        flat = x.reshape(N, -1, C)
+        count = flat.shape[1] * per_group
+
+        def group_mean(per_channel_sum):                                  # (N, C) -> (N, C)
+            means = per_channel_sum.reshape(N, groups, per_group).sum(-1) / count
+            return jnp.repeat(means, per_group, axis=1)
+
+        mean = group_mean(flat.sum(1))
+        centred = flat - mean[:, None, :]
+        a = lax.rsqrt(group_mean(jnp.sum(centred * centred, 1)) + eps) * params["scale"]  # (N, C)
+        b = params["shift"] - mean * a
+        return (flat * a[:, None, :] + b[:, None, :]).reshape(x.shape)
 
     return Layer(init, apply)
 
