@@ -90,6 +90,8 @@ def _add_lighting_edits(p):
     g = p.add_argument_group("lighting (applied on top of the scene's or --lighting's)")
     g.add_argument("--lighting", metavar="FIT_JSON",
                    help="lighting from a `jaxocean fit-lighting` JSON (or a scene.json)")
+    g.add_argument("--allow-failed-lighting", action="store_true",
+                   help="use the lighting of a fit-lighting result that reported failure (refused otherwise)")
     g.add_argument("--sun-azimuth", type=float, help="sun azimuth [deg from +x]")
     g.add_argument("--sun-elevation", type=float, help="sun elevation [deg]")
 
@@ -321,6 +323,8 @@ def cmd_simulate(args):
 
     inputs.check_out_dir(args.out)
     inputs.check_memory(args.res, args.frames, "simulate")
+    per_pixel = inputs.DATASET_MIN_BYTES_PER_PIXEL[not args.float32]
+    inputs.check_disk(args.out, per_pixel * args.scenes * args.frames * args.res[0] * args.res[1], "simulate")
     ranges = SceneRanges()
     if args.ranges:
         ranges = SceneRanges.from_json({**ranges.to_json(), **json.loads(Path(args.ranges).read_text())})
@@ -500,7 +504,7 @@ def cmd_reedit(args):
     frames = inputs.check_frames(args.frames, n, f"scene {args.scene}")
     if scene.camera is not None:
         inputs.check_memory(args.res or scene.camera.resolution, len(frames), "reedit")
-    lighting = inputs.lighting_from_file(args.lighting) if args.lighting else None
+    lighting = inputs.lighting_from_file(args.lighting, args.allow_failed_lighting) if args.lighting else None
     t0 = time.perf_counter()
     out = reedit_scene(args.scene, args.out, camera_height=args.camera_height, camera_pitch_deg=args.camera_pitch_deg,
                        camera_fov_deg=args.camera_fov_deg, camera_yaw_deg=args.camera_yaw_deg, resolution=args.res,

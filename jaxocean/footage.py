@@ -37,6 +37,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean._stages import timed
 from jaxocean.errors import InvalidValueError
+from jaxocean.io.exr import require_file
 from jaxocean.io.images import VIDEO_SUFFIXES
 
 __all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
@@ -177,6 +178,8 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
         raise ValueError(f"step must be >= 1; got {step}")
 
     video = len(frames) == 1 and frames[0].suffix.lower() in VIDEO_SUFFIXES + (".gif",)
+    for f in frames:  # a missing file is named as such, before any count of frames
+        require_file(f, "video file" if video else "frame file")
 
     def run():
         details, scene_camera = {}, None

@@ -179,6 +179,31 @@ def _evidence_of(seq: Sequence, evidence):
     return space_time_evidence(seq) if isinstance(evidence, str) and evidence == "auto" else evidence
 
 
+def _images_confirm(check, waves: Waves, details: dict, why: list) -> bool:
+    """Whether the images' space-time evidence ``check`` (None: too few frames for it, which
+    confirms nothing and denies nothing) confirms ``waves``: the images show dispersive
+    waves, and the waves put their peak period within ``PEAK_PERIOD_FACTOR`` of the images'
+    (only the lower side where that peak sits at the band's long-wave edge, and the sea's
+    may be longer). Records ``images_show_dispersion`` (and ``peak_period_s``) in
+    ``details`` and appends the reason to ``why`` when it does not."""
+    from jaxocean import fit
+
+    details["images_show_dispersion"] = None if check is None else bool(check.success)
+    if check is None:
+        return True
+    if not check.success:
+        why.append(f"the images show no dispersive waves to confirm them (space-time evidence: {check.message})")
+        return False
+    tp_fit = float(fit.sea_state(waves).tp)
+    tp_img = float(check.peak_period_s)
+    low, high = tp_img / PEAK_PERIOD_FACTOR, (math.inf if check.peak_at_band_edge else tp_img * PEAK_PERIOD_FACTOR)
+    details["peak_period_s"] = tp_fit
+    if not low <= tp_fit <= high:
+        why.append(f"the waves' peak period {tp_fit:.3g} s is not the images' ({tp_img:.3g} s, space-time evidence)")
+        return False
+    return True
+
+
 def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: int = 24, init=None,
                 noise: float = GEOMETRY_NOISE, correlation: float = GEOMETRY_CORRELATION, evidence="auto"):
     """Stage 4: the component waves behind the geometry sequence (``frames`` of them, spread
@@ -223,24 +248,7 @@ def waves_stage(seq: Sequence, geometry, *, frames: int | None = 16, max_waves: 
                        surface=result.surface)
         why = [] if result.success else [f"stopped at the cap of {max_waves} waves" if n >= max_waves
                                          else "the waves do not explain the geometry within its noise"]
-        confirmed = shows_dispersion is not False
-        details["images_show_dispersion"] = shows_dispersion
-        if not confirmed:
-            why.append("the images show no dispersive waves to confirm them (space-time evidence: "
-                       f"{check.message})")
-        elif check is not None:
-            # the waves must put their peak where the images do: within a factor of
-            # PEAK_PERIOD_FACTOR of the images' peak period (only the lower side where that
-            # peak sits at the band's long-wave edge, and the sea's may be longer)
-            tp_fit = float(fit.sea_state(result.waves).tp)
-            tp_img = float(check.peak_period_s)
-            low, high = tp_img / PEAK_PERIOD_FACTOR, (math.inf if check.peak_at_band_edge
-                                                      else tp_img * PEAK_PERIOD_FACTOR)
-            details["peak_period_s"] = tp_fit
-            if not low <= tp_fit <= high:
-                confirmed = False
-                why.append(f"the waves' peak period {tp_fit:.3g} s is not the images' ({tp_img:.3g} s, "
-                           f"space-time evidence)")
+        confirmed = _images_confirm(check, result.waves, details, why)
         # a fit to noisy geometry can explain the noise with waves too steep to exist (looping
         # crests, k h > 1): they are reported and capped so that the later stages can render
         waves, capped = _cap_steepness(result.waves, why)
@@ -285,15 +293,22 @@ def _spread(n: int, k: int | None) -> np.ndarray:
 
 
 def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | None = 16, overcast: bool = False,
-                      max_steps: int | None = None, rounds: int | None = None, per_frame_exposure: bool = False):
+                      max_steps: int | None = None, rounds: int | None = None, per_frame_exposure: bool = False,
+                      evidence="auto"):
     """Stage 5: waves, lighting and exposure refined jointly against the images through the
     renderer with a robust loss (:func:`jaxocean.fit.photometric`); ``per_frame_exposure``:
-    one exposure per frame (a camera on automatic exposure)."""
+    one exposure per frame (a camera on automatic exposure).
+
+    Success: the fit's own, and the images' space-time evidence confirms the refined waves
+    as it must stage 4's (``evidence`` as in :func:`waves_stage`): images that show no
+    dispersive waves confirm none, however well a few long waves render them (measured: two
+    1.5 m waves of 10 and 17 s "explaining" 1.75 s of a 1.2 m, 5.5 s sea at 64 px)."""
     from jaxocean.fit import photometric_fit as ph
 
     idx = _spread(len(seq.times), frames)
 
     def run():
+        check = _evidence_of(seq, evidence)
         kw = {k: v for k, v in (("max_steps", max_steps), ("rounds", rounds)) if v is not None}
         images = seq.images[idx][..., 0] if seq.gray else seq.images[idx]
         result = ph.photometric(images, seq.camera, seq.times[idx], waves, lighting, mask=seq.usable[idx],
@@ -301,9 +316,11 @@ def photometric_stage(seq: Sequence, waves: Waves, lighting, *, frames: int | No
         details = ph.fit_to_dict(result)
         details.update(frames=len(idx), times=[float(t) for t in seq.times[idx]])
         why = [str(result.message)] if result.message else []
+        confirmed = _images_confirm(check, result.waves, details, why)
         waves_, capped = _cap_steepness(result.waves, why)
         details["capped_waves"] = capped
-        return result._replace(waves=waves_), bool(result.success) and not capped, "; ".join(why), details
+        return (result._replace(waves=waves_), bool(result.success) and not capped and confirmed, "; ".join(why),
+                details)
 
     return timed("photometric", run)
 
@@ -390,14 +407,26 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), nan, nan
             observed = False
             hs_std, tp_std, theta_std, spread_std, gam_std = hs_std_waves, nan, nan, nan, nan
+        # waves that no stage confirmed give no headline sea state (they stay reported as
+        # waves_hs_m / waves_tp_s and in the spectrum fit's own fields): no number at all
+        # rather than the sea state of waves that do not explain the data
+        unconfirmed = not waves_ok and not from_geometry and not no_waves
+        if unconfirmed:
+            hs, tp, theta, spread, gam = nan, nan, nan, nan, nan
+            hs_std, tp_std, theta_std, spread_std, gam_std = nan, nan, nan, nan, nan
+            observed = False
         sea = dict(
             hs_m=hs, hs_std_m=hs_std, tp_s=tp, tp_std_s=tp_std,
             direction_deg=direction_deg(theta, seq.compass), direction_std_deg=math.degrees(theta_std),
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
             spreading_s_max=spread, spreading_std=spread_std, gamma=gam, gamma_std=gam_std, peak_observed=observed,
-            source=("space-time spectrum of the geometry" if from_geometry else "spectrum fit of the waves"
-                    if sf is not None else None if no_waves else "the fitted waves"),
-            bound=(_geometry_bound(geo_sea) if from_geometry else None if observed
+            source=("space-time spectrum of the geometry" if from_geometry else None if no_waves or unconfirmed
+                    else "spectrum fit of the waves" if sf is not None else "the fitted waves"),
+            bound=(_geometry_bound(geo_sea) if from_geometry
+                   else "no sea state: no wave was confirmed (the wave fit failed and the photometric refinement "
+                        "did not succeed) and the geometry's own spectrum, with the images' dispersion check, "
+                        "gives none" if unconfirmed
+                   else None if observed
                    else "Hs and Tp are bounds: the spectral peak lies outside the observed band"
                    if sf is not None else "no wave was found: no sea state" if no_waves
                    else "Hs and Tp are those of the fitted waves alone (too few resolved waves for a spectrum)"),
@@ -565,7 +594,7 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     if refine:
         photo, rep = photometric_stage(seq, waves, lighting, frames=wave_frames, overcast=over,
                                        max_steps=refine_steps, rounds=refine_rounds,
-                                       per_frame_exposure=per_frame_exposure)
+                                       per_frame_exposure=per_frame_exposure, evidence=evidence)
         say(rep)
         if rep.success:
             waves, lighting = photo.waves, photo.lighting

@@ -189,6 +189,15 @@ def test_reedit_with_new_camera_and_sun(tiny_scene, tmp_path, capsys):
     assert cli.main(["fit-lighting", str(out / "frame_00000.exr"), "--scene", str(out), "--out", str(fit)]) == 1
     assert json.loads(fit.read_text())["success"] is False
     assert "sun direction undetermined: no sun glitter in the image" in capsys.readouterr().err
+    # that failed fit's lighting is refused by reedit, unless asked for (then with a warning)
+    again = tmp_path / "again"
+    assert cli.main(["reedit", str(tiny_scene), "--lighting", str(fit), "--frames", "0", "--out", str(again)]) == 2
+    err = capsys.readouterr().err
+    assert "lighting fit reported failure" in err and "sun direction" in err and "--allow-failed-lighting" in err
+    assert not again.exists()
+    assert cli.main(["reedit", str(tiny_scene), "--lighting", str(fit), "--allow-failed-lighting", "--frames", "0",
+                     "--out", str(again)]) == 0
+    assert "warning: using the lighting of a failed fit" in capsys.readouterr().err
 
 
 def test_reedit_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
@@ -321,6 +330,19 @@ def test_render_refuses_sizes_memory_cannot_hold(tmp_path, capsys, monkeypatch):
     assert _cli_inputs.render_bytes((256, 256), 100) > 50 * 2**20
     assert cli.main(["simulate", "--out", str(out), "--res", "256", "--frames", "100", "--quiet"]) == 2
     assert "more than the test's limit (0.0488 GiB)" in capsys.readouterr().err and not out.exists()
+
+
+def test_simulate_refuses_a_dataset_the_disk_cannot_hold(tmp_path, capsys, monkeypatch):
+    import shutil
+    from collections import namedtuple
+
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(2**30, 0, 2**20))  # 1 MiB free
+    out = tmp_path / "data"
+    # 20 scenes x 4 frames x 64^2 pixels at >= 4 bytes each: 1.25 MiB
+    assert cli.main(["simulate", "--out", str(out), "--res", "64", "--scenes", "20", "--frames", "4", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "simulate: needs at least" in err and "of disk" in err and not out.exists()
 
 
 @pytest.mark.parametrize("argv, message", [

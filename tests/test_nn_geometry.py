@@ -222,6 +222,9 @@ def test_evaluate_scores_flat_and_a_model(tiny_dataset):
     exact = gt.evaluate(truth, tiny_dataset, "test", warmup=False)
     assert exact["skill"] == pytest.approx(1.0, abs=1e-4) and exact["within_1deg"] == pytest.approx(1.0)
     assert exact["image_mse"] < 1e-6
+    # nothing to score is an error naming the split, not a score of nothing
+    with pytest.raises(ValueError, match="'test' split holds no frame to score"):
+        gt.evaluate(gt.flat_method, tiny_dataset, "test", max_frames=0)
 
 
 def _cli(*args):

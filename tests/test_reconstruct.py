@@ -251,6 +251,43 @@ def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_pat
     assert not rc.waves_stage(seq, stack, frames=None, evidence=images(3.0 * tp, True))[1].success
 
 
+
+def test_unconfirmed_waves_give_no_headline_sea_state(tmp_path):
+    # waves that no stage confirmed (stage 4 failed, no stage 5) and no geometry spectrum
+    # (2 frames): Hs, Tp and the direction are null, not the sea state of those waves
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    waves = jo.make_waves([1.5, 0.05], [0.4, 2.5], [0.3, 1.1], [0.0, 1.0])  # a 385 m, 1.5 m "wave"
+    geo = SimpleNamespace(normal=jnp.tile(jnp.asarray([0.0, 0.0, 1.0]), (len(times), 32, 32, 1)),
+                          roughness=jnp.full((len(times), 32, 32), 1e-3), mask=jnp.ones((len(times), 32, 32), bool))
+    (sea, _, _), rep = rc.sea_stage(seq, waves, geo, waves_ok=False, evidence=None)
+    assert not rep.success
+    assert all(math.isnan(sea[k]) for k in ("hs_m", "tp_s", "direction_deg", "hs_std_m"))
+    assert sea["source"] is None and "no wave was confirmed" in sea["bound"] and not sea["peak_observed"]
+    # the waves' own numbers stay reported, under their own names
+    assert sea["waves_hs_m"] == pytest.approx(float(jo.fit.sea_state(waves).hs))
+    # the same waves, confirmed: their numbers are the headline
+    (sea, _, _), _ = rc.sea_stage(seq, waves, geo, waves_ok=True, evidence=None)
+    assert sea["hs_m"] == pytest.approx(sea["waves_hs_m"]) and sea["source"] == "the fitted waves"
+
+
+def test_the_photometric_stage_needs_the_images_to_confirm_its_waves(tmp_path, monkeypatch):
+    # a refinement that renders the images within their noise does not confirm waves the
+    # images' space-time spectrum denies (no energy on the dispersion shell)
+    from jaxocean.fit import photometric_fit as ph
+
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    waves = jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0])
+    fitted = SimpleNamespace(success=True, message="", waves=waves, _replace=lambda **k: SimpleNamespace(**k))
+    monkeypatch.setattr(ph, "photometric", lambda *a, **k: fitted)
+    monkeypatch.setattr(ph, "fit_to_dict", lambda result: {})
+    _, rep = rc.photometric_stage(seq, waves, jo.make_lighting(), evidence=None)
+    assert rep.success and rep.details["images_show_dispersion"] is None
+    flat_images = SimpleNamespace(success=False, message="ratio 1.29 (success needs > 2)")
+    _, rep = rc.photometric_stage(seq, waves, jo.make_lighting(), evidence=flat_images)
+    assert not rep.success and "show no dispersive waves" in rep.message and "ratio 1.29" in rep.message
+
 def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
     # the flat sea a failed wave stage hands on: no stem at its zero-amplitude stand-in
     from jaxocean import report

@@ -104,8 +104,11 @@ that fails):
   ``J^T W J`` at the answer, the noise per residual element ``max(noise, robust_scale,
   NOISE_FLOOR)``) are below ``DETERMINED_STD`` (relative amplitude 0.2, ``log omega`` 0.02,
   ``theta`` 0.05 rad) hold at least ``DETERMINED_ENERGY (0.9)`` of the fitted slope energy
-  ``sum (k h)^2``. At low signal to noise a fit can reach the noise level with waves the
-  images do not pin down; this is what reports it.
+  ``sum (k h)^2``, and a wave counts only if the view resolves it
+  (:func:`jaxocean.fit.waves.resolvable`: at least one wavelength of sea along its
+  direction, on pixels finer than it). At low signal to noise a fit can reach the noise
+  level with waves the images do not pin down, and a wave longer than the view can stand in
+  for a tilt with a small covariance; this is what reports it.
 
 Not checked: the rows path's own error for waves tall enough to move a pixel's hit by a
 footprint (render's ``needs_refinement``), beyond what it adds to the residual.
@@ -140,6 +143,7 @@ from jaxocean.fit._robust import (CODES, OUTLIER_WEIGHT, ROBUST_LOSSES, SCALE_FL
                                   robust_statistics, signal_scale)
 from jaxocean.fit.lighting import lighting_to_dict
 from jaxocean.fit.solvers import FitError
+from jaxocean.fit.waves._match import resolvable
 from jaxocean.fit.waves._model import pack, to_waves
 from jaxocean.shading import Lighting
 from jaxocean.waves import Waves, validate
@@ -204,8 +208,8 @@ class PhotometricFit(NamedTuple):
     * ``signal_scale`` ``()`` the images' own spread about the per-row median (comparison space).
     * ``sea_scale``  ``(C,)`` the per-channel sea median ``s`` of the comparison space.
     * ``noise_estimated`` bool: ``noise`` was estimated from the images.
-    * ``determined`` ``(N,)`` bool (None when the waves are not fitted): the wave's
-      Gauss-Newton standard deviations are below :data:`DETERMINED_STD`;
+    * ``determined`` ``(N,)`` bool (None when the waves are not fitted): the view resolves
+      the wave and its Gauss-Newton standard deviations are below :data:`DETERMINED_STD`;
       ``determined_energy`` the determined waves' share of the slope energy.
     """
 
@@ -537,8 +541,14 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     signal = signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
     if st.fit_waves:
-        determined, energy = _determined(y, jtj, jnp.asarray(sigma, dtype), used, target.shape[-1], n)
-        determined, energy = np.asarray(determined), float(energy)
+        determined, _ = _determined(y, jtj, jnp.asarray(sigma, dtype), used, target.shape[-1], n)
+        # a wave the view does not resolve (longer than the sea it shows along its direction,
+        # or shorter than its pixels) is a stand-in for a tilt or a texture, whatever its
+        # local standard deviations say (measured: two 260 m waves of 1.1 m in a 64 px view
+        # of a 1.2 m sea, 1.75 s long, both "determined" by their covariance)
+        determined = np.asarray(determined) & resolvable(waves_fit, camera)
+        slope_energy = np.asarray(waves_fit.amplitude * waves_fit.omega ** 2, np.float64) ** 2
+        energy = float(np.sum(slope_energy[determined]) / max(np.sum(slope_energy), 1e-30))
     else:
         determined, energy = None, 1.0
     message = _verdict(float(loss), float(loss_init), float(rscale), float(noise_val), float(frac), float(signal),
@@ -591,7 +601,8 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) ->
 
 @functools.partial(jax.jit, static_argnames=("channels", "n"))
 def _determined(y, jtj, sigma, used, channels, n):
-    """``(determined (N,), energy ())``: a wave is determined when its Gauss-Newton standard
+    """``(determined (N,), energy ())``: a wave is determined (before the check that the view
+    resolves it, in :func:`photometric`) when its Gauss-Newton standard
     deviations at noise ``sigma`` (per residual element) are below :data:`DETERMINED_STD`
     (relative amplitude ``sqrt((var a + var b) / 2) / h``, ``log omega``, ``theta`` [rad]);
     ``energy`` is the determined waves' share of the slope energy ``sum (k h)^2``."""

@@ -182,6 +182,8 @@ class IncompleteFrameWarning(UserWarning):
 def require_file(path, what: str) -> Path:
     """``Path(path)``, or :class:`MissingFileError` if it is not an existing file."""
     path = Path(path)
+    if path.is_dir():
+        raise MissingFileError(path, f"a directory, not a {what} (give the files in it, e.g. {path / '*'})")
     if not path.is_file():
         raise MissingFileError(path, f"no such {what}")
     return path

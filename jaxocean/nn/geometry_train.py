@@ -495,6 +495,10 @@ def evaluate(method, dataset, split: str = "test", *, max_frames: int | None = N
         method = model_method(method)
     windows = [(s, f) for s, f in data.windows(split) if frames_per_scene is None or f < frames_per_scene]
     windows = windows[:max_frames]
+    if not windows:
+        sizes = ", ".join(f"{name} {len(scenes)}" for name, scenes in data.splits.items())
+        raise ValueError(f"{data.root}: the {split!r} split holds no frame to score (scenes per split: {sizes}); "
+                         "choose another split (--split), or simulate more scenes (the test split holds 10% of them)")
     if warmup and windows:  # compile for the frame count of the first scene
         s = windows[0][0]
         images = np.stack([data.frame(s, f).image for s2, f in windows if s2 == s])
