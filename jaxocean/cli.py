@@ -237,7 +237,7 @@ def build_parser():
                    "reported failure (refused otherwise: its waves need not explain the frames)")
     when = p.add_mutually_exclusive_group(required=True)
     when.add_argument("--frames", type=inputs.index_list, help="frame indices, e.g. 0,100,500")
-    when.add_argument("--times", type=inputs.number_list, help="times [s], e.g. 0,10,50")
+    when.add_argument("--times", type=inputs.number_list, help="times [s], e.g. 0,10,50 (a list that starts negative takes =: --times=-5,10)")
     p.add_argument("--fps", type=inputs.positive_float,
                    help="frames per second for --frames (default: the JSON's frame "
                         "interval; frame 0 is its first time)")
@@ -257,7 +257,7 @@ def build_parser():
                                    "forecast and re-edited views. Writes result.json, report.html and its figures "
                                    "into --out; prints every stage's flag and time. Exit code 1 when a stage "
                                    "failed (everything is written anyway; the report says which).")
-    p.add_argument("frames", nargs="*", help="frame files (PNG / JPEG / 16-bit PNG / EXR) or one video; default: "
+    p.add_argument("frames", nargs="*", help="frame files (PNG / JPEG / 16-bit gray PNG / EXR) or one video; default: "
                                              "every frame the camera file lists")
     p.add_argument("--camera", required=True, help="camera file (intrinsics, distortion, a pose per frame) or a "
                                                    "synthetic scene.json")

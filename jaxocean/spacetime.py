@@ -345,9 +345,8 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     k_lo = _k_clear_of_zero(band.d_omega, band.dk, tolerance)
     keep = band.k >= k_lo
     if not np.any(keep) or not band.k_hi > 1.5 * max(k_lo, band.k_lo):
-        return _no_sea(U, band.grid, f"the record ({band.grid['frames']} frames over "
-                                     f"{band.grid['frames'] * band.grid['dt_s']:.3g} s) separates no wave of the band "
-                                     f"from a still pattern")
+        return _no_sea(U, band.grid, f"the record ({band.grid['frames']} frames {band.grid['dt_s']:.3g} s apart) "
+                                     "separates no wave of the band from a still pattern")
     band = band._replace(power=band.power[:, keep], kx=band.kx[keep], ky=band.ky[keep], k=band.k[keep],
                          k_lo=max(k_lo, band.k_lo))
     P, om, kb = band.power, band.omega, band.k

@@ -281,3 +281,22 @@ def test_gray_overcast_sequence(scene):
     for name in ("sky_color", "sea_color"):
         assert abs(float(getattr(seen, name) @ lum) / float(getattr(light, name) @ lum) - 1) < 1e-5
     assert r.outliers.shape == images.shape
+
+
+def test_a_wave_the_view_does_not_resolve_is_never_determined():
+    # a covariance that pins every parameter down (J^T J = 1e12 I) determines the three
+    # resolvable waves, but not a 1.5 m wave 385 m long in this 6 m high view, which can only
+    # stand in for a tilt of the patch
+    from jaxocean.fit.waves import resolvable
+    from jaxocean.fit.waves._model import pack
+
+    camera = _camera()
+    waves = make_waves([0.03, 0.02, 0.012, 1.5], [2.8, 3.6, 4.9, 0.4], [0.4, 2.1, -1.2, 0.3], [0.5, 4.0, 2.0, 1.0],
+                       dtype=jnp.float64)
+    assert resolvable(waves, camera).tolist() == [True, True, True, False]
+    y = pack(waves)
+    used = jnp.ones((N_FRAMES,) + RES, bool)
+    ok, energy = ph._determined_waves(y, 1e12 * jnp.eye(y.size + 5), 1e-3, used, 3, 4, camera)
+    assert ok.tolist() == [True, True, True, False]
+    slope = np.asarray(waves.amplitude * waves.omega ** 2) ** 2
+    assert energy == pytest.approx(slope[:3].sum() / slope.sum())

@@ -541,14 +541,7 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     signal = signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
     if st.fit_waves:
-        determined, _ = _determined(y, jtj, jnp.asarray(sigma, dtype), used, target.shape[-1], n)
-        # a wave the view does not resolve (longer than the sea it shows along its direction,
-        # or shorter than its pixels) is a stand-in for a tilt or a texture, whatever its
-        # local standard deviations say (measured: two 260 m waves of 1.1 m in a 64 px view
-        # of a 1.2 m sea, 1.75 s long, both "determined" by their covariance)
-        determined = np.asarray(determined) & resolvable(waves_fit, camera)
-        slope_energy = np.asarray(waves_fit.amplitude * waves_fit.omega ** 2, np.float64) ** 2
-        energy = float(np.sum(slope_energy[determined]) / max(np.sum(slope_energy), 1e-30))
+        determined, energy = _determined_waves(y, jtj, sigma, used, target.shape[-1], n, camera)
     else:
         determined, energy = None, 1.0
     message = _verdict(float(loss), float(loss_init), float(rscale), float(noise_val), float(frac), float(signal),
@@ -597,6 +590,18 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) ->
                        f"slope energy, below {DETERMINED_ENERGY:.0%} (noise, too many waves, or waves the view "
                        "cannot separate)")
     return "; ".join(reasons)
+
+
+def _determined_waves(y, jtj, sigma, used, channels, n, camera):
+    """``(determined (N,) NumPy bool, energy float)``: :func:`_determined`, and of those only
+    the waves the view resolves (:func:`jaxocean.fit.waves.resolvable`). A wave longer than
+    the sea the view shows along its direction, or shorter than its pixels, stands in for a
+    tilt or a texture whatever its local standard deviations say."""
+    ok, _ = _determined(y, jtj, jnp.asarray(sigma, y.dtype), used, channels, n)
+    w = to_waves(y[:4 * n], n)
+    ok = np.asarray(ok) & resolvable(w, camera)
+    slope_energy = np.asarray(w.amplitude * w.omega ** 2, np.float64) ** 2
+    return ok, float(np.sum(slope_energy[ok]) / max(float(np.sum(slope_energy)), 1e-30))
 
 
 @functools.partial(jax.jit, static_argnames=("channels", "n"))
