@@ -6,6 +6,11 @@ channels), 64x64 inputs with 3 channels, batch 8, MSE loss, Adam. Also timed: th
 step of the geometry model's ``cpu`` config (jaxocean.nn.geometry_train) and its 128^2
 inference.
 
+On a machine with more than one core, the same JAX step also runs with its batch split over
+one XLA host device per core (a subprocess started with
+``XLA_FLAGS=--xla_force_host_platform_device_count=N``): XLA:CPU runs each convolution on
+one core, and the split is how a JAX step uses the others (as PyTorch's threads do).
+
 PyTorch is optional and not a dependency: pass ``--torch-python PATH`` (a Python with torch
 installed, e.g. a scratch venv). Its steps run in a persistent subprocess, interleaved round
 by round with the JAX steps, so that both see the same machine load; the ratio is taken from
@@ -55,32 +60,55 @@ for line in sys.stdin:
 
 
 def _jax_resnet_step():
+    """The ResNet train step, its batch split over every local device (one device unless
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` made N of the host)."""
     import jax
     import jax.numpy as jnp
     import optax
 
     from jaxocean.nn import backbones
     from jaxocean.nn import layers as nl
+    from jaxocean.nn.training import data_parallel
 
+    parallel = data_parallel()
     net = nl.serial(backbones.ResNet(32, 4, downsample=0), nl.Conv(3, 1))
     _, params = net.init(jax.random.key(0), (8, 64, 64, 3))
-    x = jax.random.normal(jax.random.key(1), (8, 64, 64, 3))
-    y = jax.random.normal(jax.random.key(2), (8, 64, 64, 3))
+    x, y = parallel.batch((jax.random.normal(jax.random.key(1), (8, 64, 64, 3)),
+                           jax.random.normal(jax.random.key(2), (8, 64, 64, 3))))
     opt = optax.adam(1e-3)
 
     @jax.jit
-    def step(params, state):
+    def step(params, state, x, y):
         loss, g = jax.value_and_grad(lambda p: jnp.mean((net.apply(p, x) - y) ** 2))(params)
         u, state = opt.update(g, state)
         return optax.apply_updates(params, u), state, loss
 
-    carry = [params, opt.init(params)]
+    carry = parallel.state([params, opt.init(params)])
 
     def run():
-        carry[0], carry[1], loss = step(*carry)
+        carry[0], carry[1], loss = step(*carry, x, y)
         jax.block_until_ready(loss)
 
     return run
+
+
+# the same JAX step in a subprocess whose host is split into one XLA device per core (the
+# flag must be set before JAX starts): XLA:CPU runs each convolution on one core, so a
+# batch split over two devices runs on both cores
+JAX_DEVICES_WORKER = r"""
+import json, sys, time
+sys.path.insert(0, sys.argv[1])
+from bench_nn_step import _jax_resnet_step
+run = _jax_resnet_step()
+run(); run()
+import jax
+print(json.dumps({"devices": jax.device_count()}), flush=True)
+for line in sys.stdin:
+    ts = []
+    for _ in range(int(line)):
+        t = time.perf_counter(); run(); ts.append(time.perf_counter() - t)
+    print(json.dumps(ts), flush=True)
+"""
 
 
 def _geometry_step(dataset):
@@ -145,31 +173,40 @@ def main(argv=None):
         jobs["geometry cpu-config step (64^2 crops, batch 8)"] = _geometry_step(args.dataset)
     jobs["geometry inference, one 128^2 frame"] = _geometry_inference()
     compile_s = {name: _time(fn, 1)[0] for name, fn in jobs.items()}
-    torch_proc, torch_info = None, None
+    workers = {}  # name -> persistent subprocess timing its step on request, round by round
+    cores = os.cpu_count() or 1
+    if cores > 1:
+        flags = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={cores}").strip()
+        workers[f"jaxocean.nn ResNet step, batch split over {cores} host devices"] = subprocess.Popen(
+            [sys.executable, "-c", JAX_DEVICES_WORKER, str(HERE)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
+            text=True, env=dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=str(HERE.parent)))
     if args.torch_python:
-        torch_proc = subprocess.Popen([args.torch_python, "-c", TORCH_WORKER], stdin=subprocess.PIPE,
-                                      stdout=subprocess.PIPE, text=True, env=dict(os.environ, PYTHONWARNINGS="ignore"))
-        torch_info = json.loads(torch_proc.stdout.readline())
-    rounds = {name: [] for name in jobs}
-    if torch_proc:
-        rounds["PyTorch ResNet step"] = []
+        workers["PyTorch ResNet step"] = subprocess.Popen(
+            [args.torch_python, "-c", TORCH_WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+            env=dict(os.environ, PYTHONWARNINGS="ignore"))
+    info = {name: json.loads(proc.stdout.readline()) for name, proc in workers.items()}
+    torch_info = info.get("PyTorch ResNet step")
+    rounds = {name: [] for name in list(jobs) + list(workers)}
     for _ in range(args.rounds):
         for name, fn in jobs.items():
             rounds[name].append(float(np.median(_time(fn, args.steps))))
-        if torch_proc:
-            torch_proc.stdin.write(f"{args.steps}\n")
-            torch_proc.stdin.flush()
-            rounds["PyTorch ResNet step"].append(float(np.median(json.loads(torch_proc.stdout.readline()))))
-    if torch_proc:
-        torch_proc.stdin.close()
-        torch_proc.wait()
+        for name, proc in workers.items():
+            proc.stdin.write(f"{args.steps}\n")
+            proc.stdin.flush()
+            rounds[name].append(float(np.median(json.loads(proc.stdout.readline()))))
+    for proc in workers.values():
+        proc.stdin.close()
+        proc.wait()
+    torch_proc = workers.get("PyTorch ResNet step")
     medians = {name: float(np.median(v)) for name, v in rounds.items()}
     result = {"median_s": medians, "per_round_median_s": rounds, "compile_s": compile_s, "torch": torch_info,
-              "load_average": os.getloadavg(), "cpu_count": os.cpu_count()}
+              "workers": info, "load_average": os.getloadavg(), "cpu_count": os.cpu_count()}
     if torch_proc:
-        ratios = [j / t for j, t in zip(rounds["jaxocean.nn ResNet step"], rounds["PyTorch ResNet step"])]
-        result["jax_over_torch_per_round"] = ratios
-        result["jax_over_torch_median"] = float(np.median(ratios))
+        for name in [n for n in rounds if n.startswith("jaxocean.nn ResNet step")]:
+            ratios = [j / t for j, t in zip(rounds[name], rounds["PyTorch ResNet step"])]
+            key = "" if name == "jaxocean.nn ResNet step" else "_devices"
+            result[f"jax{key}_over_torch_per_round"] = ratios
+            result[f"jax{key}_over_torch_median"] = float(np.median(ratios))
     from jaxocean.files import write_json
 
     write_json(args.out + ".json", result)
@@ -177,7 +214,10 @@ def main(argv=None):
     for name, v in medians.items():
         print(f"{name:<52} {1000 * v:9.1f} ms")
     if torch_proc:
-        print(f"JAX / PyTorch (same rounds): {result['jax_over_torch_median']:.2f}; load average {os.getloadavg()}")
+        split = (f", batch split over {cores} host devices {result['jax_devices_over_torch_median']:.2f}"
+                 if "jax_devices_over_torch_median" in result else "")
+        print(f"JAX / PyTorch (same rounds): one device {result['jax_over_torch_median']:.2f}{split}; "
+              f"load average {os.getloadavg()}")
 
 
 def _chart(path, rounds):
