@@ -42,6 +42,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import forecast as fc
+from jaxocean import radiometry
 from jaxocean import shading
 from jaxocean._math import slope_from_normal
 from jaxocean._stages import StageReport, timed
@@ -122,11 +123,25 @@ class _Geo(NamedTuple):
     mask: Any
 
 
+def _looks_overcast(seq: Sequence, frame: int) -> bool:
+    """The default of ``lighting_stage``'s ``overcast``: gray footage, or more than 20% of the
+    sea pixels of ``frame`` saturated at the top. (Pixels outside the source frame, or
+    crushed to black, are unusable too but say nothing of the sky.)"""
+    if seq.gray:
+        return True
+    sea = np.asarray(cam.intersect_sea(seq.camera).mask)
+    if not sea.any():
+        return True
+    clipped = ~radiometry.saturation_mask(np.asarray(seq.display[frame]))
+    return bool(np.mean(clipped[sea]) > 0.2)
+
+
 def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcast: bool | None = None,
                    normal_noise: float = GEOMETRY_NOISE, correlation: float = GEOMETRY_CORRELATION):
     """Stage 3: the lighting of one frame (default the middle one) with its geometry held
-    fixed. ``overcast`` (None: decided from the footage -- gray images whose sky view is
-    clipped, or no usable glint) fixes the sun colour at 0 and fits the sky and sea colours.
+    fixed. ``overcast`` (None: decided from the footage -- gray footage, or more than 20% of
+    the sea pixels saturated at the top) fixes the sun colour at 0 and fits the sky and sea
+    colours.
     The fit is told the geometry's error per normal component (``normal_noise`` [rad],
     :func:`jaxocean.fit.lighting`), correlated over ``correlation`` times the view's width:
     success means the lighting explains the frame as well as geometry of that accuracy
@@ -136,11 +151,7 @@ def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcas
     i = len(seq.times) // 2 if frame is None else frame
 
     def run():
-        over = overcast
-        if over is None:
-            sea = np.asarray(cam.intersect_sea(seq.camera).mask)
-            clipped = 1.0 - float(seq.usable[i][sea].mean()) if sea.any() else 1.0
-            over = bool(seq.gray or clipped > 0.2)
+        over = _looks_overcast(seq, i) if overcast is None else overcast
         g = _Geo(geometry.normal[i], geometry.roughness[i], geometry.slope_variance[i], geometry.mask[i])
         kw = {}
         if over:

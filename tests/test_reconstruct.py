@@ -288,6 +288,22 @@ def test_the_photometric_stage_needs_the_images_to_confirm_its_waves(tmp_path, m
     _, rep = rc.photometric_stage(seq, waves, jo.make_lighting(), evidence=flat_images)
     assert not rep.success and "show no dispersive waves" in rep.message and "ratio 1.29" in rep.message
 
+
+def test_overcast_is_chosen_for_clipped_sea_not_for_pixels_outside_the_frame(tmp_path):
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    assert not rc._looks_overcast(seq, 0)
+    # half the view outside the source frame: unusable, not clipped
+    outside = seq.usable.copy()
+    outside[:, :, :16] = False
+    display = seq.display.copy()
+    display[:, :, :16] = 0.0
+    assert not rc._looks_overcast(seq._replace(usable=outside, display=display), 0)
+    # half the view saturated: an overcast sky's glare
+    display[:, :, :16] = 1.0
+    assert rc._looks_overcast(seq._replace(display=display), 0)
+    assert rc._looks_overcast(seq._replace(gray=True), 0)
+
 def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
     # the flat sea a failed wave stage hands on: no stem at its zero-amplitude stand-in
     from jaxocean import report
