@@ -178,12 +178,13 @@ def reconstruct_stage(out: Path, scene, images) -> dict:
     state = fit.sea_state(scene.waves)
     true_sea = dict(hs=state.hs, tp=state.tp)
     got = result.sea
+    sea = ("no sea state" if got["hs_m"] is None or not np.isfinite(got["hs_m"]) else
+           f"Hs {got['hs_m']:.2f} m, Tp {got['tp_s']:.1f} s{'' if got['peak_observed'] else ' (bounds)'}")
     rows = [[plots.display(t), plots.display(np.clip(f, 0, None))] for t, f in
             zip(np.asarray(true_fc.image), outlook["forecast"])]
     path = plots.contact_sheet(out / "reconstruct_vs_truth.png", rows, col_titles=["truth", "reconstructed"],
                                row_titles=[f"+{t - float(seq.times[-1]):.0f} s" for t in outlook["times"]],
-                               title=f"forecast from 8-bit PNG frames: Hs {got['hs_m']:.2f} m, Tp "
-                                     f"{got['tp_s']:.1f} s{'' if got['peak_observed'] else ' (bounds)'}; true "
+                               title=f"forecast from 8-bit PNG frames: {sea}; true "
                                      f"{true_sea['hs']:.2f} m, {true_sea['tp']:.1f} s")
     return dict(stages={n: dict(success=r.success, seconds=r.seconds, message=r.message)
                         for n, r in result.stages.items()},
