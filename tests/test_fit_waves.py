@@ -892,3 +892,15 @@ def test_package_exports_the_fits_and_their_modules():
     assert fit_package.separable is fw.separable and fit_package.resolvable is fw.resolvable
     assert fit_package.waves_fit.__name__ == "jaxocean.fit.waves"
     assert set(fw.__all__) >= {"waves", "refine", "match", "resolvable", "spectral_estimate", "spectral_init"}
+
+
+def test_a_spectrum_of_too_few_effective_waves_has_no_determined_direction():
+    # three waves of a sea travelling toward 0.4 rad, the largest toward 1.57: the energy
+    # weights give fewer than MIN_DIRECTION_WAVES effective waves, so the fitted direction
+    # (that wave's) is no success and carries no standard deviation
+    sea = spectrum.Spectrum(hs=1.2, tp=6.0, gamma=3.3, theta_mean=0.4, s_max=10.0)
+    w = spectrum.sample_waves(jax.random.key(2), sea, 3).waves
+    h2 = np.asarray(w.amplitude, np.float64) ** 2
+    assert h2.sum() ** 2 / (h2 ** 2).sum() < fit_spectrum.MIN_DIRECTION_WAVES
+    r = fit_spectrum.spectrum(w)
+    assert not r.success and np.isnan(r.theta_std) and np.isnan(r.s_max_std)
