@@ -45,7 +45,6 @@ eager one, and gradients are those of the image that is returned. Pass an explic
 from __future__ import annotations
 
 import functools
-import math
 from typing import NamedTuple
 
 import jax
@@ -57,7 +56,7 @@ from jaxocean import hierarchy, raycast, shading, surface
 from jaxocean._math import components, materialize_cotangent
 from jaxocean.errors import check_finite, is_concrete
 from jaxocean.raycast import hit_residual, refine_hits
-from jaxocean.waves import Waves, validate, wavenumber
+from jaxocean.waves import Waves, validate
 
 __all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "needs_refinement", "geometry", "shade", "render",
            "refine_hits", "hit_residual", "MAX_REFINE_ITERATIONS"]
@@ -107,6 +106,13 @@ def _check_inputs(waves: Waves, camera):
     if waves.omega.shape[0] == 0:
         raise ValueError("render functions need at least one wave; a flat sea is one wave of zero amplitude")
     cam.validate_camera(camera)
+    wave_dtype = jnp.result_type(waves.omega)
+    camera_dtype = jnp.result_type(*[x for x in jax.tree.leaves(camera) if jnp.issubdtype(jnp.result_type(x),
+                                                                                         jnp.floating)])
+    if jnp.finfo(wave_dtype).bits > jnp.finfo(camera_dtype).bits:
+        # the hits' fixed-point iteration carries the camera's precision
+        raise ValueError(f"waves are {wave_dtype} but the camera is {camera_dtype}: make the camera with "
+                         f"dtype={wave_dtype} (or the waves {camera_dtype})")
 
 
 def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX,
@@ -240,7 +246,12 @@ def _assemble(hit, xy, disp, normal, slope_var, converged):
 
 
 def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
-    """``(active, refine)`` static arguments from a ``plan`` argument (see :func:`geometry`)."""
+    """``(active, refine)`` static arguments from a ``plan`` argument (see :func:`geometry`),
+    after checking the time ``t`` (a finite scalar)."""
+    if jnp.ndim(t) != 0:
+        raise ValueError(f"t must be one time [s] (a scalar); got shape {jnp.shape(t)}: vmap over times to render "
+                         "several frames")
+    check_finite(t, "t")
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")
@@ -253,6 +264,9 @@ def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
     active, refine = (None, 0) if plan is None else (tuple(plan.active), int(plan.refine))
     if refine < 0:
         raise ValueError(f"RenderPlan.refine must be >= 0; got {refine}")
+    n_waves = waves.omega.shape[0]
+    if active is not None and any(not 0 <= int(i) < n_waves for i in active):
+        raise ValueError(f"RenderPlan.active must index the {n_waves} waves (0 to {n_waves - 1}); got {active}")
     if active is not None and len(active) == 0:
         active = (0,)  # nothing resolvable: evaluate one wave (its weights are zero) to keep shapes static
     return active, refine
@@ -322,6 +336,8 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
     if normal.shape != (H, W, 3):
         raise ValueError(f"normal must be (H, W, 3) = {(H, W, 3)} for this camera; got {normal.shape}")
     if slope_variance is None:
+        if roughness is None:
+            raise ValueError("shade needs roughness (H, W) or slope_variance (H, W, 2); got neither")
         roughness = jnp.asarray(roughness, normal.dtype)
         if roughness.shape != (H, W):
             raise ValueError(f"roughness must be (H, W) = {(H, W)}; got {roughness.shape}")

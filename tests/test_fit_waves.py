@@ -256,8 +256,15 @@ def test_a_flat_sea_raises_no_wave_found():
     # nothing to return: a sea without waves is an error of its own type, saying at what noise
     c = ortho()
     up = jnp.zeros((TIMES.size,) + RES + (3,)).at[..., 2].set(1.0)
-    with pytest.raises(fit_package.NoWaveFound, match=r"no wave found.*stated noise \(0.01 per normal"):
+    with pytest.raises(fit_package.NoWaveFound, match=r"no wave found.*stated noise \(0.01 per normal.*a flat sea"):
         fw.waves(up, None, c, TIMES, noise=0.01)
+    # normals that spread far above the floor but hold no wave (white noise, 0.05 per
+    # component, not stated) are no flat sea, and the error says so
+    slopes = 0.05 * np.random.default_rng(0).standard_normal(up.shape[:-1] + (2,))
+    noisy = np.concatenate([slopes, np.ones(up.shape[:-1] + (1,))], -1)
+    noisy = jnp.asarray(noisy / np.linalg.norm(noisy, axis=-1, keepdims=True), up.dtype)
+    with pytest.raises(fit_package.NoWaveFound, match=r"normals spread 0.0\d+ per component.*not a flat sea"):
+        fw.waves(noisy, None, c, TIMES)
 
 
 def test_a_fit_that_fails_says_so(ortho_scene):
@@ -904,3 +911,5 @@ def test_a_spectrum_of_too_few_effective_waves_has_no_determined_direction():
     assert h2.sum() ** 2 / (h2 ** 2).sum() < fit_spectrum.MIN_DIRECTION_WAVES
     r = fit_spectrum.spectrum(w)
     assert not r.success and np.isnan(r.theta_std) and np.isnan(r.s_max_std)
+    with pytest.raises(InvalidValueError, match="sea_state needs at least one wave"):
+        fit_spectrum.sea_state(make_waves([], [], []))

@@ -253,3 +253,25 @@ def test_bad_inputs_raise_before_work():
     no_waves = jax.tree.map(lambda x: x[:0], waves)
     with pytest.raises(ValueError, match="at least one wave; a flat sea is one wave of zero amplitude"):
         render.render(no_waves, c, light, 0.0)
+    with pytest.raises(ValueError, match="shade needs roughness"):
+        render.shade(normal, None, c, light)
+    # one time, finite: several times are a vmap, not a silently wrong frame
+    with pytest.raises(ValueError, match=r"t must be one time \[s\] \(a scalar\); got shape \(2,\)"):
+        render.render(waves, c, light, jnp.array([0.1, 0.2]))
+    with pytest.raises(InvalidValueError, match="t contains 1 NaN"):
+        render.geometry(waves, c, jnp.nan)
+    # a plan names the waves it renders
+    n = waves.omega.shape[0]
+    with pytest.raises(ValueError, match=f"RenderPlan.active must index the {n} waves"):
+        render.render(waves, c, light, 0.0, plan=render.RenderPlan(active=(n,), refine=0))
+
+
+def test_waves_finer_than_the_camera_are_refused(x64):
+    # float64 waves through a float32 camera: a clear error, not a type error deep in the hits'
+    # iteration; the other way round the camera's precision is simply more than needed
+    waves = sea(dtype=np.float64)
+    c32 = cam.make_camera(**CAM, dtype=jnp.float32)
+    with pytest.raises(ValueError, match="waves are float64 but the camera is float32"):
+        render.render(waves, c32, lighting(), 0.0)
+    image = render.render(sea(), cam.make_camera(**CAM, dtype=jnp.float64), lighting(), 0.0)
+    assert np.all(np.isfinite(np.asarray(image)))

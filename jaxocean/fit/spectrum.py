@@ -213,6 +213,8 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
 def sea_state(waves: Waves) -> SeaState:
     """Bulk parameters of a set of waves (eager, NumPy): see :class:`SeaState`."""
     validate(waves, max_steepness=None)
+    if np.size(waves.omega) == 0:
+        raise InvalidValueError("sea_state needs at least one wave; got none")
     h = np.asarray(waves.amplitude, np.float64)
     om = np.asarray(waves.omega, np.float64)
     th = np.asarray(waves.theta, np.float64)

@@ -655,8 +655,16 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     # ---- final refinement on every frame, then pruning by the Wald statistic: a pruned
     # model is refitted and kept only if the criterion does not get worse
     if current.omega.shape[0] == 0:
-        level = (f"the stated noise ({float(noise):.3g} per normal component)" if noise is not None
-                 else f"the noise floor ({math.sqrt(floor2):.3g} per normal component)")
+        sigma = float(noise) if noise is not None else math.sqrt(floor2)
+        level = (f"the stated noise ({sigma:.3g} per normal component)" if noise is not None
+                 else f"the noise floor ({sigma:.3g} per normal component)")
+        spread = math.sqrt(rss_now / m_obs) if math.isfinite(rss_now) else math.nan
+        if spread > 3.0 * sigma:
+            # not a flat sea: slopes far above the noise that no resolvable wave explains
+            raise NoWaveFound(f"no wave found: no candidate explains more of the normals than the {criterion} "
+                              f"criterion asks at {level}, yet the normals spread {spread:.3g} per component about "
+                              f"the flat sea, {spread / sigma:.3g} times that level: noise above it (state it with "
+                              "noise=) or waves the view does not resolve, not a flat sea")
         raise NoWaveFound(f"no wave found: no candidate explains more of the normals than the {criterion} "
                           f"criterion asks at {level}; the geometry shows a flat sea at that noise")
 
