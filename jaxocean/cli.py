@@ -424,8 +424,8 @@ def cmd_demo(args):
         print("reconstruct: the frames as 8-bit PNG, only the frames and the camera kept, reconstructed ...",
               flush=True)
         summary["reconstruct"] = r = demo.reconstruct_stage(out, scene, images)
-        print(f"  Hs {_value(r['hs_m'], '.2f')} m (true {r['truth']['hs']:.2f}), Tp {_value(r['tp_s'], '.1f')} s (true "
-              f"{r['truth']['tp']:.1f})" + _sea_caveat(r)
+        print(f"  Hs {_value(r['hs_m'], '.2f', ' m')} (true {r['truth']['hs']:.2f} m), "
+              f"Tp {_value(r['tp_s'], '.1f', ' s')} (true {r['truth']['tp']:.1f} s)" + _sea_caveat(r)
               + f"\n  report:        {r['report']}\n  figure:        {r['figure']}")
         write_json(out / "summary.json", summary)
     if "real" in stages:
@@ -434,16 +434,17 @@ def cmd_demo(args):
         else:
             print(f"real: reconstruct on the real footage in {args.real} ...", flush=True)
             summary["real"] = r = demo.real_stage(out, Path(args.real))
-            print(f"  Hs {_value(r['hs_m'], '.2f')} m, Tp {_value(r['tp_s'], '.1f')} s, toward "
-                  f"{_value(r['direction_deg'], '.0f')} deg"
+            print(f"  Hs {_value(r['hs_m'], '.2f', ' m')}, Tp {_value(r['tp_s'], '.1f', ' s')}, toward "
+                  f"{_value(r['direction_deg'], '.0f', ' deg')}"
                   + _sea_caveat(r) + f"\n  report:        {r['report']}")
             write_json(out / "summary.json", summary)
     return EXIT_OK
 
 
-def _value(x, spec: str) -> str:
-    """``x`` formatted by ``spec``, or ``n/a`` where there is no number (None or NaN)."""
-    return "n/a" if x is None or not math.isfinite(x) else format(x, spec)
+def _value(x, spec: str, unit: str = "") -> str:
+    """``x`` formatted by ``spec`` followed by ``unit``, or ``n/a`` where there is no number
+    (None or NaN)."""
+    return "n/a" if x is None or not math.isfinite(x) else format(x, spec) + unit
 
 
 def _sea_caveat(r) -> str:

@@ -510,4 +510,5 @@ def test_demo_sea_lines_say_when_the_spectrum_failed_and_what_is_a_bound():
     bound = cli._sea_caveat({"stages": {"spectrum": {"success": True}}, "bound": "Hs is a lower bound"})
     assert bound == "; Hs is a lower bound"
     # no sea state is no number, not "nan"
-    assert cli._value(float("nan"), ".2f") == cli._value(None, ".1f") == "n/a" and cli._value(1.234, ".2f") == "1.23"
+    assert cli._value(float("nan"), ".2f", " m") == cli._value(None, ".1f") == "n/a"
+    assert cli._value(1.234, ".2f", " m") == "1.23 m"
