@@ -36,7 +36,9 @@ def _add_training_options(p, configs, loss_terms) -> None:
                    help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
     p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
     p.add_argument("--epochs", type=int, help="override the config's number of epochs")
-    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch")
+    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch (at most: an epoch "
+                   "also ends when the train split's batches run out, e.g. after one step for 8 train scenes "
+                   "and a batch of 8)")
     p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(loss_terms)}")
 
 
