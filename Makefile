@@ -19,7 +19,7 @@ demo: $(STAMP)
 
 # the notebooks run too (nbmake), shrunk by JAXOCEAN_SMALL. The two workers share one XLA
 # compilation cache, fresh for the run and removed after it (the same programs compile in
-# many tests and in both workers: measured here, about a minute of its 14-15; runs vary by about 40 s)
+# many tests and in both workers: measured here, about a minute of its 15-18; the machine's speed varies between runs)
 test: $(STAMP)
 	cache=$$(mktemp -d) && trap 'rm -rf "$$cache"' EXIT && \
 	JAX_COMPILATION_CACHE_DIR="$$cache" JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0.3 JAXOCEAN_SMALL=1 \
