@@ -75,6 +75,7 @@ __all__ = [
     "make_camera",
     "make_orthographic",
     "validate_camera",
+    "compute_dtype",
     "camera_to_dict",
     "camera_frame",
     "camera_position",
@@ -325,12 +326,13 @@ def pixel_angle(camera: Camera) -> jax.Array:
     return _pixel_angle(_checked(camera))
 
 
-def _dtype(camera: Camera):
+def compute_dtype(camera: Camera):
+    """The floating dtype every function of ``camera`` computes in (its leaves' own)."""
     return _float_dtype(*jax.tree_util.tree_leaves(camera))
 
 
 def _frame(camera: Camera) -> CameraFrame:
-    dtype = _dtype(camera)
+    dtype = compute_dtype(camera)
     yaw = jnp.asarray(camera.yaw, dtype)
     if camera.projection == "orthographic":
         # Exact 0 and 1 rather than cos/sin(pi/2), which is off by 1e-8 in float32.
@@ -347,13 +349,13 @@ def _frame(camera: Camera) -> CameraFrame:
 
 
 def _position(camera: Camera) -> jax.Array:
-    dtype = _dtype(camera)
+    dtype = compute_dtype(camera)
     return jnp.stack([jnp.asarray(v, dtype) for v in (camera.x, camera.y, camera.height)])
 
 
 def _pixel_angle(camera: Camera) -> jax.Array:
     if camera.projection == "orthographic":
-        return jnp.zeros((), _dtype(camera))
+        return jnp.zeros((), compute_dtype(camera))
     return 2 * _half_extents(camera)[1] / camera.resolution[0]
 
 
@@ -373,7 +375,7 @@ def _half_extents(camera: Camera):
     Both with ``s_u, s_v`` in [-1, 1] across the image (see :func:`_ndc_grid`).
     """
     H, W = camera.resolution
-    dtype = _dtype(camera)
+    dtype = compute_dtype(camera)
     if camera.projection == "orthographic":
         half_width = jnp.asarray(camera.ortho_width, dtype) / 2
         return half_width, half_width * H / W
@@ -420,7 +422,7 @@ class _RayField(NamedTuple):
 
 def _ray_field(camera: Camera) -> _RayField:
     H, W = camera.resolution
-    dtype = _dtype(camera)
+    dtype = compute_dtype(camera)
     forward, right, up = _frame(camera)
     half_u, half_v = _half_extents(camera)
     s_u, s_v = _ndc_grid(camera.resolution, dtype)
@@ -577,7 +579,7 @@ def horizon_row(camera: Camera) -> jax.Array:
 
 @jax.jit
 def _horizon_row(camera: Camera) -> jax.Array:
-    dtype = _dtype(camera)
+    dtype = compute_dtype(camera)
     if camera.projection == "orthographic":
         return jnp.full((), -jnp.inf, dtype)
     pitch = jnp.asarray(camera.pitch, dtype)

@@ -237,7 +237,8 @@ def build_parser():
                    "reported failure (refused otherwise: its waves need not explain the frames)")
     when = p.add_mutually_exclusive_group(required=True)
     when.add_argument("--frames", type=inputs.index_list, help="frame indices, e.g. 0,100,500")
-    when.add_argument("--times", type=inputs.number_list, help="times [s], e.g. 0,10,50 (a list that starts negative takes =: --times=-5,10)")
+    when.add_argument("--times", type=inputs.number_list,
+                      help="times [s], e.g. 0,10,50 (a list that starts negative takes =: --times=-5,10)")
     p.add_argument("--fps", type=inputs.positive_float,
                    help="frames per second for --frames (default: the JSON's frame "
                         "interval; frame 0 is its first time)")

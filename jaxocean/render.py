@@ -106,9 +106,7 @@ def _check_inputs(waves: Waves, camera):
     if waves.omega.shape[0] == 0:
         raise ValueError("render functions need at least one wave; a flat sea is one wave of zero amplitude")
     cam.validate_camera(camera)
-    wave_dtype = jnp.result_type(waves.omega)
-    camera_dtype = jnp.result_type(*[x for x in jax.tree.leaves(camera) if jnp.issubdtype(jnp.result_type(x),
-                                                                                         jnp.floating)])
+    wave_dtype, camera_dtype = jnp.result_type(waves.omega), cam.compute_dtype(camera)
     if jnp.finfo(wave_dtype).bits > jnp.finfo(camera_dtype).bits:
         # the hits' fixed-point iteration carries the camera's precision
         raise ValueError(f"waves are {wave_dtype} but the camera is {camera_dtype}: make the camera with "

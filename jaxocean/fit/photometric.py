@@ -143,7 +143,7 @@ from jaxocean.fit._robust import (CODES, OUTLIER_WEIGHT, ROBUST_LOSSES, SCALE_FL
                                   robust_statistics, signal_scale)
 from jaxocean.fit.lighting import lighting_to_dict
 from jaxocean.fit.solvers import FitError
-from jaxocean.fit.waves._match import resolvable
+from jaxocean.fit.waves import resolvable
 from jaxocean.fit.waves._model import pack, to_waves
 from jaxocean.shading import Lighting
 from jaxocean.waves import Waves, validate
@@ -593,32 +593,28 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) ->
 
 
 def _determined_waves(y, jtj, sigma, used, channels, n, camera):
-    """``(determined (N,) NumPy bool, energy float)``: :func:`_determined`, and of those only
-    the waves the view resolves (:func:`jaxocean.fit.waves.resolvable`). A wave longer than
-    the sea the view shows along its direction, or shorter than its pixels, stands in for a
-    tilt or a texture whatever its local standard deviations say."""
-    ok, _ = _determined(y, jtj, jnp.asarray(sigma, y.dtype), used, channels, n)
+    """``(determined (N,) NumPy bool, energy float)``: the waves :func:`_pinned_down` by the
+    data that the view also resolves (:func:`jaxocean.fit.waves.resolvable`: a wave longer
+    than the sea the view shows along its direction, or shorter than its pixels, stands in
+    for a tilt or a texture whatever its local standard deviations say), and their share of
+    the slope energy ``sum (k h)^2``."""
     w = to_waves(y[:4 * n], n)
-    ok = np.asarray(ok) & resolvable(w, camera)
+    ok = np.asarray(_pinned_down(y, jtj, jnp.asarray(sigma, y.dtype), used, channels, n)) & resolvable(w, camera)
     slope_energy = np.asarray(w.amplitude * w.omega ** 2, np.float64) ** 2
     return ok, float(np.sum(slope_energy[ok]) / max(float(np.sum(slope_energy)), 1e-30))
 
 
 @functools.partial(jax.jit, static_argnames=("channels", "n"))
-def _determined(y, jtj, sigma, used, channels, n):
-    """``(determined (N,), energy ())``: a wave is determined (before the check that the view
-    resolves it, in :func:`photometric`) when its Gauss-Newton standard
-    deviations at noise ``sigma`` (per residual element) are below :data:`DETERMINED_STD`
-    (relative amplitude ``sqrt((var a + var b) / 2) / h``, ``log omega``, ``theta`` [rad]);
-    ``energy`` is the determined waves' share of the slope energy ``sum (k h)^2``."""
+def _pinned_down(y, jtj, sigma, used, channels, n):
+    """``(N,)`` bool: the waves whose Gauss-Newton standard deviations at noise ``sigma`` (per
+    residual element) are below :data:`DETERMINED_STD` (relative amplitude
+    ``sqrt((var a + var b) / 2) / h``, ``log omega``, ``theta`` [rad])."""
     norm = 1.0 / jnp.maximum(channels * jnp.sum(used), 1.0)  # the normal equations' normalisation
     sd = parameter_std(jtj, sigma * sigma * norm)[:4 * n].reshape(4, n)
     w = to_waves(y[:4 * n], n)
     rel_h = jnp.sqrt(0.5 * (sd[0] ** 2 + sd[1] ** 2)) / jnp.maximum(w.amplitude, 1e-30)
-    ok = (rel_h < DETERMINED_STD["amplitude"]) & (sd[2] < DETERMINED_STD["log_omega"]) & (
+    return (rel_h < DETERMINED_STD["amplitude"]) & (sd[2] < DETERMINED_STD["log_omega"]) & (
         sd[3] < DETERMINED_STD["theta"])
-    e = (w.amplitude * w.omega ** 2) ** 2
-    return ok, jnp.sum(jnp.where(ok, e, 0.0)) / jnp.maximum(jnp.sum(e), 1e-30)
 
 
 def residual(images, camera, times, waves: Waves, lighting: Lighting, exposure=1.0, *, mask=None,

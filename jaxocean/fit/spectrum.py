@@ -392,7 +392,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     else:  # unbounded solvers fit z with gamma = 1 + z^2
         gamma_std = std_y[2] if bounded else 2.0 * abs(float(y_solver[2])) * std_y[2]
 
-    theta_mean, s_max, theta_std, s_max_std = _direction_mle(om, th, wp, weight=h * h)
+    theta_mean, s_max, theta_std, s_max_std, directions_determined = _direction_mle(om, th, wp, weight=h * h)
     fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
                            gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
                            s_max=jnp.asarray(s_max, dtype))
@@ -408,7 +408,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
         explained = explained and rough_misfit <= rough_bound
     # a mean direction and spreading need several waves of weight: one dominant wave's
     # direction is not the sea's
-    directions_determined = _effective_waves(h * h) >= MIN_DIRECTION_WAVES
     return SpectrumFit(spectrum=fitted, loss=float(out.loss),
                        success=bool(out.success) and explained and directions_determined,
                        steps=int(out.steps), n_waves=int(len(om)), omega_band=(float(edges[0]), float(edges[-1])),
@@ -462,12 +461,15 @@ def _spreading_loglik(theta_mean, s_max, om, th, wp):
 
 
 def _direction_mle(om, th, wp, weight=None):
-    """Maximum-likelihood ``(theta_mean, s_max, theta_std, s_max_std)`` of directions under
-    Mitsuyasu spreading, each wave's log-likelihood scaled by ``weight`` (normalised to mean
-    1; default 1); the standard deviations from the sandwich covariance (NaN at the edge of
-    the ``s_max`` grid or without an interior maximum)."""
+    """Maximum-likelihood ``(theta_mean, s_max, theta_std, s_max_std, determined)`` of
+    directions under Mitsuyasu spreading, each wave's log-likelihood scaled by ``weight``
+    (normalised to mean 1; default 1); the standard deviations from the sandwich covariance
+    (NaN at the edge of the ``s_max`` grid, without an interior maximum, or not
+    ``determined``: the weights give fewer than :data:`MIN_DIRECTION_WAVES` effective waves)."""
     weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
     weight = weight * (weight.size / max(float(np.sum(weight)), 1e-300))
+    n_eff = float(np.sum(weight) ** 2 / max(float(np.sum(weight * weight)), 1e-300))  # Kish's effective size
+    determined = n_eff >= MIN_DIRECTION_WAVES
     th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
     s_grid = np.geomspace(0.5, 150.0, 48)
     ll = np.sum(weight * _spreading_loglik(th_grid[:, None, None], s_grid[None, :, None], om, th, wp), -1)  # (T, S)
@@ -486,7 +488,7 @@ def _direction_mle(om, th, wp, weight=None):
         s_best = float(s_grid[j])
     theta = float(np.mod(theta + np.pi, 2 * np.pi) - np.pi)
     if not 0 < j < len(s_grid) - 1:
-        return theta, s_best, float("nan"), float("nan")
+        return theta, s_best, float("nan"), float("nan"), determined
     # sandwich covariance in (theta, log s_max) from per-wave central differences
     eps = 1e-3
     f = lambda dt_, dl: _spreading_loglik(theta + dt_, s_best * math.exp(dl), om, th, wp)  # noqa: E731
@@ -497,23 +499,17 @@ def _direction_mle(om, th, wp, weight=None):
     h_tl = (f(eps, eps) - f(eps, -eps) - f(-eps, eps) + f(-eps, -eps)) / (4 * eps * eps)
     hess = np.array([[np.sum(weight * h_tt), np.sum(weight * h_tl)], [np.sum(weight * h_tl), np.sum(weight * h_ll)]])
     if not np.all(np.linalg.eigvalsh(hess) < 0):
-        return theta, s_best, float("nan"), float("nan")
+        return theta, s_best, float("nan"), float("nan"), determined
     h_inv = np.linalg.inv(hess)
     cov = h_inv @ ((weight[:, None] * g).T @ (weight[:, None] * g)) @ h_inv
     # the sandwich from n_eff effective waves and 2 fitted parameters underestimates the
     # scatter by about sqrt((n_eff - 2) / n_eff) (measured: RMS z-score 1.8 -> 1.4 at
     # 3-4 effective waves with the factor)
-    n_eff = _effective_waves(weight)
-    if n_eff < MIN_DIRECTION_WAVES:
-        return theta, s_best, float("nan"), float("nan")
+    if not determined:
+        return theta, s_best, float("nan"), float("nan"), determined
     inflate = math.sqrt(n_eff / (n_eff - 2.0))
-    return theta, s_best, inflate * float(np.sqrt(cov[0, 0])), inflate * float(s_best * np.sqrt(cov[1, 1]))
-
-
-def _effective_waves(weight) -> float:
-    """Kish's effective sample size ``(sum w)^2 / sum w^2`` of the likelihood weights."""
-    w = np.asarray(weight, np.float64)
-    return float(np.sum(w) ** 2 / max(float(np.sum(w * w)), 1e-300))
+    return (theta, s_best, inflate * float(np.sqrt(cov[0, 0])), inflate * float(s_best * np.sqrt(cov[1, 1])),
+            determined)
 
 
 def _lgamma(x):

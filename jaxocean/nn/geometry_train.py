@@ -499,7 +499,7 @@ def evaluate(method, dataset, split: str = "test", *, max_frames: int | None = N
         sizes = ", ".join(f"{name} {len(scenes)}" for name, scenes in data.splits.items())
         raise ValueError(f"{data.root}: the {split!r} split holds no frame to score (scenes per split: {sizes}); "
                          "choose another split (--split), or simulate more scenes (the test split holds 10% of them)")
-    if warmup and windows:  # compile for the frame count of the first scene
+    if warmup:  # compile for the frame count of the first scene
         s = windows[0][0]
         images = np.stack([data.frame(s, f).image for s2, f in windows if s2 == s])
         jax.block_until_ready(method(images, data.scene(s)).normal)
