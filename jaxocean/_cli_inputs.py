@@ -9,7 +9,7 @@
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
   :func:`json_kind`), :func:`check_frames`.
 * Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``),
-  :func:`read_json`, :func:`lighting_from_file`, :func:`camera_from_args` and
+  :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
 
 Angles on the command line are degrees; the library's values are radians.
@@ -26,9 +26,11 @@ from pathlib import Path
 
 import numpy as np
 
+from jaxocean.files import read_json
+
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
-           "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "read_json", "lighting_from_file",
+           "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
            "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
 
 
@@ -257,18 +259,6 @@ def scene_from_file(path):
         raise ValueError(f"{path}: scene has no {', '.join(missing)}; render needs waves, camera, lighting and times")
     return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
 
-
-def read_json(path, what: str) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such {what}")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as error:
-        raise ValueError(f"{path}: not a readable JSON {what} ({error})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: a {what} must be a JSON object")
-    return data
 
 
 def lighting_from_file(path, allow_failed: bool = False):

@@ -62,7 +62,7 @@ import numpy as np
 
 from jaxocean import _cli_inputs as inputs
 from jaxocean import compile_cache
-from jaxocean.files import json_safe, write_json
+from jaxocean.files import json_safe, read_json, write_json
 
 __all__ = ["main", "build_parser"]
 
@@ -328,7 +328,11 @@ def cmd_simulate(args):
     inputs.check_disk(args.out, per_pixel * args.scenes * args.frames * args.res[0] * args.res[1], "simulate")
     ranges = SceneRanges()
     if args.ranges:
-        ranges = SceneRanges.from_json({**ranges.to_json(), **json.loads(Path(args.ranges).read_text())})
+        overrides = read_json(args.ranges, "ranges file")
+        try:
+            ranges = SceneRanges.from_json({**ranges.to_json(), **overrides})
+        except ValueError as error:
+            raise ValueError(f"--ranges {args.ranges}: {error}") from None
     if args.waves is not None:
         ranges = ranges._replace(n_waves=args.waves)
     stats = simulate(args.out, args.scenes, args.frames, args.res, args.seed, ranges, half=not args.float32,

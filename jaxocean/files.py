@@ -10,6 +10,9 @@ Protocol
   (``null``), so a failed fit's NaN parameters are written as null.
 * ``write_json(path, data) -> Path``: ``json_safe(data)`` as indented strict JSON with a
   final newline, written through :func:`atomic_write`.
+* ``read_json(path, what) -> dict``: a JSON object from a file; every failure
+  (``FileNotFoundError``, or ``ValueError`` for text that is not UTF-8, malformed JSON with
+  its line and column, or a value that is not an object) names the file and ``what`` it is.
 
 This module sits below :mod:`jaxocean.io` and :mod:`jaxocean.plots` (it imports nothing of
 jaxocean), so both write through it without importing each other. Host-side only.
@@ -25,7 +28,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["atomic_write", "json_safe", "write_json"]
+__all__ = ["atomic_write", "json_safe", "read_json", "write_json"]
 
 
 def atomic_write(path, write: Callable[[Path], Any]) -> Path:
@@ -109,3 +112,20 @@ def write_json(path, data) -> Path:
     a final newline, written atomically; returns the path."""
     text = json.dumps(json_safe(data), indent=1, allow_nan=False) + "\n"
     return atomic_write(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
+
+
+def read_json(path, what: str) -> dict:
+    """The JSON object in ``path``, a ``what`` (e.g. "dataset settings file"); errors name both."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such {what}" + (" (a directory)" if path.is_dir() else ""))
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as error:
+        raise ValueError(f"{path}: a {what} must be UTF-8 text ({error})") from None
+    except json.JSONDecodeError as error:
+        raise ValueError(f"{path}: malformed JSON in this {what}: {error.msg} at line {error.lineno}, "
+                         f"column {error.colno}") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a {what} must be a JSON object; got {type(data).__name__}")
+    return data

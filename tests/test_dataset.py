@@ -162,6 +162,41 @@ def test_scene_sampling_respects_ranges():
         dataset.SceneRanges.from_json({"wind": [1, 2]})
 
 
+@pytest.mark.parametrize("field, value, message", [
+    ("hs", (2.0, 0.5), "'hs' is reversed"),  # uniform(lo > hi) would give every scene lo
+    ("hs", 1.0, "'hs' must be a pair"),
+    ("hs", (0.5, "2"), "'hs' must be a pair"),
+    ("hs", (-1.0, 0.5), "'hs' must be > 0"),
+    ("pitch", (0.3, 2.0), "'pitch' must be > 0 and <= 1.5708"),
+    ("sky_color", ((0.1, 0.2, 0.3), (0.2, 0.1, 0.4)), "'sky_color' is reversed"),
+    ("sea_color", (0.0, 0.1), "'sea_color' must be a pair"),
+    ("frame_dt", (0.1, float("nan")), "'frame_dt' must be a finite number"),
+    ("n_waves", 0, "'n_waves' must be >= 1"),
+    ("pm_fraction", 1.5, "'pm_fraction' must be >= 0 and <= 1"),
+])
+def test_ranges_outside_their_domain_are_refused_before_any_work(tmp_path, field, value, message):
+    with pytest.raises(ValueError, match=message):
+        dataset.SceneRanges.from_json({**dataset.SceneRanges().to_json(), field: value})
+    with pytest.raises(ValueError, match=message):
+        dataset.simulate(tmp_path / "ds", 1, 1, (8, 8), 0, dataset.SceneRanges()._replace(**{field: value}),
+                         progress=False)
+    assert not (tmp_path / "ds").exists()
+    with pytest.raises(ValueError, match=message):
+        dataset.sample_scene(jax.random.key(0), dataset.SceneRanges()._replace(**{field: value}), (8, 8), 1)
+
+
+def test_a_single_value_range_gives_that_value():
+    sc = dataset.sample_scene(jax.random.key(3), dataset.SceneRanges(hs=(1.25, 1.25), n_waves=4), (8, 8), 1)
+    assert float(sc.spectrum.hs) == pytest.approx(1.25)
+
+
+def test_a_malformed_dataset_file_is_named(tmp_path):
+    (tmp_path / "dataset.json").write_text("{")
+    (tmp_path / "splits.json").write_text("{}")
+    with pytest.raises(ValueError, match=r"dataset.json: malformed JSON in this dataset settings file.*line 1"):
+        dataset.Dataset(tmp_path)
+
+
 def test_dataset_json_records_settings(clean):
     root, _ = clean
     settings = json.loads((root / "dataset.json").read_text())

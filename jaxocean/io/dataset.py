@@ -67,7 +67,7 @@ from jaxocean import camera as cam
 from jaxocean import render, shading, spectrum
 from jaxocean._records import record_from_json, record_to_json
 from jaxocean.errors import InvalidValueError
-from jaxocean.files import write_json
+from jaxocean.files import read_json, write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
 from jaxocean.io.sequence import fits_half, frame_name
@@ -125,7 +125,58 @@ class SceneRanges(NamedTuple):
 
     @classmethod
     def from_json(cls, d: dict) -> "SceneRanges":
-        return record_from_json(cls, d, "scene range")
+        return record_from_json(cls, d, "scene range").validate()
+
+    def validate(self) -> "SceneRanges":
+        """``self`` if every range is a pair ``lo <= hi`` of finite numbers (per channel for
+        the colours) inside its field's physical domain (:data:`RANGE_DOMAINS`); otherwise
+        ``ValueError`` naming the field. A reversed pair would draw ``lo`` for every scene."""
+        for name, (low, high) in RANGE_DOMAINS.items():
+            value = getattr(self, name)
+            if name in ("pm_fraction", "n_waves"):
+                _check_in_domain(name, value, low, high, integer=name == "n_waves")
+                continue
+            pair = np.asarray(value, float) if _is_number_pair(value) else None
+            if pair is None or pair.shape != ((2, 3) if name.endswith("_color") else (2,)):
+                shape = "[lo, hi], each three numbers (RGB)" if name.endswith("_color") else "[lo, hi]"
+                raise ValueError(f"scene range {name!r} must be a pair {shape}; got {value!r}")
+            for v in pair.ravel():
+                _check_in_domain(name, float(v), low, high)
+            if np.any(pair[0] > pair[1]):
+                raise ValueError(f"scene range {name!r} is reversed (lo > hi); got {value!r}")
+        return self
+
+
+# the physical domain of each field of SceneRanges (inclusive bounds unless marked open below)
+RANGE_DOMAINS = {
+    "hs": (0.0, math.inf), "tp": (0.0, math.inf), "gamma": (1.0, 20.0), "pm_fraction": (0.0, 1.0),
+    "s_max": (0.0, math.inf), "theta_mean": (-4 * math.pi, 4 * math.pi), "n_waves": (1, 100_000),
+    "camera_height": (0.0, math.inf), "pitch": (0.0, math.pi / 2), "fov": (0.0, math.pi),
+    "sun_azimuth": (-4 * math.pi, 4 * math.pi), "sun_elevation": (0.0, math.pi / 2),
+    "sun_scale": (0.0, math.inf), "sky_color": (0.0, math.inf), "sea_color": (0.0, math.inf),
+    "frame_dt": (0.0, math.inf),
+}
+# lower bounds that are excluded: a zero height, period, field of view... is not a scene
+_OPEN_BELOW = {"hs", "tp", "s_max", "camera_height", "pitch", "fov", "sun_elevation", "frame_dt"}
+
+
+def _is_number_pair(value) -> bool:
+    if not isinstance(value, (list, tuple)) or len(value) != 2:
+        return False
+    leaves = [v for item in value for v in (item if isinstance(item, (list, tuple)) else [item])]
+    return all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool) for v in leaves)
+
+
+def _check_in_domain(name, value, low, high, integer=False):
+    ok_type = isinstance(value, (int, np.integer) if integer else (int, float, np.integer, np.floating))
+    if not ok_type or isinstance(value, bool) or not math.isfinite(value):
+        kind = "an integer" if integer else "a finite number"
+        raise ValueError(f"scene range {name!r} must be {kind}; got {value!r}")
+    below = value <= low if name in _OPEN_BELOW else value < low
+    if below or value > high:
+        bound = f"{'>' if name in _OPEN_BELOW else '>='} {low:g}"
+        domain = bound if math.isinf(high) else f"{bound} and <= {high:g}"
+        raise ValueError(f"scene range {name!r} must be {domain}; got {value!r}")
 
 
 class SceneSample(NamedTuple):
@@ -143,6 +194,7 @@ def _uniform(key, lo_hi, shape=()):
 
 def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128), n_frames: int = 10) -> SceneSample:
     """Draw one scene (waves, spectrum, camera, lighting, frame times) from ``ranges``."""
+    ranges.validate()
     keys = jax.random.split(key, 16)
     is_pm = jax.random.uniform(keys[0]) < ranges.pm_fraction
     spec = spectrum.Spectrum(
@@ -241,12 +293,13 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
     """
     if n_scenes < 1 or n_frames < 1:
         raise InvalidValueError(f"need at least one scene and one frame; got scenes={n_scenes}, frames={n_frames}")
+    ranges.validate()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     settings = _settings(n_scenes, n_frames, resolution, seed, ranges, half)
     settings_path = out / DATASET_FILENAME
     if settings_path.exists():
-        existing = json.loads(settings_path.read_text())
+        existing = read_json(settings_path, "dataset settings file")
         if existing != settings:
             changed = sorted(k for k in settings if existing.get(k) != settings[k])
             raise InvalidValueError(f"{settings_path}: dataset was made with other settings ({', '.join(changed)}); "
@@ -332,8 +385,8 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
             problems.append(f"{directory / name}: missing")
     if problems:
         return problems
-    settings = json.loads((directory / DATASET_FILENAME).read_text())
-    files = json.loads((directory / MANIFEST_FILENAME).read_text())["files"]
+    settings = read_json(directory / DATASET_FILENAME, "dataset settings file")
+    files = read_json(directory / MANIFEST_FILENAME, "dataset manifest")["files"]
     resolution = tuple(settings["resolution"])
     items = sorted(files.items())
     if progress:
@@ -405,8 +458,8 @@ class Dataset:
         for name in (DATASET_FILENAME, SPLITS_FILENAME):
             if not (self.root / name).exists():
                 raise FileFormatError(self.root / name, "missing: not a jaxocean dataset (run `jaxocean simulate`)")
-        self.settings = json.loads((self.root / DATASET_FILENAME).read_text())
-        self.splits = json.loads((self.root / SPLITS_FILENAME).read_text())
+        self.settings = read_json(self.root / DATASET_FILENAME, "dataset settings file")
+        self.splits = read_json(self.root / SPLITS_FILENAME, "dataset splits file")
         self.resolution = tuple(self.settings["resolution"])
         self.n_frames = self.settings["frames"]
         self._cache: dict = {}
