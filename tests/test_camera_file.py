@@ -79,6 +79,15 @@ def test_read_valid_file(tmp_path):
     assert read_camera_file(tmp_path / "clip").files == cf.files
 
 
+def test_coefficients_fixed_at_zero_are_accepted(tmp_path):
+    data = _camera_dict()
+    data["distortion"]["k3"] = 0.0
+    data["intrinsics"]["skew"] = 0
+    read = read_camera_file(_write(tmp_path / "a", data))
+    assert read.distortion == Distortion(-0.2, 0.06, 0.0, 0.0)
+    assert read.intrinsics == Intrinsics(40.0, 40.5, 31.5, 23.5)
+
+
 def test_optional_parts(tmp_path):
     data = _camera_dict()
     del data["distortion"], data["units"]
@@ -128,6 +137,12 @@ def _error_cases():
         ("fy < 0", edit(lambda d: d["intrinsics"].__setitem__("fy", -3.0)), r"intrinsics\.fy: focal length must be > 0"),
         ("unknown model", edit(lambda d: d["distortion"].__setitem__("model", "fisheye")),
          r"distortion\.model: unknown distortion model 'fisheye'"),
+        ("k3 not modelled", edit(lambda d: d["distortion"].__setitem__("k3", 0.5)),
+         r"distortion\.k3: the lens model has no 'k3' term .*got 0\.5"),
+        ("skew not modelled", edit(lambda d: d["intrinsics"].__setitem__("skew", 0.1)),
+         r"intrinsics\.skew: the lens model has no 'skew' term"),
+        ("unknown lens field", edit(lambda d: d["distortion"].__setitem__("k_1", 0.1)),
+         r"distortion\.k_1: unknown field; distortion holds model, k1, k2, p1, p2"),
         ("bool k1", edit(lambda d: d["distortion"].__setitem__("k1", True)), r"distortion\.k1: must be a number; got a boolean"),
         ("degrees", edit(lambda d: d["units"].__setitem__("angle", "deg")), r"units\.angle: must be 'rad'"),
         ("missing frames", edit(delete("frames")), r"frames: missing"),

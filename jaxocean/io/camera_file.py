@@ -22,7 +22,8 @@ A camera file is one JSON object beside (or above) the frames it describes::
 * Pixels are 0-based with the centre of the top-left pixel at (0, 0) (OpenCV: ``u`` the
   column, ``v`` the row). ``intrinsics`` and ``distortion`` are those of
   :mod:`jaxocean.lens` (``distortion`` may be left out: no distortion; missing coefficients
-  are 0; the only model is ``"brown-conrady"``).
+  are 0; the only model is ``"brown-conrady"``; a coefficient the model lacks, such as
+  ``k3`` or ``skew``, is refused unless it is 0).
 * ``file``: path of the frame relative to the camera file's folder; it must exist.
 * ``t`` [s]: strictly increasing frame times. It may be left out of every frame when
   ``frame_rate_hz`` is given (then ``t = n / frame_rate_hz`` for the n-th frame listed).
@@ -212,6 +213,7 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
     if "intrinsics" not in data:
         f.fail("intrinsics", "missing")
     k = f.mapping(data["intrinsics"], "intrinsics")
+    _refuse_unmodelled(f, k, "intrinsics", Intrinsics._fields, zero_allowed=("skew",))
     intrinsics = Intrinsics(*(f.number(k, name, f"intrinsics.{name}") for name in Intrinsics._fields))
     for name in ("fx", "fy"):
         if getattr(intrinsics, name) <= 0:
@@ -223,6 +225,7 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
         model = d.get("model")
         if model not in DISTORTION_MODELS:
             f.fail("distortion.model", f"unknown distortion model {model!r}; known: {list(DISTORTION_MODELS)}")
+        _refuse_unmodelled(f, d, "distortion", ("model",) + Distortion._fields, zero_allowed=("k3",))
         distortion = Distortion(*(f.number(d, name, f"distortion.{name}", required=False, default=0.0)
                                   for name in Distortion._fields))
 
@@ -262,6 +265,22 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
         times=times, poses=poses, headings=True, extra=extra or None,
         frame_extra=frame_extra if any(frame_extra) else None,
     )
+
+
+def _refuse_unmodelled(f: _Fields, mapping: dict, field: str, known, zero_allowed=()) -> None:
+    """A coefficient the lens model does not have would be dropped and the pixels mapped with
+    the wrong lens: refused, except those in ``zero_allowed`` when exactly 0 (OpenCV writes
+    ``k3 = 0`` and ``skew = 0`` for calibrations that fixed them)."""
+    for key in mapping:
+        if key in known:
+            continue
+        if key in zero_allowed:
+            value = f.number(mapping, key, f"{field}.{key}")
+            if value == 0:
+                continue
+            f.fail(f"{field}.{key}", f"the lens model has no {key!r} term ({', '.join(known)}); only 0 can "
+                                     f"be given; got {value} (recalibrate without it)")
+        f.fail(f"{field}.{key}", f"unknown field; {field} holds {', '.join(known)}")
 
 
 def _times(f: _Fields, frames: list[dict], frame_rate) -> np.ndarray:
