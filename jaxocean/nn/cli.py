@@ -21,6 +21,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from jaxocean._cli_inputs import positive_float, positive_int
+
 __all__ = ["register"]
 
 _SCORE_COLUMNS = (("within_5deg", "5deg", "{:.1%}"), ("normal_mae", "MAE rad", "{:.4f}"),
@@ -35,8 +37,8 @@ def _add_training_options(p, configs, loss_terms) -> None:
     p.add_argument("--config", choices=sorted(configs), default="cpu",
                    help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
     p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
-    p.add_argument("--epochs", type=int, help="override the config's number of epochs")
-    p.add_argument("--steps-per-epoch", type=int, help="override the config's steps per epoch (at most: an epoch "
+    p.add_argument("--epochs", type=positive_int, help="override the config's number of epochs")
+    p.add_argument("--steps-per-epoch", type=positive_int, help="override the config's steps per epoch (at most: an epoch "
                    "also ends when the train split's batches run out, e.g. after one step for 8 train scenes "
                    "and a batch of 8)")
     p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(loss_terms)}")
@@ -55,7 +57,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
     _add_training_options(p, CONFIGS, LOSS_TERMS)
     p.add_argument("--backbone", choices=("unet", "resnet"), help="override the backbone")
     p.add_argument("--normal-head", choices=("vec", "sphere", "slope"), help="override the normal head")
-    p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
+    p.add_argument("--time-budget-min", type=positive_float, help="stop after this many minutes of training")
     p.add_argument("--augment", action=argparse.BooleanOptionalAction, default=None,
                    help="show the network its inputs through the display round trip of camera files (8 bits, "
                         "unknown exposure, display noise: jaxocean.nn.augment); default: the config's (on for cpu)")
@@ -83,7 +85,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
     p.add_argument("--model", help="model file, or a shipped model: cpu (the default) or gpu (larger, more "
                                    "accurate, ~2.5x the time per frame)")
     p.add_argument("--split", default="test", help="split to score (default test)")
-    p.add_argument("--max-frames", type=int, help="score at most this many frames")
+    p.add_argument("--max-frames", type=positive_int, help="score at most this many frames")
     p.add_argument("--out", help="JSON file for the scores (with per-scene rows)")
 
     from jaxocean.nn.waves_train import CONFIGS as WAVE_CONFIGS
@@ -95,7 +97,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "again resumes where it stopped. RUN/model.npz is the model with the best "
                                    "validation loss; fit-waves --init net --net-model RUN/model.npz uses it.")
     _add_training_options(p, WAVE_CONFIGS, WAVE_LOSS_TERMS)
-    p.add_argument("--time-budget-min", type=float, help="stop after this many minutes of training")
+    p.add_argument("--time-budget-min", type=positive_float, help="stop after this many minutes of training")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     def predict_cmd(args):
@@ -120,8 +122,8 @@ def _train(args) -> int:
     summary = gt.train(args.dataset, args.out, config, progress=not args.quiet)
     summary.pop("state")
     print(f"stopped: {summary['stopped']} after {summary['steps']} steps; best validation loss "
-          f"{summary['best_val_loss']:.4g}\n-> {summary['model']}")
-    return 0
+          f"{summary['best_val_loss']:.4g}")
+    return _report_model(summary)
 
 
 def _train_waves(args) -> int:
@@ -135,7 +137,15 @@ def _train_waves(args) -> int:
     summary = wt.train(args.dataset, args.out, config, progress=not args.quiet)
     summary.pop("state")
     print(f"stopped: {summary['stopped']} after {summary['steps']} steps ({summary['train_s'] / 60:.1f} min); "
-          f"best validation loss {summary['best_val_loss']:.4g}\n-> {summary['model']}")
+          f"best validation loss {summary['best_val_loss']:.4g}")
+    return _report_model(summary)
+
+
+def _report_model(summary) -> int:
+    if summary["model"] is None:  # no finite validation loss: nothing was worth writing
+        print("jaxocean: no model written: the validation loss was never finite", file=sys.stderr)
+        return 1
+    print(f"-> {summary['model']}")
     return 0
 
 

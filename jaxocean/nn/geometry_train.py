@@ -339,7 +339,11 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     out = Path(out)
     key = jax.random.key(config.seed)
     state = init_state(config, key)
-    sequence = 2 if "gan" in terms else 1
+    sequence = 2 if "gan" in terms else 1  # the temporal discriminators see consecutive frames
+    if data.n_frames < sequence:
+        raise ValueError(f"the 'gan' loss needs at least 2 frames per scene (its temporal discriminators compare "
+                         f"consecutive frames); {data.root} has {data.n_frames} (simulate with --frames 2 or more, "
+                         f"or train without gan)")
     step = make_step(config)
 
     def batches(epoch):
@@ -375,7 +379,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     summary = {"config": config.to_json(), "stopped": result["stopped"], "steps": result["steps"],
                "best_val_loss": result["best"], "wall_s_this_call": time.perf_counter() - t0,
                "train_s": result["history"][-1]["wall_s"] if result["history"] else None,
-               "model": str(out / "model.npz")}
+               "model": str(out / "model.npz") if (out / "model.npz").exists() else None}
     if result["stopped"] != "step_limit":
         write_json(out / "summary.json", summary)
     summary["state"] = result["state"]

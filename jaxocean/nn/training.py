@@ -36,8 +36,11 @@ validation scores, wall time), ``curves.png``.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import signal
+import threading
 import time
 from pathlib import Path
 from typing import Callable
@@ -133,10 +136,18 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
                progress: bool = True, stop_after_steps: int | None = None) -> dict:
     """Run (or resume) training; returns ``{"state", "history", "best", "stopped", "steps"}``.
 
-    ``stopped`` says why it ended: ``"epochs"``, ``"early_stopping"``, ``"time_budget"``, or
+    ``stopped`` says why it ended: ``"epochs"``, ``"early_stopping"``, ``"time_budget"`` (read
+    after every step: the epoch it cuts short is validated and saved first), or
     ``"step_limit"`` (``stop_after_steps``: end the process after that many steps of this
-    call, as a crash would -- used to test resuming).
+    call, as a crash would -- used to test resuming). Ctrl-C saves the checkpoint after the
+    step in progress and raises ``KeyboardInterrupt``. Counts below 1 are a ``ValueError``.
     """
+    for name, value in (("epochs", epochs), ("steps_per_epoch", steps_per_epoch), ("patience", patience),
+                        ("checkpoint_every", checkpoint_every)):
+        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+            raise ValueError(f"{name} must be a positive integer; got {value!r}")
+    if time_budget_s is not None and not (isinstance(time_budget_s, (int, float)) and time_budget_s > 0):
+        raise ValueError(f"the time budget must be a positive number of seconds or None; got {time_budget_s!r}")
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     ckpt = run_dir / CHECKPOINT
@@ -163,60 +174,95 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
                    unit="step", desc="train", smoothing=0.05)
     stopped, taken = "epochs", 0
     t_start = time.perf_counter() - pos["train_s"]
+    interrupted = _Interrupt()
     try:
-        while pos["epoch"] < epochs:
-            it = batches(pos["epoch"])
-            for _ in range(pos["batch"]):  # resume mid-epoch: skip what was consumed
-                next(it)
-            logs_sum = {k: float(v) for k, v in pos["epoch_logs"].items()}
-            while pos["batch"] < steps_per_epoch:
-                try:
-                    batch = next(it)
-                except StopIteration:
-                    break
-                state, logs = step(state, parallel.batch(batch), jax.random.fold_in(key, pos["step"]))
-                logs = {k: float(v) for k, v in logs.items()}
-                for k, v in logs.items():
-                    logs_sum[k] = logs_sum.get(k, 0.0) + v
-                pos["batch"] += 1
-                pos["step"] += 1
-                taken += 1
-                pos["epoch_logs"] = logs_sum
+        with interrupted:
+            while pos["epoch"] < epochs:
+                it = batches(pos["epoch"])
+                for _ in range(pos["batch"]):  # resume mid-epoch: skip what was consumed
+                    next(it)
+                logs_sum = {k: float(v) for k, v in pos["epoch_logs"].items()}
+                while pos["batch"] < steps_per_epoch:
+                    try:
+                        batch = next(it)
+                    except StopIteration:
+                        break
+                    state, logs = step(state, parallel.batch(batch), jax.random.fold_in(key, pos["step"]))
+                    logs = {k: float(v) for k, v in logs.items()}
+                    for k, v in logs.items():
+                        logs_sum[k] = logs_sum.get(k, 0.0) + v
+                    pos["batch"] += 1
+                    pos["step"] += 1
+                    taken += 1
+                    pos["epoch_logs"] = logs_sum
+                    if bar is not None:
+                        bar.update(1)
+                        bar.set_postfix({k: f"{v:.3g}" for k, v in list(logs.items())[:3]})
+                    if pos["step"] % checkpoint_every == 0:
+                        pos["train_s"] = time.perf_counter() - t_start
+                        save()
+                    if stop_after_steps is not None and taken >= stop_after_steps:
+                        return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": "step_limit",
+                                "steps": pos["step"]}
+                    if interrupted.requested:  # Ctrl-C: keep every step taken, then stop
+                        pos["train_s"] = time.perf_counter() - t_start
+                        save()
+                        raise KeyboardInterrupt
+                    if time_budget_s is not None and time.perf_counter() - t_start >= time_budget_s:
+                        break  # the budget ends the epoch early: validated, saved, then stopped below
+                n = max(pos["batch"], 1)
+                scores = {k: float(v) for k, v in validate(state).items()}
+                pos["train_s"] = time.perf_counter() - t_start
+                pos["history"].append({"epoch": pos["epoch"], "train": {k: v / n for k, v in logs_sum.items()},
+                                       "val": scores, "wall_s": pos["train_s"], "steps": pos["step"]})
+                if scores["loss"] < pos["best"]:
+                    pos["best"], pos["bad_epochs"] = scores["loss"], 0
+                    if on_best is not None:
+                        on_best(state, scores, pos)
+                else:
+                    pos["bad_epochs"] += 1
+                pos["epoch"] += 1
+                pos["batch"] = 0
+                pos["epoch_logs"] = {}
+                save()
+                write_json(run_dir / HISTORY, pos["history"])
+                _plot_curves(run_dir / CURVES, pos["history"])
                 if bar is not None:
-                    bar.update(1)
-                    bar.set_postfix({k: f"{v:.3g}" for k, v in list(logs.items())[:3]})
-                if pos["step"] % checkpoint_every == 0:
-                    pos["train_s"] = time.perf_counter() - t_start
-                    save()
-                if stop_after_steps is not None and taken >= stop_after_steps:
-                    return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": "step_limit",
-                            "steps": pos["step"]}
-            n = max(pos["batch"], 1)
-            scores = {k: float(v) for k, v in validate(state).items()}
-            pos["train_s"] = time.perf_counter() - t_start
-            pos["history"].append({"epoch": pos["epoch"], "train": {k: v / n for k, v in logs_sum.items()},
-                                   "val": scores, "wall_s": pos["train_s"], "steps": pos["step"]})
-            if scores["loss"] < pos["best"]:
-                pos["best"], pos["bad_epochs"] = scores["loss"], 0
-                if on_best is not None:
-                    on_best(state, scores, pos)
-            else:
-                pos["bad_epochs"] += 1
-            pos["epoch"] += 1
-            pos["batch"] = 0
-            pos["epoch_logs"] = {}
-            save()
-            write_json(run_dir / HISTORY, pos["history"])
-            _plot_curves(run_dir / CURVES, pos["history"])
-            if bar is not None:
-                bar.write(f"epoch {pos['epoch']}: " + ", ".join(f"{k} {v:.4g}" for k, v in scores.items()))
-            if pos["bad_epochs"] >= patience:
-                stopped = "early_stopping"
-                break
-            if time_budget_s is not None and pos["train_s"] >= time_budget_s:
-                stopped = "time_budget"
-                break
+                    bar.write(f"epoch {pos['epoch']}: " + ", ".join(f"{k} {v:.4g}" for k, v in scores.items()))
+                if pos["bad_epochs"] >= patience:
+                    stopped = "early_stopping"
+                    break
+                if time_budget_s is not None and pos["train_s"] >= time_budget_s:
+                    stopped = "time_budget"
+                    break
     finally:
         if bar is not None:
             bar.close()
     return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": stopped, "steps": pos["step"]}
+
+
+class _Interrupt(contextlib.AbstractContextManager):
+    """Ctrl-C during training sets ``requested``, which the loop reads between steps (it then
+    saves the checkpoint and raises ``KeyboardInterrupt``). Python's default handler raises
+    wherever the main thread is, and JAX's garbage-collection callback swallows an interrupt
+    raised inside it, so a run could ignore Ctrl-C. A second Ctrl-C interrupts at once. Off the
+    main thread (where signals cannot be handled) nothing changes."""
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def _handle(self, signum, frame):
+        if self.requested:
+            raise KeyboardInterrupt
+        self.requested = True
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+        return False

@@ -289,7 +289,8 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
                         on_best=on_best, parallel=parallel, progress=progress, stop_after_steps=stop_after_steps)
     hist = result["history"]
     summary = {"config": config.to_json(), "dataset": str(data.root), "stopped": result["stopped"],
-               "steps": result["steps"], "best_val_loss": result["best"], "model": str(out / "model.npz"),
+               "steps": result["steps"], "best_val_loss": result["best"],
+               "model": str(out / "model.npz") if (out / "model.npz").exists() else None,
                "train_s": hist[-1]["wall_s"] if hist else 0.0, "epochs": len(hist)}
     if result["stopped"] != "step_limit":
         write_json(out / "summary.json", summary)

@@ -1,0 +1,88 @@
+"""The training loop shared by the networks: its checks, time budget and Ctrl-C, on a toy step."""
+
+import signal
+import time
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxocean.cli import main
+from jaxocean.io import dataset
+from jaxocean.nn import geometry as geo
+from jaxocean.nn import geometry_train as gt
+from jaxocean.nn.training import train_loop
+
+
+def _toy(run_dir, *, on_step=None, **kwargs):
+    """A loop whose state counts the steps taken and sums the batches it saw."""
+
+    def step(state, batch, key):
+        if on_step is not None:
+            on_step(int(state["n"]))
+        return {"n": state["n"] + 1, "total": state["total"] + batch}, {"loss": jnp.asarray(1.0)}
+
+    settings = dict(state={"n": jnp.asarray(0), "total": jnp.zeros(1)}, step=step,
+                    batches=lambda epoch: iter([jnp.asarray([float(epoch * 10 + b)]) for b in range(4)]),
+                    validate=lambda state: {"loss": 1.0 / (1.0 + float(state["n"]))}, epochs=3, steps_per_epoch=4,
+                    key=jax.random.key(0), signature={"toy": 1}, progress=False)
+    settings.update(kwargs)
+    return train_loop(run_dir, **settings)
+
+
+@pytest.mark.parametrize("name, value", [("epochs", 0), ("steps_per_epoch", -1), ("patience", 0),
+                                         ("checkpoint_every", 0), ("epochs", 2.5)])
+def test_counts_below_one_are_refused(tmp_path, name, value):
+    with pytest.raises(ValueError, match=f"{name} must be a positive integer"):
+        _toy(tmp_path, **{name: value})
+    assert not (tmp_path / "checkpoint.npz").exists()
+
+
+@pytest.mark.parametrize("budget", [0.0, -1.0])
+def test_a_budget_that_is_not_positive_is_refused(tmp_path, budget):
+    with pytest.raises(ValueError, match="time budget must be a positive number"):
+        _toy(tmp_path, time_budget_s=budget)
+
+
+def test_the_time_budget_is_read_after_every_step(tmp_path):
+    result = _toy(tmp_path, time_budget_s=0.3, epochs=5, on_step=lambda n: time.sleep(0.2))
+    assert result["stopped"] == "time_budget"
+    # the budget ran out inside the first epoch (4 steps of 0.2 s): that epoch validated and saved
+    assert 1 <= result["steps"] < 4 and len(result["history"]) == 1
+
+
+def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path):
+    full = _toy(tmp_path / "full")
+
+    def interrupt(n):
+        if n == 5:
+            signal.raise_signal(signal.SIGINT)  # as a Ctrl-C during step 6
+
+    with pytest.raises(KeyboardInterrupt):
+        _toy(tmp_path / "cut", on_step=interrupt)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the handler is put back
+    resumed = _toy(tmp_path / "cut")
+    assert full["steps"] == resumed["steps"] == 12
+    for a, b in zip(jax.tree.leaves(full["state"]), jax.tree.leaves(resumed["state"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+
+
+def test_the_gan_loss_on_single_frames_says_what_it_needs(tmp_path):
+    dataset.simulate(tmp_path / "ds", 3, 1, (8, 8), seed=0, progress=False)
+    config = gt.TrainConfig(model=geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8)), losses="image+gan",
+                            epochs=1, steps_per_epoch=1, batch_size=1, crop=8, val_frames=1,
+                            time_budget_minutes=None)
+    with pytest.raises(ValueError, match="'gan' loss needs at least 2 frames per scene.*has 1"):
+        gt.train(tmp_path / "ds", tmp_path / "run", config, progress=False)
+
+
+@pytest.mark.parametrize("command, option", [("train-geometry", "--epochs=0"), ("train-geometry", "--steps-per-epoch=-1"),
+                                             ("train-geometry", "--time-budget-min=0"),
+                                             ("train-waves", "--epochs=0"), ("train-waves", "--time-budget-min=-2"),
+                                             ("eval-geometry", "--max-frames=-1")])
+def test_the_commands_refuse_counts_below_one(tmp_path, capsys, command, option):
+    with pytest.raises(SystemExit) as exit_info:
+        main([command, str(tmp_path), option] + (["--out", str(tmp_path / "run")] if command != "eval-geometry" else []))
+    assert exit_info.value.code == 2
+    assert "expected a positive" in capsys.readouterr().err
