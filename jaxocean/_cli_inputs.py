@@ -324,9 +324,12 @@ def lighting_from_args(args, base):
 
 
 def check_frames(frames, n: int, where: str):
-    """``frames`` (or all ``n``) as a list, every index < n."""
+    """``frames`` (or all ``n``) as a list, every index < n, increasing strictly: the frames
+    are a time sequence, and the scene a command writes from them must be one too."""
     if frames is None:
         return list(range(n))
+    if any(b <= a for a, b in zip(frames, frames[1:])):
+        raise ValueError(f"frame indices must increase strictly (a time sequence); got {','.join(map(str, frames))}")
     bad = [f for f in frames if f >= n]
     if bad:
         raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")

@@ -86,7 +86,8 @@ def damping(frequency_sigma, times, window):
     """Amplitude factors ``(T, N)`` of the least-squares forecast (module docstring):
     ``exp(-(sigma_i d(t))^2 / 2)`` with ``d(t)`` the distance [s] of each of ``times (T,)``
     outside ``window = (t_first, t_last)`` (0 inside it) and ``frequency_sigma (N,)`` the
-    waves' 1-sigma frequency uncertainties [rad/s] (0: known exactly, never damped)."""
+    waves' 1-sigma frequency uncertainties [rad/s] (0: known exactly, never damped; inf: not
+    known at all, 1 inside the window and 0 outside)."""
     sigma = jnp.asarray(frequency_sigma)
     times = jnp.atleast_1d(jnp.asarray(times, sigma.dtype))
     if sigma.ndim != 1 or times.ndim != 1:
@@ -96,8 +97,9 @@ def damping(frequency_sigma, times, window):
         check_values(np.asarray(sigma) >= 0, "frequency_sigma must be >= 0 [rad/s] (no NaN)", sigma)
         check_values(np.asarray(hi - lo) >= 0, "window must be (t_first, t_last) with t_first <= t_last",
                      np.asarray(hi - lo))
-    d = jnp.maximum(jnp.maximum(lo - times, times - hi), 0.0)
-    return jnp.exp(-0.5 * (sigma[None, :] * d[:, None]) ** 2)
+    d = jnp.maximum(jnp.maximum(lo - times, times - hi), 0.0)[:, None]
+    # inside the window the factor is 1 whatever sigma is (inf * 0 would be NaN)
+    return jnp.exp(-0.5 * jnp.where(d > 0, sigma[None, :] * d, 0.0) ** 2)
 
 
 def frame_times(times, frames):
@@ -176,7 +178,7 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
     geometry sequences (each a ``Geometry`` with leading ``(T,)``, or a pair ``(normal (T,
     H, W, 3), roughness (T, H, W))``). ``mask (H, W)`` or ``(T, H, W)``: pixels to count
     (default: the pixels that are sea with a converged hit in every ``Geometry`` given, else
-    all)."""
+    all). A frame with no pixel to count has NaN errors: nothing was compared."""
     pn, pr, pm = _unpack_geometry(predicted)
     tn, tr, tm = _unpack_geometry(truth)
     if pn.shape != tn.shape:
@@ -189,10 +191,11 @@ def geometry_error(predicted, truth, mask=None) -> GeometryError:
     mask = jnp.broadcast_to(jnp.asarray(mask, bool), pn.shape[:-1]).astype(pn.dtype)
     # pixels left out may hold NaN (unconverged hits): they count as zero, not as NaN
     angle = jnp.where(mask > 0, angle_between(pn, tn), 0.0)
-    count = jnp.maximum(jnp.sum(mask, axis=(-2, -1)), 1.0)
-    normal = jnp.sum(angle, axis=(-2, -1)) / count
-    rough = jnp.sum(jnp.where(mask > 0, jnp.abs(pr - tr), 0.0), axis=(-2, -1)) / count
-    return GeometryError(normal, rough)
+    count = jnp.sum(mask, axis=(-2, -1))
+    safe_count = jnp.maximum(count, 1.0)
+    normal = jnp.sum(angle, axis=(-2, -1)) / safe_count
+    rough = jnp.sum(jnp.where(mask > 0, jnp.abs(pr - tr), 0.0), axis=(-2, -1)) / safe_count
+    return GeometryError(jnp.where(count > 0, normal, jnp.nan), jnp.where(count > 0, rough, jnp.nan))
 
 
 def _unpack_geometry(g):

@@ -204,6 +204,9 @@ def test_reedit_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     out = tmp_path / "edited"
     assert cli.main(["reedit", str(tiny_scene), "--frames", "0,7", "--out", str(out)]) == 2
     assert "no frame 7" in capsys.readouterr().err
+    # the scene it writes must be a time sequence (forecast and fit-waves refuse one that is not)
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "1,0", "--out", str(out)]) == 2
+    assert "frame indices must increase strictly" in capsys.readouterr().err
     assert cli.main(["reedit", str(tiny_scene), "--camera-height", "-1", "--out", str(out)]) == 2
     assert "under the sea" in capsys.readouterr().err
     (tmp_path / "broken.json").write_text("{")

@@ -99,6 +99,9 @@ def test_geometry_error_is_zero_for_identical_and_known_for_tilted_normals():
     err = fc.geometry_error((holed, r.at[0, 0, 0].set(jnp.nan)), (up, r), mask)
     np.testing.assert_allclose(err.normal, [0.1], rtol=1e-5)
     np.testing.assert_allclose(err.roughness, [0.0], atol=0)
+    # no pixel counted: nothing was compared, so no score (a perfect 0 would be a lie)
+    empty = fc.geometry_error((tilt, r), (up, r), jnp.zeros((1, 2, 2), bool))
+    assert np.isnan(float(empty.normal[0])) and np.isnan(float(empty.roughness[0]))
 
 
 def test_forecast_is_differentiable_in_the_waves(x64):
@@ -123,6 +126,11 @@ def test_damping_is_one_inside_the_window_and_gaussian_in_the_distance_outside()
     d = np.asarray([1.0, 0.0, 0.0, 0.0, 2.0])  # distance outside (0, 1)
     expected = np.exp(-0.5 * (np.asarray(sigma)[None, :] * d[:, None]) ** 2)
     np.testing.assert_allclose(fc.damping(sigma, times, (0.0, 1.0)), expected, rtol=1e-6)
+    # a frequency not known at all: the wave is kept inside the window, gone outside (no NaN)
+    unknown = fc.damping(jnp.asarray([jnp.inf]), times, (0.0, 1.0))
+    np.testing.assert_array_equal(np.asarray(unknown)[:, 0], [0.0, 1.0, 1.0, 1.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(jax.jit(fc.damping, static_argnums=2)(
+        jnp.asarray([jnp.inf]), times, (0.0, 1.0))), np.asarray(unknown))
 
 
 def test_damped_wave_is_the_expected_wave_under_a_gaussian_frequency_error(x64):
