@@ -82,6 +82,16 @@ def test_bad_inputs_are_named(key, tmp_path):
         geo.predict(model, np.ones((2, 16, 20, 3)), camera)
     with pytest.raises(ValueError, match="non-finite"):
         geo.predict(model, np.full((16, 16, 3), np.nan), camera)
+    # the message shows the array as given, not as reinterpreted
+    with pytest.raises(ValueError, match=r"got \(8, 16, 3\)$"):
+        geo.predict(model, np.ones((8, 16, 3)), camera)
+    with pytest.raises(ValueError, match=r"got \(16, 16, 4\)$"):
+        geo.predict(model, np.ones((16, 16, 4)), camera)
+    with pytest.raises(ValueError, match="empty sequence"):
+        geo.predict(model, np.ones((0, 16, 16, 3)), camera)
+    for size in (0, -1):
+        with pytest.raises(ValueError, match="batch_size must be a positive integer"):
+            geo.predict(model, np.ones((16, 16, 3)), camera, batch_size=size)
     with pytest.raises(ValueError, match="features"):
         geo.apply(model, jnp.ones((1, 16, 16, 4)), jnp.zeros(1), jnp.ones((1, 16, 16), bool))
     with pytest.raises(CheckpointError, match="no such file"):

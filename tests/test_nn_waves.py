@@ -117,6 +117,13 @@ def test_bad_inputs_name_the_problem(tiny_model):
         wn.predict(tiny_model, normals, rough, CAMERA, TIMES[:2])
     with pytest.raises(ValueError, match="strictly increasing"):
         wn.predict(tiny_model, normals, rough, CAMERA, TIMES[::-1])
+    # values: a frame with no valid normal, and vectors that are not unit normals
+    with pytest.raises(ValueError, match="frame 1 has no valid sea normal"):
+        holed = normals.copy()
+        holed[1] = np.nan
+        wn.predict(tiny_model, holed, rough, CAMERA, TIMES)
+    with pytest.raises(ValueError, match="normals must be unit vectors"):
+        wn.predict(tiny_model, normals * 5, rough, CAMERA, TIMES)
     odd = cam.make_camera(height=12.0, pitch=0.9, fov=0.8, resolution=(15, 16))
     n_odd, r_odd = _scene(camera=odd)
     with pytest.raises(ValueError, match="divisible by 2"):
@@ -136,6 +143,7 @@ def test_save_load_round_trip_and_errors(tiny_model, tmp_path):
     (tmp_path / "bad.npz").write_bytes(b"not a zip")
     with pytest.raises(CheckpointError, match="bad.npz"):
         wn.load(tmp_path / "bad.npz")
+    assert wn.load("cpu").config == wn.load().config  # the shipped model by name, as geometry.load
 
 
 def _swell4(camera, times):

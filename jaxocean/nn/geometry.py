@@ -255,16 +255,22 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8) -> Geo
     ``(T, H, W)`` (gray), or one image ``(H, W, 3)`` / ``(H, W)``. The result has the same
     leading axes. A gray input to an RGB model is taken as equal R, G, B; an RGB input to a
     gray model as its luminance."""
+    if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
+        raise ValueError(f"batch_size must be a positive integer; got {batch_size!r}")
     images = np.asarray(images, np.float32)
+    given = images.shape
     H, W = camera.resolution
     single = images.shape in ((H, W), (H, W, 3))
     if single:
         images = images[None]
-    if images.ndim == 3:
+    if images.ndim == 4 or images.shape[1:] != (H, W):
+        if images.ndim != 4 or images.shape[1:] != (H, W, 3):
+            raise ValueError(f"images must be (T, {H}, {W}, 3) or (T, {H}, {W}), or one image ({H}, {W}, 3) or "
+                             f"({H}, {W}), for this camera (resolution {(H, W)}); got {given}")
+    else:
         images = np.repeat(images[..., None], 3, -1)
-    if images.ndim != 4 or images.shape[1:] != (H, W, 3):
-        raise ValueError(f"images must be (T, {H}, {W}, 3) or (T, {H}, {W}) for this camera "
-                         f"(resolution {(H, W)}); got {images.shape}")
+    if images.shape[0] == 0:
+        raise ValueError("images is an empty sequence (T = 0)")
     if not np.all(np.isfinite(images)):
         raise ValueError("images hold non-finite values")
     outs = [_predict_jit(model.config, model.params, jnp.asarray(images[i:i + batch_size]), camera)

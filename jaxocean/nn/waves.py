@@ -68,6 +68,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean._records import record_from_json, record_to_json
+from jaxocean.errors import is_concrete
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import load_model, load_tree, save_model
@@ -86,10 +87,12 @@ __all__ = [
     "save",
     "load",
     "model_info",
+    "PRETRAINED",
     "PRETRAINED_PATH",
 ]
 
 PRETRAINED_PATH = Path(str(importlib.resources.files("jaxocean.nn") / "pretrained" / "waves_cpu.npz"))
+PRETRAINED = {"cpu": PRETRAINED_PATH}  # shipped models by name, as jaxocean.nn.geometry.PRETRAINED
 _FORMAT = "jaxocean.nn.waves/1"
 _MIN_NZ = 1e-3  # normals with n_z below this are invalid (facing down or grazing)
 _XY_SCALE = 100.0  # m: sea-plane coordinates enter the network divided by this
@@ -198,6 +201,27 @@ def _check_scene(config: WaveNetConfig, normals, roughness, camera, times) -> No
     if H % m or W % m:
         raise ValueError(f"the network needs H and W divisible by {m} (its UNet has {len(config.widths)} "
                          f"levels); got {(H, W)}")
+
+
+def _check_normals(normals, camera) -> None:
+    """Values of one scene's normals (concrete): every frame needs valid sea pixels (the
+    network would read an all-invalid frame as a flat sea), and those must be unit vectors
+    (an image's RGB passed as normals would be read as slopes)."""
+    from jaxocean.fit.waves import UNIT_NORMAL_TOLERANCE
+
+    if not is_concrete(normals):
+        return
+    n = np.asarray(normals)
+    valid = np.asarray(_valid(normals, camera_channels(camera)[1]))
+    empty = np.flatnonzero(~valid.any(axis=(1, 2)))
+    if empty.size:
+        raise ValueError(f"frame {int(empty[0])} has no valid sea normal (all NaN, sky or facing down): "
+                         f"nothing to estimate waves from")
+    length = np.linalg.norm(n[valid], axis=-1)
+    off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
+    if off.any():
+        raise ValueError(f"normals must be unit vectors; {int(off.sum())} of {off.size} valid sea pixels have "
+                         f"length {float(length[off][0]):.4g} (first)")
 
 
 def _valid(normals, mask):
@@ -326,6 +350,7 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
         raise ValueError(f"times must be finite and strictly increasing; got {times_np}")
     if not 0.0 <= threshold < 1.0:
         raise ValueError(f"threshold must be in [0, 1); got {threshold}")
+    _check_normals(normals, camera)
     slots = _predict_jit(model.config, model.params, normals[None], None if rough is None else rough[None],
                          jax.tree.map(lambda x: jnp.asarray(x)[None], camera), jnp.asarray(times_np, jnp.float32)[None])
     slots = jax.tree.map(lambda x: x[0], slots)
@@ -347,11 +372,11 @@ def save(path, model: WaveNetModel, meta: dict | None = None) -> Path:
 
 
 def load(path=None) -> WaveNetModel:
-    """A model written by :func:`save`; ``None`` loads the shipped pretrained model.
+    """A model written by :func:`save`; ``None`` (or ``"cpu"``) loads the shipped pretrained model.
 
     Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
     missing, corrupt or not a wave network of this version."""
-    config, params = load_model(PRETRAINED_PATH if path is None else Path(path), fmt=_FORMAT, what="a wave network",
+    config, params = load_model(_model_path(path), fmt=_FORMAT, what="a wave network",
                                 config_from_json=WaveNetConfig.from_json,
                                 init_params=lambda c: init(jax.random.key(0), c).params)
     return WaveNetModel(config, params)
@@ -359,5 +384,12 @@ def load(path=None) -> WaveNetModel:
 
 def model_info(path=None) -> dict:
     """The metadata stored with a model (config, training summary)."""
-    return load_tree(PRETRAINED_PATH if path is None else Path(path), None, meta_only=True)
+    return load_tree(_model_path(path), None, meta_only=True)
+
+
+def _model_path(path) -> Path:
+    """``None`` or a name of :data:`PRETRAINED` -> that shipped model; else the file ``path``."""
+    if path is None:
+        return PRETRAINED_PATH
+    return PRETRAINED[path] if isinstance(path, str) and path in PRETRAINED else Path(path)
 
