@@ -99,7 +99,7 @@ def resample(values, weight, camera, anchor, e_u, e_v, spacing, level, use_box, 
     waves are plane waves on the grid); None: the mean sea plane's points."""
     dtype = values.dtype
     size = 2 ** level
-    T, C = weight.shape[0], values.shape[-1]
+    T = weight.shape[0]
     sw = jnp.moveaxis(values * weight[..., None], 0, -1)  # (H, W, C, T)
     wt = jnp.moveaxis(weight, 0, -1)  # (H, W, T)
     if size > 1:

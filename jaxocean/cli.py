@@ -96,28 +96,50 @@ def _add_lighting_edits(p):
     g.add_argument("--sun-elevation", type=float, help="sun elevation [deg]")
 
 
+_SCENE_OPTION_DEFAULTS = {
+    "hs": 1.2, "tp": 5.5, "gamma": 3.3, "wave_direction": 20.0, "spreading": 10.0, "waves": 60, "seed": 0,
+    "camera_height": 12.0, "camera_pitch_deg": 20.0, "camera_fov_deg": 45.0, "camera_yaw_deg": 0.0,
+    "res": (128, 192), "sun_azimuth": 10.0, "sun_elevation": 25.0, "frames": 24, "dt": 0.1,
+}
+
+
 def _add_scene_options(p):
+    # defaults are filled in by _scene_option_values, so that an option given beside a SCENE
+    # file (which sets every one of them) is seen and refused, not silently ignored
     g = p.add_argument_group("scene (used when no SCENE file is given)")
-    g.add_argument("--hs", type=float, default=1.2, help="significant wave height [m] (default 1.2)")
-    g.add_argument("--tp", type=float, default=5.5, help="peak period [s] (default 5.5)")
-    g.add_argument("--gamma", type=float, default=3.3, help="JONSWAP peak enhancement; 1 = Pierson-Moskowitz")
-    g.add_argument("--wave-direction", type=float, default=20.0, help="mean wave direction [deg from +x]")
-    g.add_argument("--spreading", type=float, default=10.0, help="Mitsuyasu s_max (larger = narrower)")
-    g.add_argument("--waves", type=inputs.positive_int, default=60, help="number of wave trains (default 60)")
-    g.add_argument("--seed", type=int, default=0, help="random seed for the wave draw")
-    g.add_argument("--camera-height", type=float, default=12.0, help="camera height above the sea [m]")
-    g.add_argument("--camera-pitch-deg", type=float, default=20.0, help="camera pitch below the horizon [deg]")
-    g.add_argument("--camera-fov-deg", type=float, default=45.0, help="vertical field of view [deg]")
-    g.add_argument("--camera-yaw-deg", type=float, default=0.0, help="viewing azimuth [deg from +x] (default 0)")
+    g.add_argument("--hs", type=float, default=None, help="significant wave height [m] (default 1.2)")
+    g.add_argument("--tp", type=float, default=None, help="peak period [s] (default 5.5)")
+    g.add_argument("--gamma", type=float, default=None, help="JONSWAP peak enhancement; 1 = Pierson-Moskowitz")
+    g.add_argument("--wave-direction", type=float, default=None, help="mean wave direction [deg from +x]")
+    g.add_argument("--spreading", type=float, default=None, help="Mitsuyasu s_max (larger = narrower)")
+    g.add_argument("--waves", type=inputs.positive_int, default=None, help="number of wave trains (default 60)")
+    g.add_argument("--seed", type=int, default=None, help="random seed for the wave draw")
+    g.add_argument("--camera-height", type=float, default=None, help="camera height above the sea [m]")
+    g.add_argument("--camera-pitch-deg", type=float, default=None, help="camera pitch below the horizon [deg]")
+    g.add_argument("--camera-fov-deg", type=float, default=None, help="vertical field of view [deg]")
+    g.add_argument("--camera-yaw-deg", type=float, default=None, help="viewing azimuth [deg from +x] (default 0)")
     g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=inputs.DeprecatedAlias,
                    new="--camera-pitch-deg")
     g.add_argument("--fov", dest="camera_fov_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-fov-deg")
-    g.add_argument("--res", type=inputs.resolution_arg, default=(128, 192), help="HxW pixels (default 128x192)")
-    g.add_argument("--sun-azimuth", type=float, default=10.0, help="sun azimuth [deg from +x]; the camera looks "
+    g.add_argument("--res", type=inputs.resolution_arg, default=None, help="HxW pixels (default 128x192)")
+    g.add_argument("--sun-azimuth", type=float, default=None, help="sun azimuth [deg from +x]; the camera looks "
                    "along +x unless --camera-yaw-deg turns it")
-    g.add_argument("--sun-elevation", type=float, default=25.0, help="sun elevation [deg]")
-    g.add_argument("--frames", type=inputs.positive_int, default=24, help="number of frames (default 24)")
-    g.add_argument("--dt", type=inputs.positive_float, default=0.1, help="time between frames [s] (default 0.1)")
+    g.add_argument("--sun-elevation", type=float, default=None, help="sun elevation [deg]")
+    g.add_argument("--frames", type=inputs.positive_int, default=None, help="number of frames (default 24)")
+    g.add_argument("--dt", type=inputs.positive_float, default=None, help="time between frames [s] (default 0.1)")
+
+
+def _scene_option_values(args, scene_file=None) -> None:
+    """Fill the scene options' defaults into ``args``; with a ``scene_file``, refuse any that
+    was given (the file sets them all)."""
+    given = [name for name in _SCENE_OPTION_DEFAULTS if getattr(args, name) is not None]
+    if scene_file and given:
+        options = ", ".join("--" + name.replace("_", "-") for name in given)
+        raise ValueError(f"{options}: scene options apply only without a SCENE; {scene_file} sets the scene "
+                         f"(edit it, or use reedit to change its camera or light)")
+    for name, default in _SCENE_OPTION_DEFAULTS.items():
+        if getattr(args, name) is None:
+            setattr(args, name, default)
 
 
 def build_parser():
@@ -303,6 +325,7 @@ def cmd_render(args):
 
     from jaxocean.io.dataset import render_scene
 
+    _scene_option_values(args, args.scene)
     out = inputs.check_out_dir(args.out)
     if not args.scene:
         inputs.check_memory(args.res, args.frames, "render")
@@ -370,6 +393,7 @@ def cmd_demo(args):
     from jaxocean import plots
     from jaxocean.io.dataset import render_scene
 
+    _scene_option_values(args)
     stages = {s.strip() for s in args.stages.split(",") if s.strip()}
     unknown = stages - {"render", "lighting", "waves", "reconstruct", "real"}
     if unknown:
@@ -675,14 +699,16 @@ def cmd_forecast(args):
     if scene.waves is None:
         raise ValueError(f"{args.waves}: no waves to forecast (expected a fit-waves JSON or a scene.json)")
     wave_fit = (scene.extra or {}).get("wave_fit") if isinstance(scene.extra, dict) else None
-    if isinstance(wave_fit, dict) and wave_fit.get("success") is False:
+    # only a JSON true vouches for the waves: a false, a missing or a hand-edited "false" does not
+    if isinstance(wave_fit, dict) and wave_fit.get("success") is not True:
         error = wave_fit.get("normal_error_deg")
-        detail = "" if error is None else f", mean normal error {error:.3g} deg"
+        flag = json.dumps(wave_fit["success"]) if "success" in wave_fit else "missing"
+        detail = "" if not isinstance(error, (int, float)) else f", mean normal error {error:.3g} deg"
         if not args.allow_failed:
-            raise ValueError(f"{args.waves}: the wave fit reported failure (success: false{detail}); its waves need "
-                             f"not explain the frames. Pass --allow-failed to forecast them anyway")
-        print(f"jaxocean: warning: forecasting the waves of a failed fit ({args.waves}: success: false{detail})",
-              file=sys.stderr)
+            raise ValueError(f"{args.waves}: the wave fit does not report success (success: {flag}{detail}); its "
+                             f"waves need not explain the frames. Pass --allow-failed to forecast them anyway")
+        print(f"jaxocean: warning: forecasting the waves of a fit that does not report success ({args.waves}: "
+              f"success: {flag}{detail})", file=sys.stderr)
     if args.fps is not None and args.times is not None:
         raise ValueError("--fps applies to --frames; --times are already in seconds")
     known = None if scene.times is None else np.asarray(scene.times, np.float64)

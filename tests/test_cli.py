@@ -1,5 +1,7 @@
 import json
 import math
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -109,6 +111,18 @@ def default_scene(tmp_path_factory):
     out = tmp_path_factory.mktemp("cli_default") / "render"
     assert cli.main(["render", "--out", str(out), "--frames", "1", "--res", "16"]) == 0
     return out
+
+
+def test_render_of_a_scene_file_refuses_the_scene_options(tiny_scene, tmp_path, capsys):
+    out = tmp_path / "r"
+    assert cli.main(["render", str(tiny_scene), "--hs", "3", "--frames", "2", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert "--hs, --frames: scene options apply only without a SCENE" in err and not out.exists()
+
+
+def test_python_dash_m_runs_the_command():
+    run = subprocess.run([sys.executable, "-m", "jaxocean", "--help"], capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and "usage: jaxocean" in run.stdout
 
 
 def test_rendered_frame_reproduces_its_image(default_scene):
@@ -436,7 +450,9 @@ def test_render_camera_options_and_the_old_names(tmp_path, capsys):
     args = cli.build_parser().parse_args(["render", "--out", "o", "--pitch", "31", "--fov", "51"])
     assert (args.camera_pitch_deg, args.camera_fov_deg) == (31.0, 51.0)
     assert "--pitch is deprecated; use --camera-pitch-deg" in capsys.readouterr().err
-    assert cli.build_parser().parse_args(["render", "--out", "o"]).camera_pitch_deg == 20.0
+    args = cli.build_parser().parse_args(["render", "--out", "o"])
+    cli._scene_option_values(args)  # the defaults, filled in once the command knows there is no SCENE
+    assert args.camera_pitch_deg == 20.0
 
 
 @pytest.mark.parametrize("command, argv, message", [
@@ -469,11 +485,18 @@ def test_forecast_refuses_a_failed_fit_and_other_json(tiny_scene, tmp_path, caps
     out = tmp_path / "fc"
     assert cli.main(["forecast", str(failed), "--frames", "0", "--out", str(out)]) == 2  # ran, exit 0 before
     err = capsys.readouterr().err
-    assert "the wave fit reported failure (success: false, mean normal error 2.5 deg)" in err
+    assert "the wave fit does not report success (success: false, mean normal error 2.5 deg)" in err
     assert "--allow-failed" in err and not out.exists()
     assert cli.main(["forecast", str(failed), "--frames", "0", "--out", str(out), "--allow-failed"]) == 0
-    assert "warning: forecasting the waves of a failed fit" in capsys.readouterr().err
+    assert "warning: forecasting the waves of a fit that does not report success" in capsys.readouterr().err
     assert (out / "frame_00000.exr").exists()
+    # only a JSON true vouches for the waves: a hand-edited "false" or no flag at all does not
+    for wave_fit, shown in (({"success": "false"}, 'success: "false"'), ({"normal_error_deg": 0.1}, "success: missing")):
+        edited = tmp_path / "edited.json"
+        io.write_scene(edited, io.scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
+                                                times=scene.times, extra={"wave_fit": wave_fit}))
+        assert cli.main(["forecast", str(edited), "--frames", "0", "--out", str(tmp_path / "fc2")]) == 2
+        assert shown in capsys.readouterr().err
     # a lighting fit's JSON is named as such, not as a scene missing 'version'
     light = tmp_path / "fit.json"
     light.write_text(json.dumps({"lighting": {"sun_azimuth": 0.1}, "loss": 1e-6, "rms_residual": 1e-3,

@@ -618,6 +618,8 @@ def test_gif_video_loads_as_linear_frames(tmp_path):
     np.testing.assert_allclose(video, frames / 255.0, atol=1e-6)
     srgb = load_video(tmp_path / "clip.gif")  # default: sRGB-encoded display values
     np.testing.assert_allclose(srgb[frames == 128], 0.2158605, rtol=1e-4)  # sRGB decode of 128/255
+    with pytest.raises(FileFormatError, match="an animation of 3 frames, not one image: read it with load_video"):
+        load_image(tmp_path / "clip.gif")
 
 
 def test_video_without_a_plugin_says_what_to_install(tmp_path, monkeypatch):

@@ -34,6 +34,7 @@ from jaxocean.fit import camera as camera_fit
 from jaxocean.fit import heights as heights_fit
 from jaxocean.fit import lighting as lighting_fit
 from jaxocean.fit import photometric as photometric_fit
+from jaxocean.fit import pixels as pixels_fit
 from jaxocean.fit import reedit as reedit_module
 from jaxocean.fit import solvers
 from jaxocean.fit import spectrum as spectrum_fit
@@ -83,6 +84,8 @@ __all__ = [
     "lighting_fit",
     "camera_fit",
     "photometric_fit",
+    "pixels_fit",
+    "pixels",
     "reedit_module",
     "waves_fit",
     "spectrum_fit",

@@ -182,6 +182,9 @@ def _display(pixels, path) -> tuple[np.ndarray, int | None]:
     pixels = np.asarray(pixels)
     if pixels.ndim == 2:
         pixels = pixels[..., None]
+    if pixels.ndim == 4:
+        raise FileFormatError(path, f"an animation of {pixels.shape[0]} frames, not one image: read it with "
+                                    f"load_video (the commands take it as a video file)")
     if pixels.ndim != 3 or pixels.shape[-1] not in (1, 2, 3, 4):
         raise FileFormatError(path, f"not an image of 1-4 channels: decoded shape {pixels.shape}")
     # Gray (+ alpha) -> gray; RGB (+ alpha) -> RGB: the alpha channel is not radiance.

@@ -34,8 +34,11 @@ _SCORE_COLUMNS = (("within_5deg", "5deg", "{:.1%}"), ("normal_mae", "MAE rad", "
 def _add_training_options(p, configs, loss_terms) -> None:
     """The options every train-* command shares: dataset, config, run directory, overrides."""
     p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
+    meaning = {"cpu": "under an hour on two CPU cores (default)",
+               "gpu": "the recipe of the shipped gpu model, for one GPU",
+               "paper": "the paper's setting, for a GPU"}
     p.add_argument("--config", choices=sorted(configs), default="cpu",
-                   help="cpu: under an hour on two CPU cores (default); paper: the paper's setting, for a GPU")
+                   help="; ".join(f"{name}: {meaning.get(name, 'see docs/training.md')}" for name in sorted(configs)))
     p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
     p.add_argument("--epochs", type=positive_int, help="override the config's number of epochs")
     p.add_argument("--steps-per-epoch", type=positive_int, help="override the config's steps per epoch (at most: an epoch "
