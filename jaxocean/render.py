@@ -54,7 +54,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, raycast, shading, surface
 from jaxocean._math import components, materialize_cotangent
-from jaxocean.errors import check_finite, is_concrete
+from jaxocean.errors import check_finite, check_values, is_concrete
 from jaxocean.raycast import hit_residual, refine_hits
 from jaxocean.waves import Waves, validate
 
@@ -324,7 +324,8 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
 
     ``normal (H, W, 3)``, ``roughness (H, W)`` = sigma^2, isotropic unless the anisotropic
     ``slope_variance (H, W, 2)`` is given (then ``roughness`` is ignored). Views and the
-    sky mask come from ``camera``.
+    sky mask come from ``camera``. Negative (concrete) variances are an error; below
+    ``shading.MIN_SLOPE_VARIANCE_AXIS`` per axis the shading uses that floor.
     """
     cam.validate_camera(camera)
     shading.validate_lighting(lighting)
@@ -340,12 +341,14 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
         if roughness.shape != (H, W):
             raise ValueError(f"roughness must be (H, W) = {(H, W)}; got {roughness.shape}")
         check_finite(roughness, "roughness")
+        check_values(roughness >= 0, "roughness (slope variance) must be >= 0", roughness)
         slope_variance = jnp.stack([roughness, roughness], -1) * 0.5
     else:
         slope_variance = jnp.asarray(slope_variance, normal.dtype)
         if slope_variance.shape != (H, W, 2):
             raise ValueError(f"slope_variance must be (H, W, 2) = {(H, W, 2)}; got {slope_variance.shape}")
         check_finite(slope_variance, "slope_variance")
+        check_values(slope_variance >= 0, "slope_variance must be >= 0", slope_variance)
     check_finite(normal, "normal")
     return _shade(normal, slope_variance, camera, lighting, jnp.asarray(horizon_gradient, normal.dtype),
                   max_distance=max_distance)

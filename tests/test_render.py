@@ -255,6 +255,11 @@ def test_bad_inputs_raise_before_work():
         render.render(no_waves, c, light, 0.0)
     with pytest.raises(ValueError, match="shade needs roughness"):
         render.shade(normal, None, c, light)
+    # a negative variance is no surface (it was clamped to the floor without a word)
+    with pytest.raises(InvalidValueError, match=r"roughness \(slope variance\) must be >= 0; got \[-0.001.*first at index \[2, 3\]"):
+        render.shade(normal, jnp.full((12, 16), 1e-3).at[2, 3].set(-1e-3), c, light)
+    with pytest.raises(InvalidValueError, match="slope_variance must be >= 0"):
+        render.shade(normal, None, c, light, slope_variance=jnp.full((12, 16, 2), -1e-4))
     # one time, finite: several times are a vmap, not a silently wrong frame
     with pytest.raises(ValueError, match=r"t must be one time \[s\] \(a scalar\); got shape \(2,\)"):
         render.render(waves, c, light, jnp.array([0.1, 0.2]))
