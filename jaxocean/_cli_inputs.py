@@ -29,6 +29,7 @@ import numpy as np
 from jaxocean.files import read_json
 
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
+           "fov_degrees", "pitch_degrees",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
            "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
            "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
@@ -86,6 +87,29 @@ class DeprecatedAlias(argparse.Action):
     def __call__(self, parser, namespace, values, option_string=None):
         print(f"jaxocean: note: {option_string} is deprecated; use {self.new}", file=sys.stderr)
         setattr(namespace, self.dest, values)
+
+
+def fov_degrees(text: str):
+    """A vertical field of view in degrees, in (0, 180)."""
+    return _degrees_in(text, 0.0, 180.0, "a field of view in degrees, in (0, 180)", low_open=True, high_open=True)
+
+
+def pitch_degrees(text: str):
+    """A camera pitch below the horizon in degrees, in (-90, 90)."""
+    return _degrees_in(text, -90.0, 90.0, "a pitch in degrees below the horizon, in (-90, 90)", low_open=True,
+                       high_open=True)
+
+
+def _degrees_in(text, low, high, what, *, low_open, high_open):
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    above = value > low if low_open else value >= low
+    below = value < high if high_open else value <= high
+    if not (above and below):
+        raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
+    return value
 
 
 def positive_float(text: str):

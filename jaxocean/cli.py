@@ -79,8 +79,8 @@ _OUT_DIR_NOTE = ("The output directory holds one scene: rendering into a directo
 def _add_camera_edits(p, *, resolution: bool = True):
     g = p.add_argument_group("camera (each option replaces that field of the scene's camera)")
     g.add_argument("--camera-height", type=float, help="camera height above the sea [m]")
-    g.add_argument("--camera-pitch-deg", type=float, help="camera pitch below the horizon [deg]")
-    g.add_argument("--camera-fov-deg", type=float, help="vertical field of view [deg]")
+    g.add_argument("--camera-pitch-deg", type=inputs.pitch_degrees, help="camera pitch below the horizon [deg]")
+    g.add_argument("--camera-fov-deg", type=inputs.fov_degrees, help="vertical field of view [deg]")
     g.add_argument("--camera-yaw-deg", type=float, help="viewing azimuth [deg from +x]")
     if resolution:
         g.add_argument("--res", type=inputs.resolution_arg, help="output resolution N or HxW")
@@ -115,12 +115,15 @@ def _add_scene_options(p):
     g.add_argument("--waves", type=inputs.positive_int, default=None, help="number of wave trains (default 60)")
     g.add_argument("--seed", type=int, default=None, help="random seed for the wave draw")
     g.add_argument("--camera-height", type=float, default=None, help="camera height above the sea [m]")
-    g.add_argument("--camera-pitch-deg", type=float, default=None, help="camera pitch below the horizon [deg]")
-    g.add_argument("--camera-fov-deg", type=float, default=None, help="vertical field of view [deg]")
+    g.add_argument("--camera-pitch-deg", type=inputs.pitch_degrees, default=None,
+                   help="camera pitch below the horizon [deg] (default 20)")
+    g.add_argument("--camera-fov-deg", type=inputs.fov_degrees, default=None,
+                   help="vertical field of view [deg] (default 45)")
     g.add_argument("--camera-yaw-deg", type=float, default=None, help="viewing azimuth [deg from +x] (default 0)")
-    g.add_argument("--pitch", dest="camera_pitch_deg", type=float, action=inputs.DeprecatedAlias,
+    g.add_argument("--pitch", dest="camera_pitch_deg", type=inputs.pitch_degrees, action=inputs.DeprecatedAlias,
                    new="--camera-pitch-deg")
-    g.add_argument("--fov", dest="camera_fov_deg", type=float, action=inputs.DeprecatedAlias, new="--camera-fov-deg")
+    g.add_argument("--fov", dest="camera_fov_deg", type=inputs.fov_degrees, action=inputs.DeprecatedAlias,
+                   new="--camera-fov-deg")
     g.add_argument("--res", type=inputs.resolution_arg, default=None, help="HxW pixels (default 128x192)")
     g.add_argument("--sun-azimuth", type=float, default=None, help="sun azimuth [deg from +x]; the camera looks "
                    "along +x unless --camera-yaw-deg turns it")
@@ -339,6 +342,9 @@ def cmd_render(args):
     write_sequence(out, scene, images, geo, half=not args.float32, seed=None if args.scene else args.seed)
     print(f"rendered {images.shape[0]} frame(s) of {images.shape[1]}x{images.shape[2]} in {render_s:.2f} s "
           f"(compile included) -> {args.out}")
+    if not np.any(geo.mask):
+        print("jaxocean: warning: no pixel sees the sea (the view is above the horizon): the frames show sky "
+              "only, and nothing can be fitted from them", file=sys.stderr)
     return EXIT_OK
 
 

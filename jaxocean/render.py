@@ -9,7 +9,8 @@ geometry there and is shaded.
   ``normal`` of the normal-level waves, ``roughness`` sigma^2 = sigma_x^2 + sigma_y^2 of the
   sub-pixel waves (clamped at ``shading.MIN_SLOPE_VARIANCE``), the anisotropic pair
   ``slope_variance (H, W, 2)``, the sea ``mask`` (False: sky), the rest position ``xy`` and
-  world ``position`` of the hit, and the ``footprint`` [m]. What the geometry networks predict.
+  world ``position`` of the hit, and the ``footprint`` [m]; on sky pixels ``normal`` is
+  (0, 0, 1) and ``position`` the plane point (xy, 0). What the geometry networks predict.
 * ``shade(normal, roughness, camera, lighting, ...) -> (H, W, 3)`` linear RGB from geometry
   alone (the differentiable loss of the paper's eq. 3); sky pixels show the sky.
 * ``render(waves, camera, lighting, t, ...)`` = ``shade(geometry(...))``; vmap it over frame
@@ -237,7 +238,13 @@ def _hits_geometry(waves, camera, t, grid_cell, hit, *, n_min, n_max, active, po
 
 
 def _assemble(hit, xy, disp, normal, slope_var, converged):
-    position = None if disp is None else disp + jnp.concatenate([xy, jnp.zeros_like(xy[..., :1])], -1)
+    # sky pixels get the flat sea's normal and the plane point: what the surface would give
+    # there depends on which waves a plan evaluates, and an eager call (whose plan may drop
+    # waves no sea pixel shows) must equal a traced one
+    sea = hit.mask[..., None]
+    plane = jnp.concatenate([xy, jnp.zeros_like(xy[..., :1])], -1)
+    normal = jnp.where(sea, normal, jnp.asarray([0.0, 0.0, 1.0], normal.dtype))
+    position = None if disp is None else jnp.where(sea, disp + plane, plane)
     roughness = jnp.maximum(slope_var[..., 0] + slope_var[..., 1], shading.MIN_SLOPE_VARIANCE)
     return Geometry(normal=normal, roughness=roughness, slope_variance=slope_var, mask=hit.mask, xy=xy,
                     position=position, footprint=hit.footprint, converged=converged)
@@ -324,7 +331,9 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
 
     ``normal (H, W, 3)``, ``roughness (H, W)`` = sigma^2, isotropic unless the anisotropic
     ``slope_variance (H, W, 2)`` is given (then ``roughness`` is ignored). Views and the
-    sky mask come from ``camera``. Negative (concrete) variances are an error; below
+    sky mask come from ``camera``. Normals that are not unit vectors (within
+    ``shading.UNIT_NORMAL_TOLERANCE``) or point down, and negative variances, are errors
+    (concrete inputs); below
     ``shading.MIN_SLOPE_VARIANCE_AXIS`` per axis the shading uses that floor.
     """
     cam.validate_camera(camera)
@@ -350,6 +359,11 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
         check_finite(slope_variance, "slope_variance")
         check_values(slope_variance >= 0, "slope_variance must be >= 0", slope_variance)
     check_finite(normal, "normal")
+    if is_concrete(normal):
+        length = jnp.linalg.norm(normal, axis=-1)
+        check_values(jnp.abs(length - 1.0) <= shading.UNIT_NORMAL_TOLERANCE,
+                     "normal must hold unit vectors (|n| = 1; an image or a zero vector is no normal); |n|", length)
+        check_values(normal[..., 2] >= 0.0, "normal must point up (n_z >= 0: the sea's side)", normal[..., 2])
     return _shade(normal, slope_variance, camera, lighting, jnp.asarray(horizon_gradient, normal.dtype),
                   max_distance=max_distance)
 

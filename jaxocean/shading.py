@@ -61,6 +61,7 @@ from jaxocean.errors import check_values, is_concrete
 __all__ = [
     "MIN_SLOPE_VARIANCE",
     "MIN_SLOPE_VARIANCE_AXIS",
+    "UNIT_NORMAL_TOLERANCE",
     "MIN_COSINE",
     "SUN_HORIZON_FADE",
     "FRESNEL_NORMAL",
@@ -97,6 +98,9 @@ MIN_SLOPE_VARIANCE = 2e-5
 """Floor of the scalar roughness sigma^2 = sigma_x^2 + sigma_y^2 (docs/design.md, *Slope variance*)."""
 
 MIN_SLOPE_VARIANCE_AXIS = 0.5 * MIN_SLOPE_VARIANCE
+UNIT_NORMAL_TOLERANCE = 1e-2
+"""How far from 1 the length of a normal given to the public functions may be: float32 and
+half-float storage (relative 5e-4) pass; anything else is not a unit normal."""
 """Floor of each axis' slope variance; it makes the scalar floor hold."""
 
 MIN_COSINE = 0.01

@@ -12,8 +12,9 @@ Spectra are pure, jittable, differentiable functions of the angular frequency:
 * ``hs`` Hs [m] significant wave height (= 4 sqrt(m0)), ``tp`` Tp [s] peak period,
   ``wp = 2 pi / Tp`` [rad/s] peak frequency.
 
-Sea parameters broadcast against ``omega`` / ``theta`` (scalars are typical; arrays give a
-batch of seas, as does ``vmap``). Everything runs in float32 by default and in float64
+Sea parameters broadcast against ``omega`` / ``theta`` in the spectrum and spreading
+functions (scalars are typical; arrays give a batch of seas, as does ``vmap``); the band
+integrals (:func:`moments`, :func:`sample_waves`) take one sea, and ``vmap`` over a batch. Everything runs in float32 by default and in float64
 under ``jax.enable_x64``. Spectra are finite in value *and* gradient for every w >= 0: the
 ``w^-5 exp(-c / w^4)`` factor is evaluated with the double-``where`` pattern, so w -> 0
 gives exactly 0 and a zero gradient.
@@ -203,6 +204,16 @@ def validate_spectrum(spectrum: Spectrum) -> Spectrum:
         check_values(np.isfinite(spectrum.theta_mean), "Spectrum.theta_mean must be finite",
                      spectrum.theta_mean)
     return spectrum
+
+
+def _require_one_sea(spectrum: Spectrum, name: str) -> None:
+    """Band integrals take one sea (scalar fields; a batch is a ``vmap``), since each sea
+    has its own band."""
+    shapes = {field: jnp.shape(value) for field, value in zip(Spectrum._fields, spectrum)}
+    batched = {field: shape for field, shape in shapes.items() if shape != ()}
+    if batched:
+        raise ValueError(f"{name} takes one sea (scalar Spectrum fields); got shapes {batched}: map it over a "
+                         f"batch of seas with jax.vmap({name}, ...)")
 
 
 def _check_band(band, *, positive: bool):
@@ -536,6 +547,7 @@ def moments(spectrum: Spectrum | Callable, band=None, *, n: int = 2048) -> Spect
         raise ValueError(f"moments() needs n >= {3 * _MOMENT_ORDER} quadrature nodes; got {n}")
     if isinstance(spectrum, Spectrum):
         validate_spectrum(spectrum)
+        _require_one_sea(spectrum, "moments")
         if band is None:
             band = _relative_band(spectrum, MOMENT_BAND)
         lo, hi = _check_band(band, positive=False)
@@ -648,6 +660,7 @@ def sample_waves(key, spectrum: Spectrum, n_waves: int, *, band=None, bins: str 
     and differentiable in the spectrum's fields through the amplitudes and directions.
     """
     validate_spectrum(spectrum)
+    _require_one_sea(spectrum, "sample_waves")
     try:
         n_waves = operator.index(n_waves)
     except TypeError:

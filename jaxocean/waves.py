@@ -111,7 +111,8 @@ def validate(waves: Waves, *, max_steepness: float | None = MAX_STEEPNESS) -> Wa
 
 
 def wavenumber(waves_or_omega):
-    """Deep-water wavenumber k = w^2 / g [rad/m]."""
+    """Deep-water wavenumber k = w^2 / g [rad/m] (a formula, even in w: the domain w > 0 of
+    a wave is checked where waves are made, :func:`make_waves` and :func:`validate`)."""
     omega = waves_or_omega.omega if isinstance(waves_or_omega, Waves) else waves_or_omega
     return omega * omega / GRAVITY
 

@@ -120,6 +120,15 @@ def test_render_of_a_scene_file_refuses_the_scene_options(tiny_scene, tmp_path, 
     assert "--hs, --frames: scene options apply only without a SCENE" in err and not out.exists()
 
 
+def test_render_names_camera_angles_in_degrees_and_warns_of_a_sky_only_view(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(["render", "--out", str(tmp_path / "a"), "--camera-fov-deg", "200"])
+    assert exit_info.value.code == 2 and "a field of view in degrees, in (0, 180); got '200'" in capsys.readouterr().err
+    assert cli.main(["render", "--out", str(tmp_path / "b"), "--res", "8x8", "--frames", "1", "--waves", "2",
+                     "--camera-pitch-deg=-50"]) == 0
+    assert "warning: no pixel sees the sea" in capsys.readouterr().err
+
+
 def test_python_dash_m_runs_the_command():
     run = subprocess.run([sys.executable, "-m", "jaxocean", "--help"], capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and "usage: jaxocean" in run.stdout

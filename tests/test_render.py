@@ -260,6 +260,12 @@ def test_bad_inputs_raise_before_work():
         render.shade(normal, jnp.full((12, 16), 1e-3).at[2, 3].set(-1e-3), c, light)
     with pytest.raises(InvalidValueError, match="slope_variance must be >= 0"):
         render.shade(normal, None, c, light, slope_variance=jnp.full((12, 16, 2), -1e-4))
+    # a zero vector was shaded as the flat sea, (0, 0, 5) as (0, 0, 1), (0, 0, -1) without a word
+    rough = jnp.full((12, 16), 1e-3)
+    for bad, message in ((jnp.zeros_like(normal), "normal must hold unit vectors"), (5 * normal, "unit vectors"),
+                         (-normal, r"normal must point up \(n_z >= 0")):
+        with pytest.raises(InvalidValueError, match=message):
+            render.shade(bad, rough, c, light)
     # one time, finite: several times are a vmap, not a silently wrong frame
     with pytest.raises(ValueError, match=r"t must be one time \[s\] \(a scalar\); got shape \(2,\)"):
         render.render(waves, c, light, jnp.array([0.1, 0.2]))

@@ -279,6 +279,12 @@ def test_sample_waves_jits_and_vmaps_and_matches_eager(key):
         eager = sample_waves(keys[i], sea, 60)
         for leaf_b, leaf_e in zip(jax.tree_util.tree_leaves(batch), jax.tree_util.tree_leaves(eager)):
             np.testing.assert_allclose(leaf_b[i], leaf_e, rtol=2e-6, atol=1e-7)
+    # without vmap a batch of seas is named as such (it crashed in the band check)
+    with pytest.raises(ValueError, match=r"sample_waves takes one sea .*jax.vmap\(sample_waves"):
+        sample_waves(keys[0], seas, 60)
+    with pytest.raises(ValueError, match="moments takes one sea"):
+        moments(seas)
+    np.testing.assert_allclose(jax.vmap(moments)(seas).hs, [moments(SEA).hs, moments(other).hs], rtol=1e-6)
     # under jit the steepness check cannot warn (warnings are errors here): it clamps and counts
     clamped = sample_batch(keys, seas, 0.01)
     assert np.all(clamped.n_clamped > 0)

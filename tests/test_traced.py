@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxocean import camera as cam
-from jaxocean import hierarchy, raycast, render, shading
+from jaxocean import hierarchy, raycast, render, shading, spectrum
 from jaxocean.fit import camera_fit
 from jaxocean.waves import GRAVITY, make_waves
 
@@ -64,6 +64,20 @@ def test_jit_equals_eager_for_render_geometry_and_shade(x64, name):
         geo.normal, geo.roughness, geo.slope_variance, c, light)
     np.testing.assert_allclose(shaded_jit, shaded, rtol=1e-12, atol=1e-13)
     np.testing.assert_allclose(shaded, eager, rtol=1e-12, atol=1e-13)  # render = shade(geometry)
+
+
+def test_jit_equals_eager_geometry_on_sky_pixels_when_the_plan_drops_waves(x64):
+    # the eager plan evaluates only the waves some sea pixel shows; sky pixels must not tell
+    waves = spectrum.sample_waves(jax.random.key(0), spectrum.Spectrum(1.2, 5.5, 3.3, 0.4, 10.0), 6).waves
+    c = cam.make_camera(height=12.0, pitch=0.35, fov=0.8, resolution=(10, 12))
+    assert len(render.plan(waves, c, 0.3).active) < 6 and not bool(np.all(render.geometry(waves, c, 0.3).mask))
+    eager = render.geometry(waves, c, 0.3)
+    traced = jax.jit(lambda w, c: render.geometry(w, c, 0.3))(waves, c)
+    for field in ("normal", "position", "roughness", "slope_variance", "xy", "footprint", "mask"):
+        np.testing.assert_allclose(np.asarray(getattr(traced, field)), np.asarray(getattr(eager, field)),
+                                   rtol=1e-12, atol=1e-13, err_msg=field)
+    sky = ~np.asarray(eager.mask)
+    np.testing.assert_array_equal(np.asarray(eager.normal)[sky], np.broadcast_to([0.0, 0.0, 1.0], (sky.sum(), 3)))
 
 
 def _joint_loss(weights, waves, t, params):

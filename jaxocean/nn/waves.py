@@ -207,8 +207,6 @@ def _check_normals(normals, camera) -> None:
     """Values of one scene's normals (concrete): every frame needs valid sea pixels (the
     network would read an all-invalid frame as a flat sea), and those must be unit vectors
     (an image's RGB passed as normals would be read as slopes)."""
-    from jaxocean.fit.waves import UNIT_NORMAL_TOLERANCE
-
     if not is_concrete(normals):
         return
     n = np.asarray(normals)
@@ -218,7 +216,7 @@ def _check_normals(normals, camera) -> None:
         raise ValueError(f"frame {int(empty[0])} has no valid sea normal (all NaN, sky or facing down): "
                          f"nothing to estimate waves from")
     length = np.linalg.norm(n[valid], axis=-1)
-    off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
+    off = np.abs(length - 1.0) > shading.UNIT_NORMAL_TOLERANCE
     if off.any():
         raise ValueError(f"normals must be unit vectors; {int(off.sum())} of {off.size} valid sea pixels have "
                          f"length {float(length[off][0]):.4g} (first)")

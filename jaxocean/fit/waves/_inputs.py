@@ -25,9 +25,7 @@ from jaxocean.errors import InvalidValueError, check_values, is_concrete
 
 
 MIN_NZ = 0.05  # normals flatter than this (|slope| > 20) are treated as invalid
-UNIT_NORMAL_TOLERANCE = 1e-2
-"""How far from 1 the length of a valid normal may be: float32 and half-float storage
-(relative 5e-4) pass; anything else is not a unit normal."""
+UNIT_NORMAL_TOLERANCE = shading.UNIT_NORMAL_TOLERANCE  # the one tolerance of every public function
 
 
 # =============================================================================== inputs

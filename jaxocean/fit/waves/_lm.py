@@ -54,7 +54,11 @@ class WaveFit(NamedTuple):
 
     * ``waves``        fitted :class:`~jaxocean.waves.Waves` ``(N,)``, sorted by frequency
       by :func:`waves` (``refine`` keeps the input order).
-    * ``uncertainty``  ``Waves`` of 1-sigma standard deviations of (h, omega, theta, phi).
+    * ``uncertainty``  ``Waves`` of 1-sigma standard deviations of (h, omega, theta, phi):
+      the local curvature of the loss at the fit, scaled by its residual. It bounds the error
+      of a wave marked ``determined``; for an undetermined one (a stand-in for waves the
+      window does not separate) the fitted values can lie many of these sigmas from any true
+      wave, and the width is no error bar (:func:`forecast_model` widens it).
     * ``loss``         the paper's loss (:mod:`jaxocean.fit.waves`) at the fit.
     * ``normal_error`` mean angle [rad] between fitted and observed normals.
     * ``roughness_error`` mean absolute roughness difference.
