@@ -368,6 +368,9 @@ def cmd_simulate(args):
                      progress=not args.quiet)
     print(f"{stats['generated']} scene(s) generated, {stats['skipped']} already complete; "
           f"{stats['frames_per_s']:.1f} frames/s; {stats['bytes'] / 1e6:.1f} MB in {args.out}")
+    if args.scenes < 7:  # the splits keep a tenth for test and a tenth of the rest for validation
+        print(f"jaxocean: note: {args.scenes} scene(s) leave the validation split empty: train-geometry and "
+              f"train-waves need at least 7", file=sys.stderr)
     return EXIT_OK
 
 

@@ -68,13 +68,17 @@ def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
-def test_the_gan_loss_on_single_frames_says_what_it_needs(tmp_path):
-    dataset.simulate(tmp_path / "ds", 3, 1, (8, 8), seed=0, progress=False)
+def test_datasets_too_small_to_train_on_say_what_they_lack(tmp_path):
     config = gt.TrainConfig(model=geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8)), losses="image+gan",
                             epochs=1, steps_per_epoch=1, batch_size=1, crop=8, val_frames=1,
                             time_budget_minutes=None)
+    dataset.simulate(tmp_path / "ds7", 7, 1, (8, 8), seed=0, progress=False)
     with pytest.raises(ValueError, match="'gan' loss needs at least 2 frames per scene.*has 1"):
-        gt.train(tmp_path / "ds", tmp_path / "run", config, progress=False)
+        gt.train(tmp_path / "ds7", tmp_path / "run", config, progress=False)
+    # three scenes: no validation split (it validated nothing and wrote no model)
+    dataset.simulate(tmp_path / "ds3", 3, 2, (8, 8), seed=0, progress=False)
+    with pytest.raises(ValueError, match="has 3 and 0 \\(simulate at least 7 scenes\\)"):
+        gt.train(tmp_path / "ds3", tmp_path / "run", config._replace(losses="supervised"), progress=False)
 
 
 @pytest.mark.parametrize("command, option", [("train-geometry", "--epochs=0"), ("train-geometry", "--steps-per-epoch=-1"),

@@ -313,6 +313,11 @@ def _batch_dict(b):
 
 
 def _require_complete(data: Dataset):
+    n_train, n_val = len(data.splits.get("train", [])), len(data.splits.get("val", []))
+    if n_train < 1 or n_val < 1:
+        # split_scenes keeps a tenth for test and a tenth of the rest for validation
+        raise ValueError(f"{data.root}: training needs scenes in the train and the validation split; it has "
+                         f"{n_train} and {n_val} (simulate at least 7 scenes)")
     b = next(iter(data.batches(jax.random.key(0), "train", 1)))
     if b.slope_variance is None:
         raise ValueError(f"{data.root}: frames lack slope_variance channels (written by an older jaxocean); "
