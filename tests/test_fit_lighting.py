@@ -398,6 +398,19 @@ def test_camera_fit_recovers_height_and_pitch(x64):
     assert bool(res.success)
     np.testing.assert_allclose([float(res.camera.height), float(res.camera.pitch)], [6.0, 0.25], rtol=1e-7)
     assert float(res.loss) < 1e-18
+    assert all(bool(res.determined[name]) for name in ("height", "pitch"))
+    assert float(res.std["height"]) < 1e-3 * 6.0 and float(res.std["pitch"]) < 1e-4
+    # a flat sea looks alike from every height: the fit keeps its start and must not vouch for it
+    flat = jax.tree.map(lambda a: a[:1], waves)._replace(amplitude=jnp.zeros(1, jnp.float64))
+    seen_from = cam.make_camera(height=10.0, pitch=0.5, fov=0.8, resolution=(16, 16), dtype=jnp.float64)
+    flat_image = render.render(flat, seen_from, light, 0.5)
+    flat_kw = dict(lighting=light, fit=("height",), search=(1, 1), n_starts=1)
+    higher = dataclasses.replace(seen_from, height=jnp.asarray(14.0))
+    undetermined = fit.camera(flat_image, flat, 0.5, higher, throw=False, **flat_kw)
+    assert float(undetermined.loss) < 1e-15  # it explains the image...
+    assert not bool(undetermined.determined["height"]) and not bool(undetermined.success)  # ...but not the height
+    with pytest.raises(fit.FitError, match="height undetermined: the image does not constrain it"):
+        fit.camera(flat_image, flat, 0.5, higher, **flat_kw)
     with pytest.raises(ValueError, match="lighting="):
         fit.camera(image, waves, 0.5, init)
     with pytest.raises(ValueError, match="subset"):
@@ -461,7 +474,7 @@ def test_camera_fit_reports_a_local_minimum_as_failure(x64):
     res = fit.camera(image, waves, 0.0, _start(true_cam, 8.7, 0.35), **kw)
     assert int(res.steps) < 100 and not bool(res.success)
     assert abs(float(res.camera.height) - 10.0) > 1.0 and 1e-6 < float(res.loss) < 1e-3
-    with pytest.raises(fit.FitError, match="did not converge"):
+    with pytest.raises(fit.FitError, match="the answer does not explain the image"):
         fit.camera(image, waves, 0.0, _start(true_cam, 8.7, 0.35), **{**kw, "throw": True})
     noisy = fit.camera(image, waves, 0.0, _start(true_cam, 8.7, 0.35), noise=0.02, **kw)
     assert bool(noisy.success) and float(noisy.camera.height) == pytest.approx(float(res.camera.height))

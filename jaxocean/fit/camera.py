@@ -101,6 +101,12 @@ DEFAULT_COARSE_STEPS = 12
 #: (the rule of :mod:`jaxocean.fit._plausibility`, the same as fit.lighting's)
 NOISE_FACTOR = _plausibility.NOISE_FACTOR
 LOSS_FLOOR = _plausibility.LOSS_FLOOR
+#: a fitted height is determined when its standard deviation at the stated noise is below
+#: this fraction of it; pitch and fov when theirs is below DETERMINED_ANGLE_DEG. A field the
+#: image does not constrain (the height over a flat sea: every height looks alike) keeps its
+#: start and must not be reported as measured.
+DETERMINED_HEIGHT_REL = 0.01
+DETERMINED_ANGLE_DEG = 0.1
 
 
 class CameraFit(NamedTuple):
@@ -110,7 +116,11 @@ class CameraFit(NamedTuple):
     (fitted when ``fit_lighting``); ``loss`` (at the finest level), ``wall_time`` as in
     :class:`jaxocean.fit.lighting.LightingFit`; ``steps`` summed over the levels (each level's
     winning start); ``success`` also needs a plausible loss (module docstring); ``history``
-    ``(levels, max_steps + 1)``, the winning start's at each level.
+    ``(levels, max_steps + 1)``, the winning start's at each level. ``std`` ``{field: ()}``:
+    the Gauss-Newton standard deviation of each fitted camera field (height [m], pitch and
+    fov [rad]) at the stated noise (without one, at the loss floor); ``determined``
+    ``{field: () bool}``: below :data:`DETERMINED_HEIGHT_REL` of the height or
+    :data:`DETERMINED_ANGLE_DEG`; ``success`` needs every fitted field determined.
     """
 
     camera: cam.Camera
@@ -120,6 +130,8 @@ class CameraFit(NamedTuple):
     success: jax.Array
     wall_time: jax.Array
     history: Any = None
+    std: Any = None
+    determined: Any = None
 
 
 class _Static(NamedTuple):
@@ -281,7 +293,27 @@ def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
     success = success & (loss <= _plausibility.loss_bound(image, weight, noise))
     if st.fit_lighting:
         success = success & (light.sun_elevation > 0)
-    return c, light, loss, steps, success, hist
+    std, determined = _uncertainty(fns[-1], y, args, c, st.fit, image, weight, noise)
+    for name in st.fit:
+        success = success & determined[name]
+    return c, light, loss, steps, success, hist, std, determined
+
+
+def _uncertainty(fn, y, args, camera_at, fit, image, weight, noise):
+    """``(std, determined)`` of the fitted camera fields: Gauss-Newton standard deviations
+    from ``J^T J`` of the residual at the answer (every fitted parameter, the sun's too,
+    marginalised), at the noise of :func:`jaxocean.fit._plausibility.noise_variance`."""
+    jac = jax.jacfwd(lambda p: fn(p, args))(jax.lax.stop_gradient(y)).reshape(-1, y.shape[0])
+    sd = _plausibility.parameter_std(jac.T @ jac, _plausibility.noise_variance(image, weight, noise))
+    std, determined = {}, {}
+    for i, name in enumerate(fit):
+        if name == "height":  # y holds log(height)
+            std[name] = camera_at.height * sd[i]
+            determined[name] = sd[i] < DETERMINED_HEIGHT_REL
+        else:  # pitch itself; fov through log(tan(fov / 2)), d fov / d y = sin(fov)
+            std[name] = sd[i] if name == "pitch" else jnp.sin(camera_at.fov) * sd[i]
+            determined[name] = std[name] < math.radians(DETERMINED_ANGLE_DEG)
+    return std, determined
 
 
 _core_jit = jax.jit(_core, static_argnames=("st",))
@@ -386,16 +418,24 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
                  coarse_steps=max_steps if coarse_steps is None else int(coarse_steps), plans=plans)
     run = _core_jit if spec.traceable else _core
     t0 = time.perf_counter()
-    c, light, loss, steps, success, hist = run(image, weight, waves, jnp.asarray(t, dtype), init,
-                                              jnp.asarray(horizon_gradient, dtype), lighting,
-                                              jnp.asarray(0.0 if noise is None else noise, dtype), st)
+    c, light, loss, steps, success, hist, std, determined = run(
+        image, weight, waves, jnp.asarray(t, dtype), init, jnp.asarray(horizon_gradient, dtype), lighting,
+        jnp.asarray(0.0 if noise is None else noise, dtype), st)
     if traced:
         wall = jnp.asarray(jnp.nan, dtype)
     else:
         jax.block_until_ready(loss)
         wall = jnp.asarray(time.perf_counter() - t0, dtype)
-    result = CameraFit(c, light, loss, steps, success, wall, hist)
+    result = CameraFit(c, light, loss, steps, success, wall, hist, std, determined)
     if throw and not bool(success):
-        raise FitError(f"camera fit did not converge (solver {solver!r}): loss {float(loss):.3e} after "
-                       f"{int(steps)} steps", result)
+        undetermined = [name for name in fit if not bool(determined[name])]
+        bound = float(_plausibility.loss_bound(image, weight, 0.0 if noise is None else noise))
+        if float(loss) > bound:
+            why = f"the answer does not explain the image (loss {float(loss):.3e} above its bound {bound:.3e})"
+        elif undetermined:
+            why = (f"{', '.join(undetermined)} undetermined: the image does not constrain "
+                   f"{'it' if len(undetermined) == 1 else 'them'}")
+        else:
+            why = f"did not converge (solver {solver!r})"
+        raise FitError(f"camera fit failed: {why}; loss {float(loss):.3e} after {int(steps)} steps", result)
     return result
