@@ -76,6 +76,12 @@ def test_invalid_pixels_are_left_out():
     assert np.all(np.asarray(hm.z)[10:12, 5:9] == 0.0) and np.all(np.isfinite(np.asarray(hm.z)))
 
 
+def test_nothing_to_integrate_is_not_converged():
+    camera = _view(16)
+    hm = fit.heights(jnp.full((16, 16, 3), jnp.nan), camera)
+    assert not np.asarray(hm.valid).any() and not bool(hm.converged)
+
+
 def test_bad_inputs_say_what_is_wrong():
     camera = _view(16)
     with pytest.raises(ValueError, match=r"shape \(\.\.\., 16, 16, 3\)"):

@@ -372,6 +372,17 @@ def test_bad_inputs_give_clear_errors(scene, x64):
     other = cam.make_camera(height=8.0, pitch=0.1, fov=0.7, resolution=(16, 16), dtype=jnp.float64)
     with pytest.raises(InvalidValueError, match="disagrees with the camera"):
         fit.lighting(image, geo, other)
+    # options and inputs that were taken without a word, or failed with another library's words
+    with pytest.raises(ValueError, match="image is float16: the fits run in float32 or float64"):
+        fit.lighting(image.astype(jnp.float16), geo, camera)
+    with pytest.raises(ValueError, match="rtol must be a finite number >= 0"):
+        fit.lighting(image, geo, camera, rtol=-1.0)
+    with pytest.raises(ValueError, match="takes the option 'norm' only; got \\['bogus'\\]"):
+        fit.lighting(image, geo, camera, options={"bogus": 1})
+    with pytest.raises(InvalidValueError, match="horizon_gradient must be >= -1"):
+        fit.lighting(image, geo, camera, horizon_gradient=float("nan"))
+    with pytest.raises(InvalidValueError, match="selection is empty.*is it linear radiance"):
+        fit.lighting(-image, geo, camera)
 
 
 def test_excluded_nan_pixels_are_allowed(scene, x64):

@@ -876,6 +876,9 @@ def test_spectrum_tail_waves_and_errors(sampled_sea):
         fit_spectrum.spectrum(waves, reliable=np.arange(60) < 2)
     with pytest.raises(ValueError, match="camera"):
         fit_spectrum.spectrum(waves, roughness=np.zeros((2, 4, 4)))
+    for band in [(8.0, 0.5), (-1.0, 3.0), (float("nan"), 2.0), (1.0,)]:  # taken without a word before
+        with pytest.raises(ValueError, match="band must be"):
+            fit_spectrum.spectrum(waves, band=band)
 
 
 def test_the_fit_model_is_the_renderers_rows_path_with_every_wave():

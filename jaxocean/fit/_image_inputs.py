@@ -44,6 +44,9 @@ def check_image(image, camera):
         raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
     if not jnp.issubdtype(image.dtype, jnp.floating):
         image = image.astype(jnp.zeros(()).dtype)
+    elif image.dtype not in (jnp.float32, jnp.float64):
+        raise ValueError(f"image is {image.dtype}: the fits run in float32 or float64 (the image's dtype is the "
+                         f"fit's); pass image.astype(jnp.float32)")
     cam.validate_camera(camera)
     return image
 
@@ -119,7 +122,10 @@ def validate_values(image, weight, geo_mask, camera, fit, used=None):
         raise InvalidValueError(f"image has {n} NaN/inf pixel(s) (first at (row, col) = {first}); "
                                 f"exclude them with mask= (and set their values to 0)")
     if not (w > 0).any():
-        raise InvalidValueError("the pixel selection is empty: mask/weights exclude every pixel")
+        chosen = (np.ones(img.shape, bool) if used is None else np.asarray(used) > 0)
+        hint = (" (the display weights vanish where the image is <= 0, and it is <= 0 on every selected pixel: "
+                "is it linear radiance?)" if chosen.any() and np.all(img[chosen] <= 0) else "")
+        raise InvalidValueError("the pixel selection is empty: mask/weights exclude every pixel" + hint)
     sea = np.asarray(cam.intersect_sea(camera).mask)
     if geo_mask is not None and is_concrete(geo_mask):
         gm = np.asarray(geo_mask).astype(bool)

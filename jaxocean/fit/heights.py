@@ -67,7 +67,8 @@ class HeightMap(NamedTuple):
     * ``residual``  ``(...)`` rms misfit of the equations between neighbours, in slope
       units (height difference over the pixels' spacing; zero for normals of a surface the
       pixels sample finely).
-    * ``converged`` ``(...)`` bool: the solver's relative residual reached its tolerance.
+    * ``converged`` ``(...)`` bool: the solver's relative residual reached its tolerance (False
+      where no pixel was valid: nothing was integrated).
     """
 
     z: jax.Array
@@ -181,4 +182,5 @@ def _integrate(normal, sea, xy0, d, q, footprint, tol, max_iter):
     n_eq = jnp.maximum(sum(count_ for _, _, count_ in pairs), 1.0)
     residual = jnp.sqrt(sum(jnp.sum(m ** 2) for m in misfit) / n_eq)
     rel = jnp.linalg.norm(normal_op(z) - rhs) / jnp.maximum(jnp.linalg.norm(rhs), jnp.finfo(s.dtype).tiny)
-    return HeightMap(z, xy0 + z[..., None] * q, ok, residual, rel <= 10.0 * tol)
+    # nothing to integrate (no valid pixel): nothing converged either
+    return HeightMap(z, xy0 + z[..., None] * q, ok, residual, (rel <= 10.0 * tol) & jnp.any(ok))

@@ -56,9 +56,12 @@ from typing import Any, Callable, NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 import optimistix as optx
 from jax.custom_derivatives import SymbolicZero
+
+from jaxocean.errors import is_concrete
 
 __all__ = [
     "FitError",
@@ -207,6 +210,9 @@ def _optx_runner(name: str, kind: str):
     def run(residual_fn, y0, args, *, max_steps, rtol, atol, lower=None, upper=None, history=False, options=None):
         del lower, upper  # unbounded: the fits parameterise their constraints away
         options = dict(options or {})
+        unknown = sorted(set(options) - {"norm"})
+        if unknown:  # optimistix takes no other option: a typo would be ignored
+            raise ValueError(f"solver {name!r} takes the option 'norm' only; got {unknown}")
         solver = _optx_solver(name, rtol, atol, options)
         if history:
             return _optx_with_history(solver, kind, residual_fn, y0, args, max_steps)
@@ -389,5 +395,8 @@ def solve(name: str, residual_fn, y0, args=None, *, max_steps: int, rtol, atol, 
         raise ValueError(f"max_steps must be a positive int; got {max_steps!r}")
     if jnp.ndim(y0) != 1:
         raise ValueError(f"y0 must be a parameter vector (n,); got shape {jnp.shape(y0)}")
+    for tol_name, tol in (("rtol", rtol), ("atol", atol)):
+        if is_concrete(tol) and not (np.ndim(tol) == 0 and np.isfinite(tol) and float(tol) >= 0):
+            raise ValueError(f"{tol_name} must be a finite number >= 0; got {tol!r}")
     return spec.run(residual_fn, jnp.asarray(y0), args, max_steps=max_steps, rtol=rtol, atol=atol, lower=lower,
                     upper=upper, history=history, options=options)

@@ -235,7 +235,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     docstring). ``waves``: leaves ``(N,)``; ``reliable``: bool ``(N,)`` of waves to trust
     (default: resolvable by ``camera`` when given, else all); ``roughness``: observed
     ``(T, H, W)`` or ``(H, W)`` sub-pixel slope variance (needs ``camera``); ``band``: the
-    sampling band in units of wp; ``gamma``: fix the peak enhancement (None fits it).
+    sampling band in units of wp (its upper end bounds the roughness tail, so it matters
+    only with ``roughness``); ``gamma``: fix the peak enhancement (None fits it).
 
     ``noise``: the RMS error of the waves' cumulative energy as a fraction of their total
     (None: 0, waves exact up to the sampling of the spectrum into bins); ``roughness_noise``
@@ -266,6 +267,13 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
         raise ValueError(f"fit.spectrum takes Waves with leaves (N,); got {waves.omega.shape}")
     if roughness is not None and camera is None:
         raise ValueError("fitting the roughness tail needs the camera (its footprints)")
+    if band is not None:
+        try:
+            lo_rel, hi_rel = (float(v) for v in band)
+        except (TypeError, ValueError):
+            raise ValueError(f"band must be (lo, hi) in units of wp; got {band!r}") from None
+        if not (math.isfinite(lo_rel) and math.isfinite(hi_rel) and 0 < lo_rel < hi_rel):
+            raise ValueError(f"band must be (lo, hi) in units of wp with 0 < lo < hi; got {band!r}")
     n = waves.omega.shape[0]
     if reliable is None:
         reliable = resolvable(waves, camera) if camera is not None else np.ones(n, bool)
