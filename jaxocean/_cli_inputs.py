@@ -91,23 +91,20 @@ class DeprecatedAlias(argparse.Action):
 
 def fov_degrees(text: str):
     """A vertical field of view in degrees, in (0, 180)."""
-    return _degrees_in(text, 0.0, 180.0, "a field of view in degrees, in (0, 180)", low_open=True, high_open=True)
+    return _degrees_between(text, 0.0, 180.0, "a field of view in degrees, in (0, 180)")
 
 
 def pitch_degrees(text: str):
     """A camera pitch below the horizon in degrees, in (-90, 90)."""
-    return _degrees_in(text, -90.0, 90.0, "a pitch in degrees below the horizon, in (-90, 90)", low_open=True,
-                       high_open=True)
+    return _degrees_between(text, -90.0, 90.0, "a pitch in degrees below the horizon, in (-90, 90)")
 
 
-def _degrees_in(text, low, high, what, *, low_open, high_open):
+def _degrees_between(text, low, high, what):
     try:
         value = float(text)
     except ValueError:
         value = math.nan
-    above = value > low if low_open else value >= low
-    below = value < high if high_open else value <= high
-    if not (above and below):
+    if not low < value < high:
         raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
     return value
 

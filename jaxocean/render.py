@@ -338,7 +338,7 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
     """
     cam.validate_camera(camera)
     shading.validate_lighting(lighting)
-    shading._check_horizon_gradient(horizon_gradient)
+    shading.check_horizon_gradient(horizon_gradient)
     H, W = camera.resolution
     normal = jnp.asarray(normal)
     if normal.shape != (H, W, 3):
@@ -359,10 +359,8 @@ def shade(normal, roughness, camera, lighting, *, slope_variance=None, horizon_g
         check_finite(slope_variance, "slope_variance")
         check_values(slope_variance >= 0, "slope_variance must be >= 0", slope_variance)
     check_finite(normal, "normal")
+    shading.check_unit_normals(normal, "normal", hint=": an image or a zero vector is no normal")
     if is_concrete(normal):
-        length = jnp.linalg.norm(normal, axis=-1)
-        check_values(jnp.abs(length - 1.0) <= shading.UNIT_NORMAL_TOLERANCE,
-                     "normal must hold unit vectors (|n| = 1; an image or a zero vector is no normal); |n|", length)
         check_values(normal[..., 2] >= 0.0, "normal must point up (n_z >= 0: the sea's side)", normal[..., 2])
     return _shade(normal, slope_variance, camera, lighting, jnp.asarray(horizon_gradient, normal.dtype),
                   max_distance=max_distance)
@@ -378,7 +376,7 @@ def render(waves: Waves, camera, lighting, t, *, horizon_gradient=0.0, n_min=hie
     ``converged`` flag of the hits, which says where the image is not exact."""
     _check_inputs(waves, camera)
     shading.validate_lighting(lighting)
-    shading._check_horizon_gradient(horizon_gradient)
+    shading.check_horizon_gradient(horizon_gradient)
     active, refine = _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance)
     dtype = waves.omega.dtype
     image, geo = _render(waves, camera, lighting, jnp.asarray(t, dtype), jnp.asarray(horizon_gradient, dtype),

@@ -56,7 +56,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean._math import components, dot_last, inv_sqrt, materialize, smoothstep, tiny
-from jaxocean.errors import check_values, is_concrete
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
 
 __all__ = [
     "MIN_SLOPE_VARIANCE",
@@ -75,6 +75,8 @@ __all__ = [
     "ShadingTerms",
     "make_lighting",
     "validate_lighting",
+    "check_horizon_gradient",
+    "check_unit_normals",
     "sun_direction",
     "reflect",
     "erfc_approx",
@@ -455,7 +457,26 @@ def mean_fresnel(cos_theta_v, sigma2_v):
 # --------------------------------------------------------------------------- sky and pixel
 
 
-def _check_horizon_gradient(horizon_gradient) -> None:
+def check_unit_normals(normals, what: str, where=None, hint: str = "") -> None:
+    """``InvalidValueError`` when concrete ``normals (..., 3)`` (on the pixels ``where``,
+    default all) are not unit vectors within :data:`UNIT_NORMAL_TOLERANCE`: "``what`` must
+    be unit vectors ..." with how many are not and ``hint``. The one check of every public
+    function that takes normals."""
+    if not is_concrete(normals, where):
+        return
+    length = np.linalg.norm(np.asarray(normals, np.float64), axis=-1)
+    if where is not None:
+        length = length[np.asarray(where, bool)]
+    off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
+    if off.any():
+        raise InvalidValueError(
+            f"{what} must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of {off.size} "
+            f"are not (|n| from {length.min():.4g} to {length.max():.4g}){hint}")
+
+
+def check_horizon_gradient(horizon_gradient) -> None:
+    """Raise unless a concrete ``horizon_gradient`` is >= -1 (NaN included): the check of
+    every public function that takes the sky model's gradient."""
     if is_concrete(horizon_gradient):
         check_values(np.asarray(horizon_gradient) >= -1.0,
                      "horizon_gradient must be >= -1 (sky radiance must stay >= 0)", horizon_gradient)
@@ -481,7 +502,7 @@ def sky_radiance(direction, lighting: Lighting, *, horizon_gradient=0.0):
     """
     _check_vectors(direction=direction)
     validate_lighting(lighting)
-    _check_horizon_gradient(horizon_gradient)
+    check_horizon_gradient(horizon_gradient)
     return _sky(direction, lighting, horizon_gradient)
 
 
@@ -525,7 +546,7 @@ def shade_components(normal, sigma2_x, sigma2_y, view, lighting: Lighting, *, ho
     """
     _check_vectors(normal=normal, view=view)
     validate_lighting(lighting)
-    _check_horizon_gradient(horizon_gradient)
+    check_horizon_gradient(horizon_gradient)
     sun, fresnel, reflected = pixel_terms(_split(normal), sigma2_x, sigma2_y, _split(view), lighting,
                                           horizon_gradient)
     return ShadingTerms(sun, fresnel, reflected[..., None] * lighting.sky_color)

@@ -359,7 +359,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         :class:`CameraFit`.
     """
     image = inp.check_image(image, init)
-    shading._check_horizon_gradient(horizon_gradient)
+    shading.check_horizon_gradient(horizon_gradient)
     dtype = image.dtype
     if init.projection != "perspective":
         raise ValueError("camera fits need a perspective camera (an orthographic one has no height or pitch to see)")

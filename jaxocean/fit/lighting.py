@@ -669,7 +669,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
         :class:`LightingFit`.
     """
     image = inp.check_image(image, camera)
-    shading._check_horizon_gradient(horizon_gradient)
+    shading.check_horizon_gradient(horizon_gradient)
     dtype = image.dtype
     inp.check_resolution(image, camera)
     fit = _check_fit_names(fit)

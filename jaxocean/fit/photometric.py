@@ -457,7 +457,7 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     if waves.omega.ndim != 1:
         raise ValueError(f"waves must have leaves (N,); got {waves.omega.shape}")
     shading.validate_lighting(lighting)
-    shading._check_horizon_gradient(horizon_gradient)
+    shading.check_horizon_gradient(horizon_gradient)
     if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer)) and math.isfinite(noise)
                                   and noise >= 0):
         raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")

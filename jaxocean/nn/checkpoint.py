@@ -29,7 +29,7 @@ import numpy as np
 
 from jaxocean.files import atomic_write
 
-__all__ = ["CheckpointError", "save_tree", "load_tree", "save_model", "load_model"]
+__all__ = ["CheckpointError", "save_tree", "load_tree", "save_model", "load_model", "model_path"]
 
 
 class CheckpointError(ValueError):
@@ -120,3 +120,11 @@ def load_model(path, *, fmt: str, what: str, config_from_json, init_params):
         raise CheckpointError(path, f"bad model config: {err}") from None
     params, _ = load_tree(path, init_params(config))
     return config, params
+
+
+def model_path(path, shipped: dict, default: Path) -> Path:
+    """Where a network's model is: ``None`` -> ``default`` (the shipped model), a name of
+    ``shipped`` -> that shipped model, else the file ``path``."""
+    if path is None:
+        return default
+    return shipped[path] if isinstance(path, str) and path in shipped else Path(path)

@@ -55,7 +55,7 @@ from jaxocean._records import record_from_json, record_to_json
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
-from jaxocean.nn.checkpoint import load_model, load_tree, save_model
+from jaxocean.nn.checkpoint import load_model, load_tree, model_path, save_model
 
 __all__ = [
     "GeometryConfig",
@@ -295,23 +295,13 @@ def save(path, model: GeometryModel, meta: dict | None = None) -> Path:
     return save_model(path, model.params, model.config, _FORMAT, meta)
 
 
-def _model_path(path) -> Path:
-    """``None`` -> the default shipped model; a name of :data:`PRETRAINED` -> that model;
-    else the file ``path``."""
-    if path is None:
-        return PRETRAINED_PATH
-    if isinstance(path, str) and path in PRETRAINED:
-        return PRETRAINED[path]
-    return Path(path)
-
-
 def load(path=None) -> GeometryModel:
     """A model written by :func:`save`; ``None`` loads the shipped pretrained model (``cpu``),
     a name of :data:`PRETRAINED` (``"cpu"``, ``"gpu"``) that shipped model.
 
     Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
     missing, corrupt or not a geometry model of this version."""
-    config, params = load_model(_model_path(path), fmt=_FORMAT, what="a geometry model",
+    config, params = load_model(model_path(path, PRETRAINED, PRETRAINED_PATH), fmt=_FORMAT, what="a geometry model",
                                 config_from_json=GeometryConfig.from_json,
                                 init_params=lambda c: init(jax.random.key(0), c).params)
     return GeometryModel(config, params)
@@ -319,5 +309,4 @@ def load(path=None) -> GeometryModel:
 
 def model_info(path=None) -> dict:
     """The metadata stored with a model (config, training summary)."""
-    return load_tree(_model_path(path), None, meta_only=True)
-
+    return load_tree(model_path(path, PRETRAINED, PRETRAINED_PATH), None, meta_only=True)

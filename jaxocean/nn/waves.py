@@ -71,7 +71,7 @@ from jaxocean._records import record_from_json, record_to_json
 from jaxocean.errors import is_concrete
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
-from jaxocean.nn.checkpoint import load_model, load_tree, save_model
+from jaxocean.nn.checkpoint import load_model, load_tree, model_path, save_model
 from jaxocean.nn.geometry import camera_channels
 from jaxocean.waves import GRAVITY, Waves
 
@@ -209,17 +209,12 @@ def _check_normals(normals, camera) -> None:
     (an image's RGB passed as normals would be read as slopes)."""
     if not is_concrete(normals):
         return
-    n = np.asarray(normals)
     valid = np.asarray(_valid(normals, camera_channels(camera)[1]))
     empty = np.flatnonzero(~valid.any(axis=(1, 2)))
     if empty.size:
         raise ValueError(f"frame {int(empty[0])} has no valid sea normal (all NaN, sky or facing down): "
                          f"nothing to estimate waves from")
-    length = np.linalg.norm(n[valid], axis=-1)
-    off = np.abs(length - 1.0) > shading.UNIT_NORMAL_TOLERANCE
-    if off.any():
-        raise ValueError(f"normals must be unit vectors; {int(off.sum())} of {off.size} valid sea pixels have "
-                         f"length {float(length[off][0]):.4g} (first)")
+    shading.check_unit_normals(normals, "normals", where=valid, hint=" on the valid sea pixels")
 
 
 def _valid(normals, mask):
@@ -374,7 +369,7 @@ def load(path=None) -> WaveNetModel:
 
     Raises :class:`jaxocean.nn.checkpoint.CheckpointError` naming the file when it is
     missing, corrupt or not a wave network of this version."""
-    config, params = load_model(_model_path(path), fmt=_FORMAT, what="a wave network",
+    config, params = load_model(model_path(path, PRETRAINED, PRETRAINED_PATH), fmt=_FORMAT, what="a wave network",
                                 config_from_json=WaveNetConfig.from_json,
                                 init_params=lambda c: init(jax.random.key(0), c).params)
     return WaveNetModel(config, params)
@@ -382,12 +377,4 @@ def load(path=None) -> WaveNetModel:
 
 def model_info(path=None) -> dict:
     """The metadata stored with a model (config, training summary)."""
-    return load_tree(_model_path(path), None, meta_only=True)
-
-
-def _model_path(path) -> Path:
-    """``None`` or a name of :data:`PRETRAINED` -> that shipped model; else the file ``path``."""
-    if path is None:
-        return PRETRAINED_PATH
-    return PRETRAINED[path] if isinstance(path, str) and path in PRETRAINED else Path(path)
-
+    return load_tree(model_path(path, PRETRAINED, PRETRAINED_PATH), None, meta_only=True)

@@ -72,14 +72,10 @@ def check_inputs(normals, roughness, camera, times):
         valid = np.asarray(valid_weights(normals, camera)) > 0
         if not bool(np.any(valid)):
             raise InvalidValueError("no valid sea pixel: every pixel is sky or has a non-finite/downward normal")
-        length = np.linalg.norm(np.asarray(normals, np.float64)[valid], axis=-1)
-        off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
-        if off.any():
-            raise InvalidValueError(
-                f"normals must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of "
-                f"{off.size} sea pixel-frames are not (|n| from {length.min():.4g} to {length.max():.4g}). "
-                f"An image is not geometry: pass normals from render.geometry, a geometry network or an EXR "
-                f"frame's normal.X/Y/Z channels")
+        shading.check_unit_normals(normals, "normals", where=valid,
+                                   hint=" on the valid sea pixel-frames. An image is not geometry: pass normals "
+                                        "from render.geometry, a geometry network or an EXR frame's normal.X/Y/Z "
+                                        "channels")
     if roughness is not None and is_concrete(roughness):
         r = np.asarray(roughness)
         finite = np.isfinite(r)
