@@ -457,11 +457,11 @@ def mean_fresnel(cos_theta_v, sigma2_v):
 # --------------------------------------------------------------------------- sky and pixel
 
 
-def check_unit_normals(normals, what: str, where=None, hint: str = "") -> None:
+def check_unit_normals(normals, what: str, where=None, counted: str = "", hint: str = "") -> None:
     """``InvalidValueError`` when concrete ``normals (..., 3)`` (on the pixels ``where``,
     default all) are not unit vectors within :data:`UNIT_NORMAL_TOLERANCE`: "``what`` must
-    be unit vectors ..." with how many are not and ``hint``. The one check of every public
-    function that takes normals."""
+    be unit vectors ..." with how many (``counted``: of what) are not and ``hint``. The one
+    check of every public function that takes normals."""
     if not is_concrete(normals, where):
         return
     length = np.linalg.norm(np.asarray(normals, np.float64), axis=-1)
@@ -470,8 +470,8 @@ def check_unit_normals(normals, what: str, where=None, hint: str = "") -> None:
     off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
     if off.any():
         raise InvalidValueError(
-            f"{what} must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of {off.size} "
-            f"are not (|n| from {length.min():.4g} to {length.max():.4g}){hint}")
+            f"{what} must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of {off.size}"
+            f"{counted} are not (|n| from {length.min():.4g} to {length.max():.4g}){hint}")
 
 
 def check_horizon_gradient(horizon_gradient) -> None:

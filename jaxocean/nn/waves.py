@@ -214,7 +214,7 @@ def _check_normals(normals, camera) -> None:
     if empty.size:
         raise ValueError(f"frame {int(empty[0])} has no valid sea normal (all NaN, sky or facing down): "
                          f"nothing to estimate waves from")
-    shading.check_unit_normals(normals, "normals", where=valid, hint=" on the valid sea pixels")
+    shading.check_unit_normals(normals, "normals", where=valid, counted=" valid sea pixels")
 
 
 def _valid(normals, mask):

@@ -72,8 +72,8 @@ def check_inputs(normals, roughness, camera, times):
         valid = np.asarray(valid_weights(normals, camera)) > 0
         if not bool(np.any(valid)):
             raise InvalidValueError("no valid sea pixel: every pixel is sky or has a non-finite/downward normal")
-        shading.check_unit_normals(normals, "normals", where=valid,
-                                   hint=" on the valid sea pixel-frames. An image is not geometry: pass normals "
+        shading.check_unit_normals(normals, "normals", where=valid, counted=" sea pixel-frames",
+                                   hint=". An image is not geometry: pass normals "
                                         "from render.geometry, a geometry network or an EXR frame's normal.X/Y/Z "
                                         "channels")
     if roughness is not None and is_concrete(roughness):
