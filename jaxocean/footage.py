@@ -159,6 +159,18 @@ def _frame_files(frames, listed: Seq[Path], where) -> list:
     return out
 
 
+def _check_scene_frame_order(frames, where) -> None:
+    """A ``scene.json`` pairs the given frames with its times in the order given: each frame
+    once, in name order (``render`` writes ``frame_00000``, ``frame_00001``, ...), or time
+    would run backwards or a still frame pass for a sequence."""
+    stems = [Path(f).stem for f in frames]
+    if len({Path(f).resolve() for f in frames}) < len(frames) or len(set(stems)) < len(stems):
+        raise InvalidValueError(f"a frame is given twice; the frames of {where} pair with its times, each once")
+    if stems != sorted(stems):
+        raise InvalidValueError(f"frames must be given in the order of the times of {where} (frame_00000, "
+                                f"frame_00001, ...); got {[Path(f).name for f in frames]}")
+
+
 def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: str = "srgb", gamma: float = 2.2,
                   step: int = 1, max_frames: int | None = None, height: float | None = None,
                   full_view: bool = False, evidence_width: int | None = EVIDENCE_WIDTH):
@@ -202,6 +214,8 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
             count = n_video if video else len(listed)
             if count != len(times):
                 raise InvalidValueError(f"{count} frames given for the {len(times)} times of {camera_path}")
+            if frames and not video:
+                _check_scene_frame_order(frames, camera_path)
             scene_camera = scene.camera
             H, W = scene.camera.resolution
             pose0 = lens.pose_of(scene.camera)

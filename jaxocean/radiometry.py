@@ -134,8 +134,12 @@ def to_linear(display, response: Response = Response(), exposure=1.0):
 
 def to_display(linear, response: Response = Response(), exposure=1.0):
     """Linear radiance -> display values in [0, 1]: the inverse of :func:`to_linear`
-    (``curve(max(L * exposure, 0))``, clipped at 1 for srgb, gamma and linear)."""
+    (``curve(max(L * exposure, 0))``, clipped at 1 for srgb, gamma and linear). A concrete
+    NaN/inf input raises :class:`jaxocean.errors.InvalidValueError` (as :func:`to_linear`):
+    the curves would map it to a display value."""
     kind = _check_response(response).kind
+    if is_concrete(linear):
+        check_values(np.isfinite(np.asarray(linear)), "linear image must be finite", linear)
     if kind != "gamma":
         return tonemap(linear, exposure, mode=kind)
     if is_concrete(exposure):
@@ -157,13 +161,17 @@ def saturation_mask(display, *, bits: int | None = 8, high=None, low=None, chann
             too (e.g. ``0.5 / 255`` for the bottom code of an 8-bit file).
         channel_axis: whether the last axis is colour. Default: True when it has length 3
             and ``display.ndim >= 3``; pass it explicitly for a gray image 3 pixels wide.
+
+    A pixel with a non-finite channel is not usable either.
     """
     display = np.asarray(display)
+    if bits is not None and not (isinstance(bits, (int, np.integer)) and not isinstance(bits, bool) and bits >= 1):
+        raise ValueError(f"bits must be an int >= 1 (8 or 16 for image files) or None; got {bits!r}")
     if high is None:
         high = 1.0 if bits is None else 1.0 - 0.5 / (2.0 ** int(bits) - 1.0)
     if channel_axis is None:
         channel_axis = display.ndim >= 3 and display.shape[-1] == 3
-    bad = display >= high
+    bad = (display >= high) | ~np.isfinite(display)  # a NaN pixel carries no value either
     if low is not None:
         bad = bad | (display <= low)
     if channel_axis:

@@ -576,6 +576,8 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     exposure per frame (the forecast and re-edited views use their geometric mean).
     ``geometry_model``: stage 2's network
     (:func:`geometry_stage`; None: the default shipped model)."""
+    if out is not None and Path(out).exists() and not Path(out).is_dir():  # before minutes of work
+        raise ValueError(f"out {out}: exists and is not a directory (reconstruct writes its report there)")
     stages = {}
 
     def say(report):

@@ -292,6 +292,9 @@ def _check_images(images, image_size, what):
     images = jnp.asarray(images)
     if images.ndim not in (3, 4):
         raise ValueError(f"{what}: images must be (T, h, w) or (T, h, w, C); got shape {images.shape}")
+    if images.ndim == 3 and images.shape[-1] == 3:
+        raise ValueError(f"{what}: images of shape {images.shape} read as frames 3 pixels wide; one RGB frame "
+                         "is images[None] (a sequence (T, h, w, C))")
     if not (jnp.issubdtype(images.dtype, jnp.floating) or jnp.issubdtype(images.dtype, jnp.integer)):
         raise ValueError(f"{what}: images must be real numbers; got dtype {images.dtype}")
     if image_size is not None:
@@ -375,6 +378,8 @@ def _resample(images, source_mask, poses, intrinsics, distortion, v_pose, v_intr
         n = values.shape[0]
         mean = jnp.tensordot(jnp.full((n,), 1 / n, dtype), values, axes=1)
         valid = jnp.tensordot(jnp.ones((n,), dtype), ok.astype(dtype), axes=1) > n - 0.5
+        # a non-finite source pixel makes every output it feeds invalid, not a valid NaN
+        valid = valid & (jnp.all(jnp.isfinite(mean), axis=-1) if mean.ndim == 3 else jnp.isfinite(mean))
         mean = jnp.where(valid[..., None] if mean.ndim == 3 else valid, mean, 0)
         return mean, valid
 

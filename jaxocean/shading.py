@@ -652,6 +652,8 @@ def tonemap(image, exposure=1.0, mode: str = "bruneton"):
 
     Gradients are finite everywhere, including at ``L = 0`` where ``L^(1/2.2)`` has an
     infinite slope (the gradient there is 0). An unknown ``mode`` raises ``ValueError``.
+    Values are not checked (this runs inside the fits' losses, on masked images): a NaN maps
+    to some display value; :func:`jaxocean.radiometry.to_display` checks them.
     """
     forward, _ = _tonemap_pair(mode, exposure)
     return forward(jnp.maximum(jnp.asarray(image) * exposure, 0.0))

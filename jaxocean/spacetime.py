@@ -184,7 +184,9 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
 
     Raises:
         ValueError: bad shapes, fewer than :data:`MIN_FRAMES` frames, non-uniform or
-            non-increasing times, an orthographic camera, a bad ``current``.
+            non-increasing times, an orthographic camera, a bad ``current``, ``mask``,
+            ``tolerance``, ``max_footprint``, ``clip_percentile``, ``max_current`` or
+            ``min_ratio`` (below 1: noise scores about 1).
     """
     images = np.asarray(images, np.float32)
     if images.ndim == 4 and images.shape[-1] == 3:
@@ -201,6 +203,13 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
         raise ValueError("dispersion_check needs a perspective camera (a rectified sequence)")
     times = _checked_times(times, images.shape[0], "dispersion_check")
     _check_current(current, fit_allowed=True)
+    _check_options(images.shape[0], H, W, mask, tolerance, max_footprint, clip_percentile)
+    if not (isinstance(max_current, (int, float, np.integer, np.floating)) and 0 <= max_current < math.inf):
+        raise ValueError(f"max_current must be a finite speed >= 0 [m/s]; got {max_current!r}")
+    if not (isinstance(min_ratio, (int, float, np.integer, np.floating)) and 1 <= min_ratio < math.inf):
+        # a sequence without dispersion puts its energy on the shell in proportion to the
+        # shell's share of the bins: ratio ~1, so a threshold below 1 passes noise
+        raise ValueError(f"min_ratio must be a finite number >= 1; got {min_ratio!r}")
     band = _band_power(images[..., None], mask, camera, times, grid, spacing, max_footprint, tolerance,
                        clip_percentile)
     if not isinstance(band, _Band):
@@ -222,7 +231,8 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
     shell_fraction = float((P * on).sum() / total)
     energy_k = P.sum(axis=0)
     null_fraction = float((energy_k * on.mean(axis=0)).sum() / total)
-    ratio = shell_fraction / null_fraction if null_fraction > 0 else math.inf
+    # no bin on the shell (a shell narrower than a bin) is no evidence: NaN fails the test
+    ratio = shell_fraction / null_fraction if null_fraction > 0 else math.nan
 
     # peak: the shell energy per wave vector, 3 x 3 smoothed on the (u, v) FFT grid
     shell_k = np.zeros((grid, grid))
@@ -241,6 +251,8 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
                f"{ratio:.2f} (success needs > {min_ratio:g}); peak within the band: wavelength "
                f"{2 * math.pi / k_peak:.1f} m, period {2 * math.pi / math.sqrt(GRAVITY * k_peak):.2f} s"
                + (" (at the band's long-wave edge: the sea's peak may be longer)" if at_edge else ""))
+    if math.isnan(ratio):
+        summary = f"no frequency bin lies on the dispersion shell (tolerance {tolerance:g} resolutions): no test"
     message = ("the sequence shows dispersive waves: " if success else "no clear dispersion: ") + summary
     return DispersionCheck(shell_fraction, null_fraction, float(ratio), 2 * math.pi / math.sqrt(GRAVITY * k_peak),
                            peak_dir, 2 * math.pi / k_peak, at_edge, U, spectrum, grid_info, success, message)
@@ -319,7 +331,8 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
 
     Raises:
         ValueError: bad shapes, fewer than :data:`MIN_FRAMES` frames, non-uniform times, an
-            orthographic camera, a bad ``current``.
+            orthographic camera, a bad ``current``, ``mask``, ``tolerance``, ``max_footprint``
+            or ``max_noise_fraction``.
     """
     normals = np.asarray(normals, np.float64)
     H, W = camera.resolution
@@ -330,6 +343,9 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     T = normals.shape[0]
     times = _checked_times(times, T, "sea_spectrum")
     _check_current(current, fit_allowed=False)
+    _check_options(T, H, W, mask, tolerance, max_footprint)
+    if not (isinstance(max_noise_fraction, (int, float, np.integer, np.floating)) and 0 < max_noise_fraction <= 1):
+        raise ValueError(f"max_noise_fraction must be in (0, 1]; got {max_noise_fraction!r}")
     U = np.asarray(current, np.float64)
     usable = np.all(np.isfinite(normals), -1) & (np.nan_to_num(normals[..., 2]) > 1e-3)
     if mask is not None:
@@ -459,13 +475,29 @@ def _checked_times(times, T, who):
 
 
 def _check_current(current, fit_allowed: bool):
-    """``current`` is a velocity ``(U_x, U_y)``, or ``"fit"`` where ``fit_allowed``."""
+    """``current`` is a finite velocity ``(U_x, U_y)``, or ``"fit"`` where ``fit_allowed``."""
     allowed = "'fit' or a velocity (U_x, U_y) in m/s" if fit_allowed else "a velocity (U_x, U_y) in m/s"
     if isinstance(current, str):
         if not (fit_allowed and current == "fit"):
             raise ValueError(f"current must be {allowed}; got {current!r}")
     elif np.shape(current) != (2,):
         raise ValueError(f"current must be {allowed}; got shape {np.shape(current)}")
+    elif not np.all(np.isfinite(np.asarray(current, np.float64))):
+        raise ValueError(f"current must be {allowed} with finite components; got {tuple(current)}")
+
+
+def _check_options(T, H, W, mask, tolerance, max_footprint, clip_percentile=None):
+    """The options :func:`dispersion_check` and :func:`sea_spectrum` share, checked before
+    any work: a mask of the frames' shape, a shell half-width and footprint limit > 0, a
+    clip percentile in (0, 100]."""
+    if mask is not None and np.shape(mask) not in ((H, W), (T, H, W)):
+        raise ValueError(f"mask must be ({H}, {W}) or ({T}, {H}, {W}) for these frames; got {np.shape(mask)}")
+    for name, value in (("tolerance", tolerance), ("max_footprint", max_footprint)):
+        if not (isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value) and value > 0):
+            raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
+    if clip_percentile is not None and not (isinstance(clip_percentile, (int, float, np.integer, np.floating))
+                                            and 0 < clip_percentile <= 100):
+        raise ValueError(f"clip_percentile must be in (0, 100] or None; got {clip_percentile!r}")
 
 
 class _Band(NamedTuple):

@@ -165,6 +165,8 @@ def _error_cases():
         ("offset on some frames", edit(delete("frames", 4, "ship_north_m")), r"frames\[4\]\.ship_north_m: missing"),
         ("string yaw", edit(set_frame(2, "yaw_rad", "1.0")), r"frames\[2\]\.yaw_rad: must be a number"),
         ("frame_rate <= 0", edit(lambda d: d.__setitem__("frame_rate_hz", 0)), r"frame_rate_hz: must be > 0"),
+        ("frame_rate against times", edit(lambda d: d.__setitem__("frame_rate_hz", 100.0)),
+         r"frame_rate_hz: 100\.0 Hz disagrees with the frames' times \(mean step 0\.2 s, 5 Hz\)"),
     ]
 
 

@@ -534,6 +534,14 @@ def test_reedit_applies_the_edits_and_style_transfer_carries_the_lighting(scene,
     np.testing.assert_allclose(frames[1], want, rtol=1e-10)
     with pytest.raises(InvalidValueError):
         fit.edit_camera(camera, height=-1.0)
+    # the frames render under vmap, where render's own time check cannot look: a NaN time
+    # gave a finite, flat-looking image
+    with pytest.raises(InvalidValueError, match="times must be finite"):
+        fit.reedit(waves, camera, res.lighting, [0.0, jnp.nan])
+    with pytest.raises(ValueError, match="times holds no time"):
+        fit.reedit(waves, camera, res.lighting, jnp.zeros((0,)))
+    with pytest.raises(ValueError, match="plans the render from concrete times"):
+        jax.jit(lambda t: fit.reedit(waves, camera, res.lighting, t))(jnp.array([0.0]))
 
     # style transfer: lighting of image A onto scene B (another camera yaw); the sun keeps its
     # azimuth relative to the view

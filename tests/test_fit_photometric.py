@@ -145,6 +145,29 @@ def test_a_sequence_the_model_cannot_explain_fails(scene):
     assert not flat.success and "spread about each row's median is 0" in flat.message, flat.message
 
 
+def test_a_flat_sea_does_not_explain_small_textured_frames():
+    # 32 x 32 frames of a 60-wave sea: the noise estimate takes in the wave texture (0.12 of
+    # the images' 0.29), and the IRLS scale is floored at it. The success test holds the
+    # residual's own trimmed scale to the noise and to the images' spread; with the floored
+    # scale a flat sea passed (and in reconstruct a wave grown on it gave the headline Hs)
+    from jaxocean import spectrum
+
+    with jax.enable_x64(False):
+        waves = spectrum.sample_waves(jax.random.key(0), spectrum.Spectrum(hs=1.0, tp=5.0, gamma=3.3, theta_mean=0.35,
+                                                                           s_max=10.0), 60).waves
+        camera = cam.make_camera(height=12.0, pitch=0.35, fov=0.8, resolution=(32, 32))
+        light = shading.make_lighting(sun_azimuth=0.1, sun_elevation=0.35)
+        times = jnp.array([0.0, 0.1, 0.2])
+        frames = jax.vmap(lambda t: render.render(waves, camera, light, t))(times)
+        flat = Waves(jnp.array([1e-4]), jnp.array([1.2]), jnp.array([0.3]), jnp.array([0.0]))
+        result = ph.photometric(frames, camera, times, flat, light, fit=("exposure",))
+    assert float(result.noise) > 0.3 * float(result.signal_scale)  # the case: an inflated noise estimate
+    assert float(result.robust_scale) <= 1.5 * float(result.noise)  # which the floored scale passed
+    assert not result.success
+    assert "explain too little" in result.message and "exceeds 1.5 x the noise" in result.message, result.message
+    assert float(result.residual_scale) > 0.8 * float(result.signal_scale)
+
+
 def test_residual_is_jit_consistent_and_its_loss_has_exact_gradients(scene):
     with jax.enable_x64(True):
         camera, times, images, light = scene["camera"], scene["times"], scene["images"], scene["light0"]
@@ -218,6 +241,13 @@ def test_bad_inputs_raise_clear_errors(scene):
             ph.photometric(-s["images"], *args[1:])
         with pytest.raises(InvalidValueError, match="no usable sea pixel"):
             ph.photometric(*args, mask=np.zeros((N_FRAMES,) + RES, bool))
+        # a frame of NaN (or masked whole) would drop out of the fit without a word
+        nan_frame = np.array(s["images"])
+        nan_frame[1] = np.nan
+        with pytest.raises(InvalidValueError, match=r"frame\(s\) \[1\] hold no usable sea pixel"):
+            ph.photometric(nan_frame, *args[1:])
+        with pytest.raises(ValueError, match="images are float16: the fit runs in float32 or float64"):
+            ph.photometric(jnp.asarray(s["images"], jnp.float16), *args[1:])
         with pytest.raises(ValueError, match="noise must be"):
             ph.photometric(*args, noise=-1.0)
         with pytest.raises(ValueError, match="include 'exposure' in fit"):

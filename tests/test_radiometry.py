@@ -3,10 +3,12 @@ frame-size errors."""
 
 import imageio.v3 as iio
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from jaxocean import radiometry
+from jaxocean.errors import InvalidValueError
 from jaxocean.io.exr import FileFormatError, write_frame
 from jaxocean.io.images import load_display
 from jaxocean.radiometry import Response
@@ -88,6 +90,19 @@ def test_saturated_pixels_are_masked():
     # colour: any clipped channel makes the pixel unusable
     rgb = np.array([[[0.2, 0.3, 0.4], [0.2, 1.0, 0.4], [1.0, 1.0, 1.0]]])
     np.testing.assert_array_equal(radiometry.saturation_mask(rgb), [[True, False, False]])
+    # a NaN pixel carries no value; bits is a positive int
+    np.testing.assert_array_equal(radiometry.saturation_mask(np.array([[0.5, np.nan, 1.0]])), [[True, False, False]])
+    for bits in (-8, 0, 2.5, True):
+        with pytest.raises(ValueError, match="bits must be an int >= 1"):
+            radiometry.saturation_mask(display, bits=bits)
+
+
+@pytest.mark.parametrize("response", ["srgb", "gamma", "linear", "bruneton"])
+def test_to_display_refuses_non_finite_radiance(response):
+    # the curves would map NaN to a display value (sRGB: -0.055, outside [0, 1])
+    for bad in (np.nan, np.inf):
+        with pytest.raises(InvalidValueError, match="linear image must be finite"):
+            radiometry.to_display(jnp.array([0.1, bad]), radiometry.Response(response))
 
 
 def test_load_frames_masks_clipping_and_handles_gray_and_colour(tmp_path):

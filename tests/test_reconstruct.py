@@ -63,6 +63,15 @@ def test_frames_must_match_the_camera_file(tmp_path):
     files, scene_json, _, _ = _scene(tmp_path)
     with pytest.raises(InvalidValueError, match="2 times"):
         rc.load_sequence(files[:1] * 3, scene_json)
+    # a scene's times pair with the frames in the order given: not backwards, not a still
+    with pytest.raises(InvalidValueError, match="in the order of the times"):
+        rc.load_sequence(files[::-1], scene_json)
+    with pytest.raises(InvalidValueError, match="a frame is given twice"):
+        rc.load_sequence(files[:1] * 2, scene_json)
+    # the Python entry point checks its output before minutes of work, as the command does
+    (tmp_path / "a_file").write_text("")
+    with pytest.raises(ValueError, match="exists and is not a directory"):
+        rc.reconstruct(files, scene_json, out=tmp_path / "a_file")
     with pytest.raises(ValueError, match="step"):
         rc.load_sequence(files, scene_json, step=0)
 

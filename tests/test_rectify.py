@@ -216,6 +216,13 @@ def test_source_mask_and_channels():
     assert 0.3 < fraction < 0.7
     assert not np.asarray(masked.valid)[:, 24, -5:].any()  # the right side is gone
     assert not (np.asarray(masked.valid) & ~np.asarray(grey.valid)).any()
+    # a NaN source pixel makes the outputs it feeds invalid (they were valid NaN)
+    holed = np.array(frames)
+    holed[:, H_REAL // 2, W_REAL // 2] = np.nan
+    out = rectify.rectify(holed, POSES, K_REAL, D_REAL, camera)
+    lost = np.asarray(grey.valid) & ~np.asarray(out.valid)
+    assert 0 < lost.sum() <= 3 * 16 and np.all(np.isfinite(np.asarray(out.images)))
+    np.testing.assert_array_equal(np.asarray(out.images)[~lost], np.asarray(grey.images)[~lost])
 
 
 def test_supersampling_anti_aliases():
@@ -240,6 +247,8 @@ def test_errors():
     camera = rectify.virtual_camera(POSES, K_REAL, (W_REAL, H_REAL), resolution=(24, 32))
     with pytest.raises(ValueError, match=r"\(T, h, w\) or \(T, h, w, C\)"):
         rectify.rectify(frames[0], POSES, K_REAL, D_REAL, camera)
+    with pytest.raises(ValueError, match=r"read as frames 3 pixels wide; one RGB frame is images\[None\]"):
+        rectify.rectify(np.stack([frames[0]] * 3, axis=-1), POSES, K_REAL, D_REAL, camera)
     with pytest.raises(ValueError, match=r"images of 160x120 \(w x h\) do not match the camera's image_size 640x480"):
         rectify.rectify(frames, POSES, K_REAL, D_REAL, camera, image_size=(640, 480))
     with pytest.raises(ValueError, match="principal point .* outside"):

@@ -78,6 +78,18 @@ def test_inputs_are_checked(waves_sequence):
         spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, current="guess")
     with pytest.raises(ValueError, match="at least 8 frames"):
         spacetime.dispersion_check(waves_sequence[:4], camera, TIMES[:4], grid=32)
+    # options that made noise pass (tolerance <= 0, min_ratio < 1) or failed inside NumPy
+    for kwargs, pattern in (({"tolerance": 0.0}, "tolerance must be a finite number > 0"),
+                            ({"tolerance": -1.0}, "tolerance must be"),
+                            ({"min_ratio": -1.0}, "min_ratio must be a finite number >= 1"),
+                            ({"min_ratio": 0.5}, "min_ratio must be"),
+                            ({"mask": np.ones((10, 10), bool)}, r"mask must be \(64, 96\) or \(32, 64, 96\)"),
+                            ({"current": (np.nan, 0.0)}, "finite components"),
+                            ({"max_current": -1.0}, "max_current must be a finite speed >= 0"),
+                            ({"clip_percentile": 150}, r"clip_percentile must be in \(0, 100\]"),
+                            ({"max_footprint": 0}, "max_footprint must be")):
+        with pytest.raises(ValueError, match=pattern):
+            spacetime.dispersion_check(waves_sequence, camera, TIMES, grid=32, **kwargs)
     # a view too small for any ground grid: a failed check that says why, not an exception
     tiny = cam.make_camera(**{**CAMERA, "resolution": (8, 12)})
     check = spacetime.dispersion_check(np.zeros((8, 8, 12)), tiny, TIMES[:8])
@@ -175,6 +187,12 @@ def test_sea_spectrum_refuses_bad_input(normals_sequence):
     ortho = cam.make_orthographic(20.0, (64, 96))
     with pytest.raises(ValueError, match="perspective"):
         spacetime.sea_spectrum(normals_sequence, ortho, LONG_TIMES)
+    with pytest.raises(ValueError, match=r"mask must be \(64, 96\)"):
+        spacetime.sea_spectrum(normals_sequence, camera, LONG_TIMES, mask=np.ones((10, 10), bool))
+    with pytest.raises(ValueError, match="tolerance must be"):
+        spacetime.sea_spectrum(normals_sequence, camera, LONG_TIMES, tolerance=0.0)
+    with pytest.raises(ValueError, match=r"max_noise_fraction must be in \(0, 1\]"):
+        spacetime.sea_spectrum(normals_sequence, camera, LONG_TIMES, max_noise_fraction=0.0)
     # a 2 s record tells no wave of the band from a still pattern
     short = spacetime.sea_spectrum(normals_sequence[:8], camera, LONG_TIMES[:8])
     assert not short.success and math.isnan(short.hs_band_m) and "still pattern" in short.message

@@ -19,7 +19,7 @@
 The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera``, ``fit.lighting``,
 ``fit.photometric`` and ``fit.heights`` shadow their modules' names on this package; the
 modules are re-exported as ``waves_fit``, ``spectrum_fit``, ``camera_fit``, ``lighting_fit``,
-``photometric_fit`` and ``heights_fit``.
+``photometric_fit`` and ``heights_fit`` (and the module of ``fit.reedit`` as ``reedit_module``).
 
 Usage::
 

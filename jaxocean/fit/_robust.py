@@ -5,8 +5,8 @@ weights ``used (T, H, W)`` (1 where a pixel enters the fit). A robust loss is ch
 integer ``code`` (index into :data:`CODES`: least squares, Cauchy, Huber, Tukey), a runtime
 argument so that one compiled program serves every loss. :func:`irls_weights` gives one
 IRLS round's scale (the MAD, floored at the noise level) and weights ``w(u)`` of
-``u = rms_channels(r) / (c sigma)``; :func:`robust_statistics` the weights, outliers, losses
-and outlier fraction at an answer; :func:`noise_estimate` (Immerkaer's operator) and
+``u = rms_channels(r) / (c sigma)``; :func:`robust_statistics` the weights, outliers, losses,
+outlier fraction and the residual's trimmed scale at an answer; :func:`noise_estimate` (Immerkaer's operator) and
 :func:`signal_scale` the noise and the spread of an image sequence about its row medians.
 All dimensionless (comparison-space units).
 """
@@ -75,14 +75,17 @@ def irls_weights(r, used, code, floor):
 
 @jax.jit
 def robust_statistics(r, r_init, used, code, floor):
-    """Scale, weights, outliers, the two losses and the outlier fraction at the answer."""
+    """Scale, weights, outliers, the two losses, the outlier fraction and the residual's
+    trimmed scale at the answer: the success test's measure of what the model leaves, by the
+    estimator of :func:`noise_estimate` and :func:`signal_scale` (a MAD is smaller on
+    heavy-tailed residuals such as glints, and the IRLS scale is floored at the noise)."""
     scale, w = irls_weights(r, used, code, floor)
     rule = used * _weight(_pixel_u(r, scale, jnp.maximum(code, 1)), jnp.maximum(code, 1))
     outliers = (used > 0) & (rule < OUTLIER_WEIGHT)
     loss = _robust_loss(r, used, scale, code)
     loss_init = _robust_loss(r_init, used, scale, code)
     frac = jnp.sum(outliers) / jnp.maximum(jnp.sum(used), 1.0)
-    return w, outliers, loss, loss_init, scale, frac
+    return w, outliers, loss, loss_init, scale, frac, _trimmed_sigma(r, jnp.broadcast_to(used[..., None] > 0, r.shape))
 
 
 def _trimmed_sigma(x, valid):

@@ -91,14 +91,17 @@ Success: ``success`` is True only when every one of these holds (``message`` nam
 that fails):
 
 * the loss is finite and no worse than at the start (``loss <= loss_init``);
-* ``robust_scale <= SCALE_FACTOR (1.5) * max(noise, NOISE_FLOOR)``: the residual of what the
-  model keeps is at the noise level (``NOISE_FLOOR = 1e-3``: the model's own consistency);
+* ``residual_scale <= SCALE_FACTOR (1.5) * max(noise, NOISE_FLOOR)``: the residual of what the
+  model keeps is at the noise level (``residual_scale`` the residual's trimmed scale, the
+  estimator of the noise and ``signal_scale`` below; not the IRLS scale ``robust_scale``,
+  which is floored at the noise, nor a MAD, which glints' heavy tails shrink: either let a
+  flat sea pass on small textured frames, whose noise estimate the texture inflates) (``NOISE_FLOOR = 1e-3``: the model's own consistency);
 * ``outlier_fraction <= MAX_OUTLIER_FRACTION (0.2)``: the model produces most of the image;
 * the images hold structure above the noise: ``signal_scale >= STRUCTURE_RATIO (1.05) *
   max(noise, NOISE_FLOOR)``, ``signal_scale`` the trimmed scale (as the noise's) of
   ``c(image)`` about its per-row median (the view-dependent mean); pure noise fails here;
 * the fitted waves explain that structure: the residual's spread above the noise,
-  ``sqrt(max(robust_scale^2 - noise^2, 0))``, is at most ``EXPLAINED_RATIO (0.5)`` of the
+  ``sqrt(max(residual_scale^2 - noise^2, 0))``, is at most ``EXPLAINED_RATIO (0.5)`` of the
   images', ``sqrt(signal_scale^2 - noise^2)``;
 * the images determine the waves: the waves whose Gauss-Newton standard deviations (from
   ``J^T W J`` at the answer, the noise per residual element ``max(noise, robust_scale,
@@ -170,12 +173,12 @@ __all__ = [
 ]
 
 PHOTOMETRIC_FIELDS = ("waves", "lighting", "exposure")
-#: success needs robust_scale <= SCALE_FACTOR * max(noise, NOISE_FLOOR)
+#: success needs residual_scale <= SCALE_FACTOR * max(noise, NOISE_FLOOR)
 SCALE_FACTOR = 1.5
 NOISE_FLOOR = 1e-3
 #: success needs outlier_fraction <= MAX_OUTLIER_FRACTION
 MAX_OUTLIER_FRACTION = 0.2
-#: success needs robust_scale <= EXPLAINED_RATIO * signal_scale
+#: success needs the residual's spread above the noise <= EXPLAINED_RATIO x the images' (module docstring)
 EXPLAINED_RATIO = 0.5
 #: success needs signal_scale >= STRUCTURE_RATIO * max(noise, NOISE_FLOOR)
 STRUCTURE_RATIO = 1.05
@@ -198,7 +201,9 @@ class PhotometricFit(NamedTuple):
     * ``weights``    ``(T, H, W)`` final IRLS weights (0 on unused pixels).
     * ``loss_init``, ``loss`` ``()`` the robust loss at the start and at the answer, both at
       the final scale (module docstring).
-    * ``robust_scale`` ``()`` final MAD scale of the residual (comparison space), floored at the noise level.
+    * ``robust_scale`` ``()`` final IRLS scale: the residual's MAD floored at the noise level.
+    * ``residual_scale`` ``()`` the residual's trimmed scale (comparison space; the estimator
+      of ``noise`` and ``signal_scale``): what the success test holds to them.
     * ``noise``      ``()`` the noise level of the success test (given or estimated).
     * ``outlier_fraction`` ``()`` outliers over used pixels.
     * ``steps``      total Levenberg-Marquardt steps over the rounds.
@@ -232,6 +237,7 @@ class PhotometricFit(NamedTuple):
     noise_estimated: bool = True
     determined: np.ndarray | None = None
     determined_energy: float = 1.0
+    residual_scale: jax.Array = None
 
 
 # --------------------------------------------------------------------------- solver
@@ -365,6 +371,9 @@ def _check_images(images, camera, times, mask):
     images = jnp.asarray(images)
     if not jnp.issubdtype(images.dtype, jnp.floating):
         images = images.astype(jnp.zeros(()).dtype)
+    elif images.dtype not in (jnp.float32, jnp.float64):
+        raise ValueError(f"images are {images.dtype}: the fit runs in float32 or float64 (the images' dtype is "
+                         f"the fit's); pass images.astype(jnp.float32)")
     H, W = camera.resolution
     if images.ndim == 4 and images.shape[-1] == 3:
         gray = False
@@ -425,7 +434,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         fit: the parts fitted, a subset of :data:`PHOTOMETRIC_FIELDS` (the exposure gauge:
             module docstring).
         mask: ``(T, H, W)`` bool usable pixels (default all); only sea pixels are used
-            unless ``sky=True``.
+            unless ``sky=True``, and only finite ones (a NaN pixel is left out; a frame
+            with no usable pixel is an error).
         robust: ``"cauchy"`` (default), ``"huber"``, ``"tukey"`` or None (least squares).
         horizon_gradient: the sky model's, as in :func:`jaxocean.render.render`.
         overcast: no sun term: the sun colour is fixed at 0 and the sun is not fitted.
@@ -479,6 +489,10 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         raise InvalidValueError("images hold negative radiance on used pixels (linear radiance is >= 0)")
     if float(jnp.sum(used)) == 0:
         raise InvalidValueError("no usable sea pixel: the mask excludes every pixel the camera sees of the sea")
+    empty = np.flatnonzero(np.asarray(jnp.sum(used, axis=(1, 2))) == 0)
+    if empty.size:  # such a frame would drop out of the fit without a word
+        raise InvalidValueError(f"frame(s) {empty.tolist()} hold no usable sea pixel (all masked or non-finite): "
+                                "leave them out of images and times")
     images = jnp.where(used[..., None] > 0, images, 0.0)
 
     waves = Waves(*[jnp.asarray(x, dtype) for x in waves])
@@ -535,7 +549,7 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         if int(n_steps) <= 1 and abs(sc - prev) <= 0.01 * sc:
             break
         prev = sc
-    w, outliers, loss, loss_init, rscale, frac = robust_statistics(_residuals(y, d, st), _residuals(y_init, d, st),
+    w, outliers, loss, loss_init, rscale, frac, residual = robust_statistics(_residuals(y, d, st), _residuals(y_init, d, st),
                                                                    used, code, floor)
     waves_fit, light_fit, exp_fit = unpack(y, d, st)
     signal = signal_scale(target, used)
@@ -544,20 +558,23 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         determined, energy = _determined_waves(y, jtj, sigma, used, target.shape[-1], n, camera)
     else:
         determined, energy = None, 1.0
-    message = _verdict(float(loss), float(loss_init), float(rscale), float(noise_val), float(frac), float(signal),
+    message = _verdict(float(loss), float(loss_init), float(residual), float(noise_val), float(frac), float(signal),
                        estimated, energy)
     result = PhotometricFit(waves=waves_fit, lighting=light_fit, exposure=exp_fit, outliers=outliers, weights=w,
                             loss_init=loss_init, loss=loss, robust_scale=rscale, noise=noise_val,
                             outlier_fraction=frac, steps=steps, seconds=time.perf_counter() - t_start,
                             success=not message, message=message, signal_scale=signal, sea_scale=scale,
-                            noise_estimated=estimated, determined=determined, determined_energy=energy)
+                            noise_estimated=estimated, determined=determined, determined_energy=energy,
+                            residual_scale=residual)
     if throw and not result.success:
         raise FitError(f"photometric refinement does not explain the images: {message}", result)
     return result
 
 
 def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) -> str:
-    """Empty when every success criterion holds, else why not (module docstring)."""
+    """Empty when every success criterion holds, else why not (module docstring). ``rscale``
+    is the residual's trimmed scale (``residual_scale``), not the IRLS scale floored at the
+    noise: a noise estimate that wave texture inflates would hide any residual below it."""
     reasons = []
     if not math.isfinite(loss):
         reasons.append(f"the loss is not finite ({loss})")
@@ -682,6 +699,7 @@ def fit_to_dict(result: PhotometricFit) -> dict:
         "loss_init": f(result.loss_init),
         "loss": f(result.loss),
         "robust_scale": f(result.robust_scale),
+        "residual_scale": None if result.residual_scale is None else f(result.residual_scale),
         "noise": f(result.noise),
         "noise_estimated": bool(result.noise_estimated),
         "determined": None if result.determined is None else [bool(v) for v in np.asarray(result.determined)],

@@ -34,6 +34,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import render, shading
+from jaxocean.errors import InvalidValueError, is_concrete
 from jaxocean.fit import lighting as lf
 from jaxocean.shading import Lighting
 
@@ -64,7 +65,8 @@ def reedit(waves, camera: cam.Camera, lighting: Lighting, times, *, camera_heigh
            sky_color=None, sea_color=None, horizon_gradient=0.0):
     """Render ``waves`` at ``times`` through the edited camera and lighting.
 
-    Edits default to the given ``camera`` / ``lighting`` (e.g. a fit's). Returns linear RGB
+    Edits default to the given ``camera`` / ``lighting`` (e.g. a fit's). ``times``: a finite
+    scalar or ``(T,)``, concrete (the render is planned from them). Returns linear RGB
     ``(T, H, W, 3)``, or ``(H, W, 3)`` when ``times`` is a scalar.
     """
     camera = edit_camera(camera, height=camera_height, pitch=camera_pitch, fov=camera_fov, yaw=camera_yaw,
@@ -72,6 +74,16 @@ def reedit(waves, camera: cam.Camera, lighting: Lighting, times, *, camera_heigh
     lighting = edit_lighting(lighting, sun_azimuth=sun_azimuth, sun_elevation=sun_elevation, sun_color=sun_color,
                              sky_color=sky_color, sea_color=sea_color)
     times = jnp.asarray(times, waves.omega.dtype)
+    if times.ndim > 1:
+        raise ValueError(f"times must be a scalar or (T,); got shape {times.shape}")
+    if not is_concrete(times):
+        raise ValueError("fit.reedit plans the render from concrete times (eager); inside jit call "
+                         "jaxocean.render.render with a plan")
+    if times.size == 0:
+        raise ValueError("times holds no time: nothing to render")
+    if not np.all(np.isfinite(np.asarray(times))):
+        # the frames are rendered under vmap, where render's own check cannot see the values
+        raise InvalidValueError(f"times must be finite; got {np.asarray(times).tolist()}")
     scalar = times.ndim == 0
     times = jnp.atleast_1d(times)
     plan = render.plan(waves, camera, times[0])

@@ -26,7 +26,8 @@ A camera file is one JSON object beside (or above) the frames it describes::
   ``k3`` or ``skew``, is refused unless it is 0).
 * ``file``: path of the frame relative to the camera file's folder; it must exist.
 * ``t`` [s]: strictly increasing frame times. It may be left out of every frame when
-  ``frame_rate_hz`` is given (then ``t = n / frame_rate_hz`` for the n-th frame listed).
+  ``frame_rate_hz`` is given (then ``t = n / frame_rate_hz`` for the n-th frame listed);
+  given with both, the times' mean step is ``1 / frame_rate_hz`` within 1%.
 * The pose (:class:`jaxocean.lens.Pose`): ``camera_height_m`` (> 0, the optical centre above
   mean sea level, heave included), ``pitch_rad`` (optical axis below the horizontal, in
   (-pi/2, pi/2)), ``roll_rad`` (positive: the horizon descends to the right), ``yaw_rad``
@@ -84,6 +85,8 @@ _FRAME_FIELDS = ("file", "t") + _POSE_FIELDS + _OFFSET_FIELDS
 _TOP_FIELDS = ("image_size", "intrinsics", "distortion", "units", "frame_rate_hz", "frames")
 # evenly spaced times, within this fraction of a step, get a frame_rate_hz on writing
 _EVEN_SPACING = 1e-6
+#: frame_rate_hz beside per-frame times: their mean step must be 1 / frame_rate_hz within this fraction
+RATE_TOLERANCE = 0.01
 
 
 class CameraFileError(FileFormatError):
@@ -292,6 +295,9 @@ def _times(f: _Fields, frames: list[dict], frame_rate) -> np.ndarray:
     if np.any(steps <= 0):
         n = int(np.argmax(steps <= 0)) + 1
         f.fail(f"frames[{n}].t", f"frame times must increase strictly; got {times[n]} after {times[n - 1]}")
+    if frame_rate is not None and len(times) > 1 and not abs(steps.mean() * frame_rate - 1) <= RATE_TOLERANCE:
+        f.fail("frame_rate_hz", f"{frame_rate} Hz disagrees with the frames' times (mean step {steps.mean():.6g} s, "
+                                f"{1 / steps.mean():.6g} Hz): give one of them, or make them agree")
     return times
 
 
