@@ -98,8 +98,13 @@ def damping(frequency_sigma, times, window):
         check_values(np.asarray(hi - lo) >= 0, "window must be (t_first, t_last) with t_first <= t_last",
                      np.asarray(hi - lo))
     d = jnp.maximum(jnp.maximum(lo - times, times - hi), 0.0)[:, None]
-    # inside the window the factor is 1 whatever sigma is (inf * 0 would be NaN)
-    return jnp.exp(-0.5 * jnp.where(d > 0, sigma[None, :] * d, 0.0) ** 2)
+    # inside the window the factor is 1 whatever sigma is (inf * 0 would be NaN); an infinite
+    # sigma is 0 outside it. Both by where on safe operands, so that no NaN reaches the
+    # gradients (the times and the window are shared by every wave)
+    outside = d > 0
+    known = jnp.isfinite(sigma)[None, :]
+    x = jnp.where(outside & known, jnp.where(known, sigma[None, :], 0.0) * d, 0.0)
+    return jnp.where(outside & ~known, 0.0, jnp.exp(-0.5 * x ** 2))
 
 
 def frame_times(times, frames):
@@ -149,8 +154,10 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
         plan = render.full_plan(waves.omega.shape[0])
     elif isinstance(plan, str) and plan == "auto":
         # one host-side plan for every frame when it can be made; under tracing the renderer
-        # applies the same rule inside the compiled function (render.geometry)
-        if is_concrete(waves, camera):
+        # applies the same rule inside the compiled function (render.geometry). Damped waves
+        # differ from frame to frame and the rule depends on their amplitudes: then every
+        # frame takes the rule in the compiled function, eager or traced alike
+        if is_concrete(waves, camera) and scale is None:
             plan = render.plan(waves, camera, n_min=n_min, n_max=n_max)
     elif plan is not None and not isinstance(plan, render.RenderPlan):
         raise ValueError(f"plan must be 'rows', 'auto', None or a RenderPlan; got {plan!r}")

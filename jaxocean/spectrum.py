@@ -649,8 +649,8 @@ def sample_waves(key, spectrum: Spectrum, n_waves: int, *, band=None, bins: str 
     * Steepness: waves with k h > ``max_steepness`` have h lowered to the limit.
       ``steepness_policy="clamp"`` (default) does so and, when values are concrete, emits
       one :class:`SteepnessWarning`; ``"error"`` raises
-      :class:`~jaxocean.errors.InvalidValueError` instead. Under ``jit`` no warning or
-      error can be raised: both policies clamp and ``n_clamped`` says how many.
+      :class:`~jaxocean.errors.InvalidValueError` instead. Under ``jit`` or ``grad`` no
+      warning or error can be raised: both policies clamp and ``n_clamped`` says how many.
 
     ``key`` is split three ways (frequencies, directions, phases); the same key gives the
     same waves. Jittable with ``n_waves``, ``bins`` and ``steepness_policy`` static::
@@ -678,7 +678,7 @@ def sample_waves(key, spectrum: Spectrum, n_waves: int, *, band=None, bins: str 
 
     sea, kh_max = _sample(key, spectrum, lo, hi, max_steepness, n_waves=n_waves, bins=bins)
 
-    if is_concrete(sea.n_clamped) and int(sea.n_clamped) > 0:
+    if is_concrete(sea.n_clamped, kh_max, max_steepness) and int(sea.n_clamped) > 0:
         message = (f"{int(sea.n_clamped)} of {n_waves} sampled waves have k*h above "
                    f"max_steepness={float(max_steepness):g} (largest k*h = {float(kh_max):.4g})")
         if steepness_policy == "error":

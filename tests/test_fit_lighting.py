@@ -521,6 +521,24 @@ def test_camera_fit_demo_scene_coarse_to_fine():
     assert not bool(old.success) and abs(float(old.camera.height) - 10.0) > 0.1
 
 
+@pytest.mark.slow  # compiles the whole lighting fit under jit
+def test_a_masked_nan_pixel_is_left_out_traced_as_eagerly(x64):
+    # the excluded pixels were zeroed only eagerly: under jit 0 * NaN made the loss NaN
+    waves = make_waves([0.139, 0.344, 0.143], [1.245, 1.307, 2.184], [-1.873, -2.669, -1.350],
+                       [3.945, 3.374, 0.900], dtype=jnp.float64)
+    camera = cam.make_camera(height=8.0, pitch=0.3, fov=0.7, resolution=(12, 16), dtype=jnp.float64)
+    light = shading.make_lighting(sun_azimuth=0.1, sun_elevation=0.35, dtype=jnp.float64)
+    image, geo = render.render(waves, camera, light, 0.0, with_geometry=True)
+    mask = jnp.ones((12, 16), bool).at[8, 3].set(False)
+    image = image.at[8, 3].set(jnp.nan)
+    kw = dict(mask=mask, grid=4, n_starts=1, weights="uniform", throw=False)
+    eager = fit.lighting(image, geo, camera, **kw)
+    traced = jax.jit(lambda im: fit.lighting(im, geo, camera, **kw))(image)
+    assert np.isfinite(float(traced.loss))
+    np.testing.assert_allclose(float(traced.lighting.sun_elevation), float(eager.lighting.sun_elevation), atol=1e-9)
+    np.testing.assert_allclose(traced.lighting.sun_color, eager.lighting.sun_color, rtol=1e-8)
+
+
 # --------------------------------------------------------------------------- re-editing
 
 

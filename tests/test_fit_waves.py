@@ -142,6 +142,19 @@ def test_spectral_initialiser_finds_a_single_wave():
     assert abs(float(init.amplitude[0]) - 0.03) < 0.01
 
 
+def test_linear_amplitude_solve_of_a_flat_sea_has_finite_gradients_and_takes_float32_under_x64(x64):
+    # a zero amplitude has no phase: atan2(0, 0) gave NaN gradients, which reached the wave
+    # network's training; float32 normals with a float64 camera failed in the scan's carry
+    c = cam.make_camera(height=8.0, pitch=0.5, fov=0.7, resolution=(10, 12), dtype=jnp.float64)
+    flat = jnp.zeros((3, 10, 12, 3)).at[..., 2].set(1.0)
+    times, omega, theta = jnp.array([0.0, 0.3, 0.6]), jnp.array([1.9, 1.3]), jnp.array([1.9, 2.5])
+    solve = lambda n: fw.solve_amplitudes(n, c, times, omega, theta)  # noqa: E731
+    np.testing.assert_array_equal(np.asarray(solve(flat).amplitude), 0.0)
+    g = jax.grad(lambda n: solve(n).phase.sum())(flat)
+    assert np.all(np.isfinite(np.asarray(g)))
+    assert solve(flat.astype(jnp.float32)).amplitude.dtype == jnp.float32
+
+
 def test_linear_amplitude_solve_recovers_amplitudes_and_phases(ortho_scene):
     c, truth, normals, _ = ortho_scene
     w = fw.solve_amplitudes(normals, c, TIMES, truth.omega, truth.theta)

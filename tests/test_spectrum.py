@@ -289,6 +289,9 @@ def test_sample_waves_jits_and_vmaps_and_matches_eager(key):
     clamped = sample_batch(keys, seas, 0.01)
     assert np.all(clamped.n_clamped > 0)
     assert float(jnp.max(steepness(clamped.waves))) <= 0.01 * (1 + 1e-5)
+    # nor under grad, where the count is concrete but the steepness is not (it crashed)
+    grads = jax.grad(lambda s: sample_waves(keys[0], s, 60, max_steepness=0.01).waves.amplitude.sum())(SEA)
+    assert all(np.isfinite(float(g)) for g in grads) and float(grads.hs) > 0
 
 
 def test_moments_jit():

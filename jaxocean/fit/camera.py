@@ -396,8 +396,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     inp.check_tracing("fit.camera", traced, throw, spec, solver)
     used = inp.pixel_weights("uniform", mask, image.shape[:2], dtype)
     inp.validate_values(image, weight, None, init, ("sun_direction",), used)
-    if not traced:
-        image = jnp.where(used > 0, image, 0.0)
+    image = jnp.where(used > 0, image, 0.0)  # excluded NaN pixels stay out of the sums, traced or not
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")

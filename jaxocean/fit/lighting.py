@@ -696,8 +696,8 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     traced = not is_concrete(image, normal, slope_var, weight, init, camera, normal_noise_map)
     inp.check_tracing("fit.lighting", traced, throw, spec, solver)
     inp.validate_values(image, weight, geo_mask, camera, fit, used)
-    # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN)
-    image = jnp.where(used > 0, image, 0.0) if not traced else image
+    # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN), traced or not
+    image = jnp.where(used > 0, image, 0.0)
 
     max_steps, rtol, atol = inp.solver_limits(solver, dtype, max_steps, rtol, atol)
     free = tuple(n for n in COLOR_FIELDS if n in fit)

@@ -49,13 +49,17 @@ def unpack(y, n):
     return y.reshape(4, n)
 
 
+def phase_of(a, b):
+    """The phase ``atan2(b, a)`` in ``[0, 2 pi)`` of ``(a, b) = h (cos phi, sin phi)``, with
+    finite gradients everywhere: 0 (value and gradient) at ``a = b = 0``, where a zero
+    amplitude has no phase and ``atan2``'s gradient is NaN."""
+    ok = a * a + b * b > 1e-30
+    return jnp.mod(jnp.where(ok, jnp.arctan2(jnp.where(ok, b, 0.0), jnp.where(ok, a, 1.0)), 0.0), 2 * jnp.pi)
+
+
 def to_waves(y, n) -> Waves:
     a, b, u, th = unpack(y, n)
-    r2 = a * a + b * b
-    ok = r2 > 1e-30
-    phase = jnp.where(ok, jnp.arctan2(jnp.where(ok, b, 0.0), jnp.where(ok, a, 1.0)), 0.0)
-    phase = jnp.mod(phase, 2 * jnp.pi)
-    return Waves(safe_sqrt(r2), jnp.exp(u), wrap_angle(th), phase)
+    return Waves(safe_sqrt(a * a + b * b), jnp.exp(u), wrap_angle(th), phase_of(a, b))
 
 
 def active_waves(y, active) -> Waves:

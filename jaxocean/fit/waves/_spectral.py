@@ -19,7 +19,7 @@ from jaxocean._ground_grid import grid_frames, hann, resample
 from jaxocean._math import safe_sqrt, sincos, smoothstep
 from jaxocean.errors import check_values
 from jaxocean.fit.waves._inputs import check_inputs, clean_inputs, plane_hits, slope_field, valid_weights
-from jaxocean.fit.waves._model import wrap_angle
+from jaxocean.fit.waves._model import phase_of, wrap_angle
 from jaxocean.waves import GRAVITY, Waves
 
 
@@ -61,7 +61,7 @@ def solve_amplitudes(normals, camera, times, omega, theta, *, n_min=hierarchy.DE
         raise ValueError(f"omega and theta must be (N,) of one shape; got {omega.shape}, {theta.shape}")
     check_values(omega > 0, "omega must be > 0 rad/s", omega)
     a, b = _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge)
-    return Waves(safe_sqrt(a * a + b * b), omega, wrap_angle(theta), jnp.mod(jnp.arctan2(b, a), 2 * jnp.pi))
+    return Waves(safe_sqrt(a * a + b * b), omega, wrap_angle(theta), phase_of(a, b))
 
 
 @functools.partial(jax.jit, static_argnums=(5, 6))
@@ -70,6 +70,8 @@ def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
     normals, _ = clean_inputs(normals, None, weight)
     s = slope_field(normals)
     xy, fp_row, _ = plane_hits(camera)
+    # the camera's float64 leaves (x64 on) must not promote the float32 normals' sums
+    xy, fp_row = xy.astype(normals.dtype), fp_row.astype(normals.dtype)
     n = omega.shape[0]
     k = omega * omega / GRAVITY
     khat = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)  # (N, 2)
@@ -191,7 +193,7 @@ def spectral_init(normals, camera, times, n_waves: int, *, scales: int | None = 
     est = _spectral_from_normals(normals, times, camera, scales, grid, max(n_waves, 8))
     om, th = _pool_peaks(est, n_waves)
     a, b = _solve_ab(normals, camera, times, om, th, n_min, n_max, 1e-6)
-    return Waves(safe_sqrt(a * a + b * b), om, wrap_angle(th), jnp.mod(jnp.arctan2(b, a), 2 * jnp.pi))
+    return Waves(safe_sqrt(a * a + b * b), om, wrap_angle(th), phase_of(a, b))
 
 
 def _pool_peaks(est: SpectralEstimate, n):
