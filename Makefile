@@ -17,16 +17,19 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/jaxocean demo --out out/demo --real experiments/data/ship_pacific_2014_clip
 
-# the notebooks run too (nbmake), shrunk by JAXOCEAN_SMALL. The two workers share one XLA
-# compilation cache, fresh for the run and removed after it (the same programs compile in
-# many tests and in both workers: measured here, about a minute of its 15-18; the machine's speed varies between runs)
-test: $(STAMP)
-	cache=$$(mktemp -d) && trap 'rm -rf "$$cache"' EXIT && \
+# Two workers share one XLA compilation cache, fresh for the run and removed after it (the
+# same programs compile in many tests and in both workers). `make test` runs the quick tier
+# and the notebooks (nbmake, shrunk by JAXOCEAN_SMALL); `make test-slow` the long checks
+# (full fits, the reconstruct pipeline end to end); CI (.ci/run) runs both.
+RUN_PYTEST = cache=$$(mktemp -d) && trap 'rm -rf "$$cache"' EXIT && \
 	JAX_COMPILATION_CACHE_DIR="$$cache" JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS=0.3 JAXOCEAN_SMALL=1 \
-	$(PY) -m pytest -q -n 2 -m "not slow" --nbmake tests notebooks $(PYTEST_ARGS)
+	$(PY) -m pytest -q -n 2
+
+test: $(STAMP)
+	$(RUN_PYTEST) -m "not slow" --nbmake tests notebooks $(PYTEST_ARGS)
 
 test-slow: $(STAMP)
-	$(PY) -m pytest -q -m slow $(PYTEST_ARGS)
+	$(RUN_PYTEST) -m slow tests $(PYTEST_ARGS)
 
 bench: $(STAMP)
 	$(PY) experiments/bench_surface.py

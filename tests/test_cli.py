@@ -78,6 +78,7 @@ def tiny_scene(tmp_path_factory):
     return root / "scene"
 
 
+@pytest.mark.slow  # the fit-lighting command end to end
 def test_fit_lighting_says_what_the_frame_determines(tiny_scene, tmp_path, capsys):
     # 16 x 16 pixels of a steep view hold almost no glitter: the sun is not determined (its
     # colour comes out ~1e-4 of the truth), the sky and sea colours are. The fit says so and
@@ -146,6 +147,7 @@ def test_rendered_frame_reproduces_its_image(default_scene):
     np.testing.assert_allclose(np.asarray(shaded), frame.image, rtol=2.0**-11 + 1e-5, atol=3e-8)
 
 
+@pytest.mark.slow  # the fit-lighting command end to end
 def test_fit_lighting_of_its_own_frame_is_exact(default_scene, tmp_path, capsys):
     # the command that reported success with the sun colour 87% off while frames stored only
     # the scalar roughness

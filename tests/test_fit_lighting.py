@@ -258,6 +258,7 @@ def _horizon_scene(seed, n=32):
     return geo, camera, truth, render.shade(geo.normal, geo.roughness, camera, truth, slope_variance=geo.slope_variance)
 
 
+@pytest.mark.slow  # a search over default starts
 def test_default_starts_find_a_narrow_glitter_with_the_horizon_in_view(x64):
     # Issue 13 (item 2) at 32^2, two sea states: the glitter is a band of rough, saturated
     # (censored) pixels at the horizon plus dark resolved pixels whose mirror directions
@@ -398,6 +399,7 @@ def test_excluded_nan_pixels_are_allowed(scene, x64):
 # --------------------------------------------------------------------------- camera fit
 
 
+@pytest.mark.slow  # three camera fits
 def test_camera_fit_recovers_height_and_pitch(x64):
     waves = _sea(n=8, seed=3, scale=0.15)  # gentle sea: the renderer's plan needs no refinement
     true_cam = cam.make_camera(height=6.0, pitch=0.25, fov=0.7, resolution=(16, 16), dtype=jnp.float64)
@@ -474,6 +476,7 @@ def test_camera_fit_jointly_with_the_lighting(x64):
     assert max(float(err[n]) for n in fit.COLOR_FIELDS) < 1e-8
 
 
+@pytest.mark.slow  # two camera fits
 def test_camera_fit_reports_a_local_minimum_as_failure(x64):
     # the full model alone from 13% low converges (within the step limit) to a neighbouring
     # minimum at 8.11 m / 0.3499 rad, loss 8.8e-5: the solver's test passes, the loss bound

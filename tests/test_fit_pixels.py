@@ -9,6 +9,7 @@ from jaxocean.fit import pixels
 from jaxocean.io import dataset
 
 
+@pytest.mark.slow  # a per-pixel inversion of a whole frame
 def test_inversion_reproduces_the_pixels_it_calls_explained():
     scene = dataset.sample_scene(jax.random.key(7), dataset.SceneRanges(), (16, 20), 1)
     images, geo = dataset.render_scene(scene)

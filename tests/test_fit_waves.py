@@ -109,6 +109,7 @@ def test_forecast_model_is_the_fit_with_its_band_and_the_window_frequency_uncert
     assert float(jnp.max(jnp.abs(inside.normal[:2] - hits))) > 1e-3  # the rows path draws another surface
 
 
+@pytest.mark.slow  # two full order selections
 @pytest.mark.parametrize("polish, n_expected", [(None, 3), (0.0, 8)])
 def test_the_selection_refines_near_the_floor_before_adding_waves(monkeypatch, polish, n_expected):
     # trials of 2 LM steps leave a clean 3-wave sea a few times above the noise floor: the
@@ -164,6 +165,7 @@ def test_linear_amplitude_solve_recovers_amplitudes_and_phases(ortho_scene):
     assert np.max(np.abs(dphi)) < 0.05
 
 
+@pytest.mark.slow  # a full fit on a swell
 def test_the_detection_sees_a_short_wave_on_a_swell_at_the_swells_rest_positions():
     # a short wave riding on a steep swell is moved back and forth by the swell's orbits
     # (k_short x h_swell = 2.5 rad of phase): on the mean sea plane its spectral peak loses
@@ -557,6 +559,7 @@ def _smooth_noise(shape, sigma, length, seed):
     return sigma * field / field.std()
 
 
+@pytest.mark.slow  # two full fits
 def test_smooth_noise_is_not_taken_for_waves_when_its_correlation_is_stated(ortho_scene):
     # normals with noise smooth over 3 px (a network's kind of error): taken as independent
     # pixels it is explained by spurious waves that pass as a success; with its correlation
@@ -662,6 +665,7 @@ def long_wave_sea():
     return jax.tree.map(lambda x, y: jnp.concatenate([x, y]), few_waves(), long)
 
 
+@pytest.mark.slow  # a full default fit with the long-wave band
 def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     c = ortho()
     truth = long_wave_sea()
@@ -694,6 +698,7 @@ def test_long_waves_go_to_the_band_and_the_resolvable_waves_are_found():
     assert float(hits.normal_error) < 1e-5 < 1e-4 < float(rows.normal_error)
 
 
+@pytest.mark.slow  # autodiff through the hits path
 def test_the_moving_hit_jacobian_is_the_derivative_of_the_hits_model(x64):
     # the structured Jacobian on the hits path (the hit moves with the waves, implicit
     # function theorem) against forward-mode autodiff through render's converged hits
@@ -730,6 +735,7 @@ def test_surface_is_checked():
         fw.refine(normals, rough, c, TIMES, truth, surface="hits", solver="lm")
 
 
+@pytest.mark.slow  # a full fit on a swell
 def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
     # eight waves 30-70 m long (2.5-6 views) dominate the residual's spectrum: its strongest
     # candidates are all near-copies of them, which cannot become waves; the three waves the
@@ -834,6 +840,7 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     assert abs(fit.alpha / alpha_true - 1) < 0.15
 
 
+@pytest.mark.slow  # an ensemble of spectrum fits
 def test_spectrum_uncertainties_describe_the_scatter_of_the_answer():
     # seas drawn from known spectra, 40 waves with 10% amplitude noise, fitted back: the
     # errors in units of the reported standard deviations have an RMS near 1 (measured over

@@ -295,6 +295,7 @@ def test_the_shipped_model_loads_and_beats_flat():
     assert geo.model_info()["train_config"]["augment"]["bits"] == 8
 
 
+@pytest.mark.slow  # the larger shipped model (the cpu one is checked in the quick tier)
 def test_the_shipped_gpu_model_loads_by_name_and_beats_flat():
     from jaxocean.nn.geometry_train import CONFIGS
 

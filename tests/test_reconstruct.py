@@ -100,6 +100,7 @@ def test_unlisted_frame_is_refused(tmp_path):
         rc.load_sequence([stray], CLIP / "camera.json")
 
 
+@pytest.mark.slow  # the whole pipeline compiles every stage (about 2 min)
 def test_reconstruct_command_end_to_end(tmp_path):
     from jaxocean import cli
 
@@ -160,6 +161,7 @@ def test_lighting_stage_states_the_network_error_and_says_why_it_fails(tmp_path)
     assert not rep.success and "sun direction undetermined" in rep.message
 
 
+@pytest.mark.slow  # a wave fit of the network geometry
 def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     # the waves stage on geometry that shows no wave at the stated noise: a failed stage that
     # says why, and a flat sea (one wave of zero amplitude) the later stages can render
@@ -187,6 +189,7 @@ def test_geometry_with_no_wave_above_its_noise_hands_a_flat_sea_on(tmp_path):
     assert all(math.isnan(sea_state[k]) for k in ("hs_m", "tp_s", "direction_deg", "waves_hs_m"))
 
 
+@pytest.mark.slow  # a 16-frame wave fit and sea spectrum
 def test_the_geometry_spectrum_gives_the_sea_state_where_no_wave_was_confirmed(tmp_path):
     # no wave confirmed, 16 s of geometry, images that show dispersion: the headline numbers
     # come from the geometry's space-time spectrum, marked as what they are

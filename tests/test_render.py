@@ -71,6 +71,7 @@ def test_flat_sea_with_sun_off_is_fresnel_blend_of_sky_and_sea():
     assert (~mask).any() and mask.any()  # the horizon is inside this image
 
 
+@pytest.mark.slow  # a fine reference render
 def test_subpixel_waves_render_as_brdf_of_flat_normal_and_their_slope_variance():
     # wavelengths of a few cm, seen from 30 m: every wave is sub-pixel
     waves = sea(10, seed=2, omega=(25.0, 40.0), max_kh=0.4)
@@ -154,6 +155,7 @@ def test_far_view_needs_no_refinement_and_skips_subpixel_waves():
     np.testing.assert_allclose(skipped.roughness, full.roughness, rtol=1e-6)
 
 
+@pytest.mark.slow  # compiles batched renders
 def test_vmap_over_frames_and_scenes():
     waves, c, light = sea(), cam.make_camera(**CAM), lighting()
     times = jnp.array([0.0, 0.5, 1.0])

@@ -197,6 +197,7 @@ def test_the_hit_does_not_depend_on_the_iteration_cap_once_converged(x64):
     assert not np.asarray(few.converged)[np.asarray(few.mask)].all()
 
 
+@pytest.mark.slow  # compiles the camera fit residual and its gradient in float64
 def test_camera_fit_residual_is_the_same_traced_and_eager_with_exact_gradient(x64):
     waves, c, light = _sea(seed=5), _view("close"), _light()
     plan = render.full_plan(10, render.plan(waves, c).refine)
