@@ -92,10 +92,11 @@ that fails):
 
 * the loss is finite and no worse than at the start (``loss <= loss_init``);
 * ``residual_scale <= SCALE_FACTOR (1.5) * max(noise, NOISE_FLOOR)``: the residual of what the
-  model keeps is at the noise level (``residual_scale`` the residual's trimmed scale, the
-  estimator of the noise and ``signal_scale`` below; not the IRLS scale ``robust_scale``,
-  which is floored at the noise, nor a MAD, which glints' heavy tails shrink: either let a
-  flat sea pass on small textured frames, whose noise estimate the texture inflates) (``NOISE_FLOOR = 1e-3``: the model's own consistency);
+  model keeps is at the noise level (``NOISE_FLOOR = 1e-3``: the model's own consistency).
+  ``residual_scale`` is the residual's trimmed scale, the estimator of the noise and of
+  ``signal_scale`` below; not the IRLS scale ``robust_scale``, which is floored at the noise,
+  nor a MAD, which glints' heavy tails shrink: either let a flat sea pass on small textured
+  frames, whose noise estimate the texture inflates;
 * ``outlier_fraction <= MAX_OUTLIER_FRACTION (0.2)``: the model produces most of the image;
 * the images hold structure above the noise: ``signal_scale >= STRUCTURE_RATIO (1.05) *
   max(noise, NOISE_FLOOR)``, ``signal_scale`` the trimmed scale (as the noise's) of
