@@ -210,7 +210,8 @@ def test_any_valid_metadata_round_trips(tmp_path_factory, meta):
 @pytest.mark.parametrize(
     "meta, error",
     [({"flag": True}, ValueError), ({"big": 2**31}, ValueError), ({"t": float("nan")}, InvalidValueError),
-     ({"list": [1, 2]}, ValueError), ({"": 1}, ValueError), ({3: 1}, ValueError)],
+     ({"list": [1, 2]}, ValueError), ({"": 1}, ValueError), ({3: 1}, ValueError),
+     ({"a" * 250 + "1": 1, "a" * 250 + "2": 2}, ValueError)],  # was cut to one key of 246
 )
 def test_bad_metadata_is_refused_before_writing(tmp_path, meta, error):
     with pytest.raises(error):
@@ -316,6 +317,54 @@ def test_half_overflow_is_refused_and_float32_accepts_it(tmp_path):
         write_frame(tmp_path / "f.exr", image)
     assert os.listdir(tmp_path) == []
     np.testing.assert_array_equal(read_frame(write_frame(tmp_path / "f.exr", image, half=False)).image, image)
+
+
+def test_values_beyond_float32_and_negative_roughness_are_refused(tmp_path):
+    # a finite float64 beyond float32 was stored as inf (geometry is float32 whatever half is)
+    with pytest.raises(InvalidValueError, match="'R': values beyond the float32 range"):
+        write_frame(tmp_path / "f.exr", np.full((2, 2, 3), 1e300), half=False)
+    geometry = dict(normal=np.full((2, 2, 3), 1e200), roughness=np.ones((2, 2)), mask=np.ones((2, 2)))
+    with pytest.raises(InvalidValueError, match="'normal.X': values beyond the float32 range"):
+        write_frame(tmp_path / "f.exr", np.ones((2, 2, 3)), geometry)
+    geometry = dict(normal=np.zeros((2, 2, 3)) + [0, 0, 1], roughness=-np.ones((2, 2)), mask=np.ones((2, 2)))
+    with pytest.raises(InvalidValueError, match="a roughness must be >= 0"):
+        write_frame(tmp_path / "f.exr", np.ones((2, 2, 3)), geometry)
+    assert os.listdir(tmp_path) == []
+
+
+def test_a_sequence_that_fails_its_checks_leaves_the_previous_one_whole(tmp_path):
+    # the previous scene.json was removed and frame 0 overwritten before frame 1's NaN was
+    # found, leaving old and new frames mixed; a camera of another resolution was accepted
+    from types import SimpleNamespace
+
+    from jaxocean.io.sequence import write_sequence
+    from jaxocean.shading import make_lighting
+    from jaxocean.waves import make_waves
+
+    camera = make_camera(height=12.0, pitch=0.35, fov=0.8, resolution=(3, 4))
+    normal = np.zeros((3, 3, 4, 3)) + [0.0, 0.0, 1.0]
+    geometry = SimpleNamespace(normal=normal, roughness=np.full((3, 3, 4), 0.01), mask=np.ones((3, 3, 4), bool),
+                               slope_variance=np.full((3, 3, 4, 2), 0.005), converged=None)
+    scene = SimpleNamespace(waves=make_waves([0.3], [1.1], [0.1], [0.5]), camera=camera,
+                            lighting=make_lighting(sun_azimuth=0.1, sun_elevation=0.35), spectrum=None,
+                            times=np.arange(3) * 0.1)
+    images = np.random.default_rng(0).uniform(0, 1, (3, 3, 4, 3))
+    out = tmp_path / "s"
+    write_sequence(out, scene, images, geometry, progress=False)
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    bad = images * 0.5
+    bad[1, 0, 0, 0] = np.nan
+    with pytest.raises(InvalidValueError, match="'R'"):
+        write_sequence(out, scene, bad, geometry, progress=False)
+    with pytest.raises(ValueError, match="exposure must be"):
+        write_sequence(out, scene, images * 0.5, geometry, progress=False, exposure=0.0)
+    with pytest.raises(ValueError, match="seed"):
+        write_sequence(out, scene, images * 0.5, geometry, progress=False, seed=1.5)
+    other = SimpleNamespace(**{**vars(scene), "camera": make_camera(height=12.0, pitch=0.35, fov=0.8,
+                                                                    resolution=(30, 40))})
+    with pytest.raises(ValueError, match=r"camera is \(30, 40\) \(H, W\) but the images are \(3, 4\)"):
+        write_sequence(out, other, images, geometry, progress=False)
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
 
 @pytest.mark.parametrize("field, value", [

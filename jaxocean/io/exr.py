@@ -234,7 +234,7 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
             ``converged (H, W)`` (bool or 0 / 1; stored as ``converged`` when present and
             not None).
         meta: optional flat dict ``{str: str | int | float}`` stored as header attributes
-            ``jaxocean.<key>``; ints must fit 32 bits, floats must be finite.
+            ``jaxocean.<key>`` (keys of at most 246 bytes); ints must fit 32 bits, floats must be finite.
         half: store ``R G B``, ``mask`` and ``converged`` as half floats (default) or, with False, as
             float32 (bit-exact round trip). Geometry values are float32 either way.
         compression: one of :data:`COMPRESSIONS`; ``"zip"`` (lossless) by default.
@@ -245,9 +245,21 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
     Raises:
         ValueError: wrong shapes, dtypes, compression name or metadata types.
         InvalidValueError: NaN/inf values (naming the channel), |R G B| > 65504 with
-            ``half=True``, a mask or converged flag that is not 0/1, a negative slope variance. Nothing is
-            written in either case.
+            ``half=True``, values beyond the float32 range, a mask or converged flag that is
+            not 0/1, a negative roughness or slope variance. Nothing is written in either case.
     """
+    header, channels = checked_frame(image, geometry, meta, half=half, compression=compression)
+
+    def write(temporary: Path) -> None:
+        # OpenEXR.File replaces the values of the dicts it is given: hand it copies.
+        OpenEXR.File(dict(header), dict(channels)).write(os.fspath(temporary))
+
+    return atomic_write(path, write)
+
+
+def checked_frame(image, geometry=None, meta=None, *, half: bool = True, compression: str = "zip"):
+    """``(header, channels)`` that :func:`write_frame` would write, after every check it
+    makes (its Raises); nothing is written. A writer of many frames checks them all first."""
     if compression not in _COMPRESSION_BY_NAME:
         raise ValueError(f"unknown EXR compression {compression!r}; expected one of {COMPRESSIONS}")
     planes = _frame_planes(image, geometry)
@@ -255,18 +267,18 @@ def write_frame(path, image, geometry=None, meta=None, *, half: bool = True, com
     for name, plane in planes.items():
         if types[name] == np.float16:
             _check_half_range(plane, name)
-    channels = {name: np.ascontiguousarray(plane, dtype=types[name]) for name, plane in planes.items()}
+    with np.errstate(over="ignore"):
+        channels = {name: np.ascontiguousarray(plane, dtype=types[name]) for name, plane in planes.items()}
+    for name, channel in channels.items():  # finite float64 values beyond float32 would store inf
+        if not np.all(np.isfinite(channel)):
+            raise InvalidValueError(f"EXR channel {name!r}: values beyond the float32 range (|x| > 3.4e38); "
+                                    f"largest {float(np.max(np.abs(planes[name]))):g}")
     header = {
         "compression": _COMPRESSION_BY_NAME[compression],
         "type": OpenEXR.scanlineimage,
         **_meta_to_header(meta),
     }
-
-    def write(temporary: Path) -> None:
-        # OpenEXR.File replaces the values of the dicts it is given: hand it copies.
-        OpenEXR.File(dict(header), dict(channels)).write(os.fspath(temporary))
-
-    return atomic_write(path, write)
+    return header, channels
 
 
 def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
@@ -305,6 +317,9 @@ def _frame_planes(image, geometry) -> dict[str, np.ndarray]:
             planes[CONVERGED_CHANNEL] = converged
     for name, plane in planes.items():
         check_finite(plane, f"EXR channel {name!r}")
+    if "roughness" in planes and not np.all(planes["roughness"] >= 0):
+        raise InvalidValueError(f"EXR channel 'roughness': a roughness must be >= 0; "
+                                f"got {float(np.min(planes['roughness'])):g}")
     for name in SLOPE_VARIANCE_CHANNELS:
         if name in planes and not np.all(planes[name] >= 0):
             raise InvalidValueError(f"EXR channel {name!r}: a slope variance must be >= 0; "
@@ -349,12 +364,19 @@ def _check_half_range(plane: np.ndarray, name: str) -> None:
         )
 
 
+_MAX_ATTRIBUTE_NAME = 255  # bytes, OpenEXR's long-name limit
+
+
 def _meta_to_header(meta) -> dict:
     """``{key: value}`` -> ``{"jaxocean.key": attribute}`` (see the module docstring)."""
     header = {}
     for key, value in (meta or {}).items():
         if not isinstance(key, str) or not key:
             raise ValueError(f"meta keys must be non-empty strings; got {key!r}")
+        if len((META_PREFIX + key).encode()) > _MAX_ATTRIBUTE_NAME:
+            # the binding would cut the name, and two long keys could become one
+            raise ValueError(f"meta key {key[:20]!r}... is too long: EXR attribute names hold "
+                             f"{_MAX_ATTRIBUTE_NAME - len(META_PREFIX)} bytes after {META_PREFIX!r}")
         if isinstance(value, np.generic):
             value = value.item()
         if isinstance(value, bool) or not isinstance(value, (str, int, float)):

@@ -18,7 +18,8 @@ A directory holds one sequence. Writing into a directory that holds a previous o
 it: its ``scene.json`` is removed first (the directory is incomplete until the new one is
 written, last), and its ``frame_XXXXX.exr`` / ``.png`` beyond the new frame count are
 removed, so no stale frame of the old scene is left beside the new ones. No other file is
-touched.
+touched. Every frame, the scene, the exposure and the camera's resolution are checked before
+the previous sequence is touched: a write that fails on its inputs leaves it whole.
 """
 
 from __future__ import annotations
@@ -31,9 +32,9 @@ import numpy as np
 
 from jaxocean import plots
 from jaxocean.files import atomic_write
-from jaxocean.io.exr import write_frame
+from jaxocean.io.exr import checked_frame, write_frame
 from jaxocean.io.images import save_png
-from jaxocean.io.scene import SCENE_FILENAME, scene_to_dict, write_scene
+from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, write_scene
 
 __all__ = ["HALF_MAX", "fits_half", "frame_name", "write_sequence"]
 
@@ -87,12 +88,29 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     times = np.atleast_1d(np.asarray(scene.times, np.float64))
     if times.shape != (n_frames,):
         raise ValueError(f"scene.times must be ({n_frames},) to match the images; got shape {times.shape}")
+    if n_frames < 1:
+        raise ValueError("images hold no frame: nothing to write")
+    resolution = getattr(scene.camera, "resolution", None)
+    if resolution is not None and tuple(resolution) != images.shape[1:3]:
+        raise ValueError(f"the scene's camera is {tuple(resolution)} (H, W) but the images are {images.shape[1:3]}")
+    if not (isinstance(exposure, (int, float, np.integer, np.floating)) and 0 < exposure < np.inf):
+        raise ValueError(f"exposure must be a finite number > 0; got {exposure!r}")
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"{out}: exists and is not a directory; a sequence is written into a directory")
+    frame_ids = range(n_frames) if frame_ids is None else frame_ids
+    frames = [({"normal": normal[f], "roughness": roughness[f], "mask": mask[f],
+                "slope_variance": None if slope_var is None else slope_var[f],
+                "converged": None if converged is None else converged[f]},
+               {"frame": int(frame_ids[f]), "time": float(times[f])}) for f in range(n_frames)]
+    # everything is checked before the previous sequence is touched: a failure leaves it whole
+    for f, (g, meta) in enumerate(frames):
+        checked_frame(images[f], g, meta, half=False)
+    scene_dict = scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
+                               spectrum=getattr(scene, "spectrum", None), times=times, seed=seed, extra=extra)
+    scene_from_dict(scene_dict)
     if half and not fits_half(images):
         print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
         half = False
-    frame_ids = range(n_frames) if frame_ids is None else frame_ids
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a directory; a sequence is written into a directory")
     out.mkdir(parents=True, exist_ok=True)
     stale = _remove_previous(out, n_frames)
     if stale:
@@ -100,17 +118,13 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
               f"{n_frames} frame(s)", file=sys.stderr)
     pngs = []
     for f in tqdm(range(n_frames), desc="write", unit="frame", disable=not progress):
-        g = {"normal": normal[f], "roughness": roughness[f], "mask": mask[f],
-             "slope_variance": None if slope_var is None else slope_var[f],
-             "converged": None if converged is None else converged[f]}
-        meta = {"frame": int(frame_ids[f]), "time": float(times[f])}
+        g, meta = frames[f]
         write_frame(out / frame_name(f), images[f], g, meta, half=half)
         pngs.append(save_png(out / frame_name(f).replace(".exr", ".png"), images[f], exposure=exposure))
     for name, rgb in (("normal_00000.png", plots.normal_to_rgb(normal[0], mask[0])),
                       ("roughness_00000.png", plots.roughness_to_rgb(roughness[0], mask[0]))):
         atomic_write(out / name, lambda temporary, rgb=rgb: iio.imwrite(temporary, rgb, extension=".png"))
-    write_scene(out, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
-                                   spectrum=getattr(scene, "spectrum", None), times=times, seed=seed, extra=extra))
+    write_scene(out, scene_dict)
     return pngs
 
 
