@@ -16,7 +16,8 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite", "check_nonnegative_number"]
+__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite", "check_number",
+           "check_nonnegative_number"]
 
 
 class InvalidValueError(ValueError):
@@ -55,9 +56,16 @@ def check_finite(x, name: str) -> None:
         raise InvalidValueError(f"{name} contains {n} NaN/inf value(s) of {arr.size}")
 
 
-def check_nonnegative_number(value, message: str) -> None:
+def check_number(value, message: str, low: float = 0.0, high: float = math.inf, *, low_open: bool = False,
+                 high_open: bool = False) -> None:
     """Raise ``ValueError(message + "; got " + repr(value))`` unless ``value`` is a finite real
-    scalar (Python or NumPy) ``>= 0``: a setting, not data (no arrays, never traced)."""
-    if not (isinstance(value, (int, float, np.floating, np.integer))
-            and math.isfinite(value) and value >= 0):
+    scalar (Python or NumPy) in ``[low, high]`` (an end excluded where ``low_open`` /
+    ``high_open``): a setting, not data (no arrays, never traced)."""
+    ok = isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value)
+    if not (ok and (value > low if low_open else value >= low) and (value < high if high_open else value <= high)):
         raise ValueError(f"{message}; got {value!r}")
+
+
+def check_nonnegative_number(value, message: str) -> None:
+    """:func:`check_number` with its default range: finite and ``>= 0``."""
+    check_number(value, message)

@@ -112,6 +112,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean._ground_grid import hann, resample
+from jaxocean.errors import check_number
 from jaxocean.waves import GRAVITY
 
 __all__ = ["MIN_FRAMES", "GRID_SIZES", "DispersionCheck", "dispersion_check", "SeaSpectrum", "sea_spectrum",
@@ -204,12 +205,10 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
     times = _checked_times(times, images.shape[0], "dispersion_check")
     _check_current(current, fit_allowed=True)
     _check_options(images.shape[0], H, W, mask, tolerance, max_footprint, clip_percentile)
-    if not (isinstance(max_current, (int, float, np.integer, np.floating)) and 0 <= max_current < math.inf):
-        raise ValueError(f"max_current must be a finite speed >= 0 [m/s]; got {max_current!r}")
-    if not (isinstance(min_ratio, (int, float, np.integer, np.floating)) and 1 <= min_ratio < math.inf):
-        # a sequence without dispersion puts its energy on the shell in proportion to the
-        # shell's share of the bins: ratio ~1, so a threshold below 1 passes noise
-        raise ValueError(f"min_ratio must be a finite number >= 1; got {min_ratio!r}")
+    check_number(max_current, "max_current must be a finite speed >= 0 [m/s]")
+    # a sequence without dispersion puts its energy on the shell in proportion to the shell's
+    # share of the bins: ratio ~1, so a threshold below 1 passes noise
+    check_number(min_ratio, "min_ratio must be a finite number >= 1", 1.0)
     band = _band_power(images[..., None], mask, camera, times, grid, spacing, max_footprint, tolerance,
                        clip_percentile)
     if not isinstance(band, _Band):
@@ -344,8 +343,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     times = _checked_times(times, T, "sea_spectrum")
     _check_current(current, fit_allowed=False)
     _check_options(T, H, W, mask, tolerance, max_footprint)
-    if not (isinstance(max_noise_fraction, (int, float, np.integer, np.floating)) and 0 < max_noise_fraction <= 1):
-        raise ValueError(f"max_noise_fraction must be in (0, 1]; got {max_noise_fraction!r}")
+    check_number(max_noise_fraction, "max_noise_fraction must be in (0, 1]", 0.0, 1.0, low_open=True)
     U = np.asarray(current, np.float64)
     usable = np.all(np.isfinite(normals), -1) & (np.nan_to_num(normals[..., 2]) > 1e-3)
     if mask is not None:
@@ -493,11 +491,9 @@ def _check_options(T, H, W, mask, tolerance, max_footprint, clip_percentile=None
     if mask is not None and np.shape(mask) not in ((H, W), (T, H, W)):
         raise ValueError(f"mask must be ({H}, {W}) or ({T}, {H}, {W}) for these frames; got {np.shape(mask)}")
     for name, value in (("tolerance", tolerance), ("max_footprint", max_footprint)):
-        if not (isinstance(value, (int, float, np.integer, np.floating)) and math.isfinite(value) and value > 0):
-            raise ValueError(f"{name} must be a finite number > 0; got {value!r}")
-    if clip_percentile is not None and not (isinstance(clip_percentile, (int, float, np.integer, np.floating))
-                                            and 0 < clip_percentile <= 100):
-        raise ValueError(f"clip_percentile must be in (0, 100] or None; got {clip_percentile!r}")
+        check_number(value, f"{name} must be a finite number > 0", low_open=True)
+    if clip_percentile is not None:
+        check_number(clip_percentile, "clip_percentile must be in (0, 100] or None", 0.0, 100.0, low_open=True)
 
 
 class _Band(NamedTuple):

@@ -246,7 +246,7 @@ def test_bad_inputs_raise_clear_errors(scene):
         nan_frame[1] = np.nan
         with pytest.raises(InvalidValueError, match=r"frame\(s\) \[1\] hold no usable sea pixel"):
             ph.photometric(nan_frame, *args[1:])
-        with pytest.raises(ValueError, match="images are float16: the fit runs in float32 or float64"):
+        with pytest.raises(ValueError, match="images are float16: the fits run in float32 or float64"):
             ph.photometric(jnp.asarray(s["images"], jnp.float16), *args[1:])
         with pytest.raises(ValueError, match="noise must be"):
             ph.photometric(*args, noise=-1.0)

@@ -42,13 +42,21 @@ def check_image(image, camera):
     image = jnp.asarray(image)
     if image.ndim != 3 or image.shape[-1] != 3:
         raise ValueError(f"image must be (H, W, 3) linear RGB; got shape {image.shape}")
-    if not jnp.issubdtype(image.dtype, jnp.floating):
-        image = image.astype(jnp.zeros(()).dtype)
-    elif image.dtype not in (jnp.float32, jnp.float64):
-        raise ValueError(f"image is {image.dtype}: the fits run in float32 or float64 (the image's dtype is the "
-                         f"fit's); pass image.astype(jnp.float32)")
     cam.validate_camera(camera)
-    return image
+    return fit_dtype(image, "image is")
+
+
+def fit_dtype(array, subject: str):
+    """``array`` in the dtype the fit runs in: integers become the default float dtype;
+    float32 and float64 stay; any other float (float16) is refused, ``subject`` ("image is",
+    "images are") opening the message. Shared by every image fit."""
+    array = jnp.asarray(array)
+    if not jnp.issubdtype(array.dtype, jnp.floating):
+        return array.astype(jnp.zeros(()).dtype)
+    if array.dtype not in (jnp.float32, jnp.float64):
+        raise ValueError(f"{subject} {array.dtype}: the fits run in float32 or float64 (the input's dtype is the "
+                         f"fit's); pass it as .astype(jnp.float32)")
+    return array
 
 
 def check_resolution(image, camera) -> None:

@@ -139,6 +139,7 @@ from jaxocean import camera as cam
 from jaxocean import render, shading
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.errors import InvalidValueError, is_concrete
+from jaxocean.fit._image_inputs import fit_dtype
 from jaxocean.fit._photometry import sun_to_pq
 from jaxocean.fit._photometric_model import (COLOR_NAMES, Data, Static, all_residuals, frame_jacobian, layout,
                                             model_frames, pack_params, unpack)
@@ -369,12 +370,7 @@ def _check_fit(fit) -> tuple:
 def _check_images(images, camera, times, mask):
     """``(images (T, H, W, C), gray, times (T,), mask (T, H, W) bool or None)``, checked."""
     cam.validate_camera(camera)
-    images = jnp.asarray(images)
-    if not jnp.issubdtype(images.dtype, jnp.floating):
-        images = images.astype(jnp.zeros(()).dtype)
-    elif images.dtype not in (jnp.float32, jnp.float64):
-        raise ValueError(f"images are {images.dtype}: the fit runs in float32 or float64 (the images' dtype is "
-                         f"the fit's); pass images.astype(jnp.float32)")
+    images = fit_dtype(images, "images are")
     H, W = camera.resolution
     if images.ndim == 4 and images.shape[-1] == 3:
         gray = False

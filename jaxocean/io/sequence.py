@@ -32,6 +32,7 @@ import numpy as np
 
 from jaxocean import plots
 from jaxocean.files import atomic_write
+from jaxocean.errors import check_number
 from jaxocean.io.exr import checked_frame, write_frame
 from jaxocean.io.images import save_png
 from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, write_scene
@@ -93,8 +94,7 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     resolution = getattr(scene.camera, "resolution", None)
     if resolution is not None and tuple(resolution) != images.shape[1:3]:
         raise ValueError(f"the scene's camera is {tuple(resolution)} (H, W) but the images are {images.shape[1:3]}")
-    if not (isinstance(exposure, (int, float, np.integer, np.floating)) and 0 < exposure < np.inf):
-        raise ValueError(f"exposure must be a finite number > 0; got {exposure!r}")
+    check_number(exposure, "exposure must be a finite number > 0", low_open=True)
     if out.exists() and not out.is_dir():
         raise ValueError(f"{out}: exists and is not a directory; a sequence is written into a directory")
     frame_ids = range(n_frames) if frame_ids is None else frame_ids
