@@ -76,6 +76,19 @@ def positive_int(text: str):
     return value
 
 
+SEED_LIMIT = 2 ** 63  # seeds pass through int64 (the wave draw, the dataset's splits)
+
+
+def seed_arg(text: str):
+    try:
+        value = int(text)
+    except ValueError:
+        value = -1
+    if not 0 <= value < SEED_LIMIT:
+        raise argparse.ArgumentTypeError(f"expected an integer seed in [0, 2^63); got {text!r}")
+    return value
+
+
 class DeprecatedAlias(argparse.Action):
     """A former option name kept working: stores into the new option's ``dest`` and says so."""
 

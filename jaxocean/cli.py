@@ -113,7 +113,7 @@ def _add_scene_options(p):
     g.add_argument("--wave-direction", type=float, default=None, help="mean wave direction [deg from +x]")
     g.add_argument("--spreading", type=float, default=None, help="Mitsuyasu s_max (larger = narrower)")
     g.add_argument("--waves", type=inputs.positive_int, default=None, help="number of wave trains (default 60)")
-    g.add_argument("--seed", type=int, default=None, help="random seed for the wave draw")
+    g.add_argument("--seed", type=inputs.seed_arg, default=None, help="random seed for the wave draw")
     g.add_argument("--camera-height", type=float, default=None, help="camera height above the sea [m]")
     g.add_argument("--camera-pitch-deg", type=inputs.pitch_degrees, default=None,
                    help="camera pitch below the horizon [deg] (default 20)")
@@ -165,7 +165,7 @@ def build_parser():
     p.add_argument("--scenes", type=inputs.positive_int, default=2000, help="number of scenes (default 2000)")
     p.add_argument("--frames", type=inputs.positive_int, default=10, help="frames per scene (default 10)")
     p.add_argument("--res", type=inputs.resolution_arg, default=(128, 128), help="resolution N or HxW (default 128)")
-    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--seed", type=inputs.seed_arg, default=0)
     p.add_argument("--waves", type=inputs.positive_int, default=None, help="wave trains per scene (default 60)")
     p.add_argument("--ranges", help="JSON file overriding SceneRanges fields, e.g. {\"hs\": [0.5, 2.0]}")
     p.add_argument("--float32", action="store_true", help=_FLOAT32_HELP)

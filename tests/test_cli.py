@@ -379,6 +379,8 @@ def test_simulate_refuses_a_dataset_the_disk_cannot_hold(tmp_path, capsys, monke
     (["render", "--out", "x", "--dt", "0"], "argument --dt: expected a positive number"),
     (["simulate", "--out", "x", "--scenes", "0"], "argument --scenes: expected a positive integer"),
     (["demo", "--frames", "0"], "argument --frames: expected a positive integer"),
+    (["render", "--out", "x", "--seed", str(2**70)], "argument --seed: expected an integer seed in [0, 2^63)"),
+    (["simulate", "--out", "x", "--seed", "-1"], "argument --seed: expected an integer seed in [0, 2^63)"),
 ])
 def test_counts_below_one_are_usage_errors(argv, message, capsys):
     with pytest.raises(SystemExit) as exit_info:

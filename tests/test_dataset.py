@@ -135,6 +135,58 @@ def test_check_names_corrupt_and_missing_files(clean, tmp_path):
     assert len(problems) == 3
 
 
+def _copy(root, tmp_path):
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(root, copy)
+    return copy
+
+
+@pytest.mark.parametrize("name, edit, message", [
+    ("manifest.json", lambda d: {"files": 5}, "'files' must map relative paths"),
+    ("manifest.json", lambda d: {"files": {k: {"bytes": v["bytes"]} for k, v in d["files"].items()}},
+     "an entry must be"),
+    ("manifest.json", lambda d: {"files": {**d["files"], "../elsewhere.exr": {"bytes": 1, "sha256": "0" * 64}}},
+     "stay inside it"),
+    ("dataset.json", lambda d: {k: v for k, v in d.items() if k != "resolution"}, "'resolution' must be"),
+    ("dataset.json", lambda d: {**d, "frames": "2"}, "'frames' must be an integer"),
+    ("splits.json", lambda d: {**d, "test": [0, 99]}, "split 'test' must be a list of scene indices in"),
+    ("splits.json", lambda d: {**d, "test": d["train"][:1]}, "again in 'test'"),
+])
+def test_check_and_loader_name_a_malformed_dataset_file(clean, tmp_path, name, edit, message):
+    copy = _copy(clean[0], tmp_path)
+    path = copy / name
+    path.write_text(json.dumps(edit(json.loads(path.read_text()))))
+    problems = dataset.check(copy, read_frames=False)
+    assert len(problems) == 1 and str(path) in problems[0] and message in problems[0], problems
+    if name != "manifest.json":
+        with pytest.raises(InvalidValueError, match=message):
+            dataset.Dataset(copy)
+
+
+def test_check_reports_scenes_and_files_the_dataset_does_not_hold(clean, tmp_path):
+    import shutil
+
+    copy = _copy(clean[0], tmp_path)
+    shutil.copytree(copy / "scene_00002", copy / "scene_00003")  # a fourth scene of a 3-scene dataset
+    manifest = json.loads((copy / "manifest.json").read_text())
+    extra = {k.replace("scene_00002", "scene_00003"): v for k, v in manifest["files"].items() if "scene_00002" in k}
+    (copy / "manifest.json").write_text(json.dumps({"files": {**manifest["files"], **extra}}))
+    shutil.copy(copy / "scene_00000" / "frame_00001.exr", copy / "scene_00000" / "frame_00002.exr")
+    problems = dataset.check(copy, read_frames=False)
+    assert sum("scene_00003" in p and "not one of the 3 scene(s) x 2 frame(s)" in p for p in problems) == 3
+    assert sum("scene_00000/frame_00002.exr: not in the manifest" in p for p in problems) == 1
+    assert len(problems) == 4, problems
+
+
+@pytest.mark.parametrize("seed", [-1, 2**63, 1.5, True])
+def test_simulate_refuses_a_seed_outside_int64(tmp_path, seed):
+    with pytest.raises(InvalidValueError, match=r"seed must be an integer in \[0, 2\^63\)"):
+        dataset.simulate(tmp_path / "d", ranges=RANGES, progress=False, **{**SMALL, "seed": seed})
+    assert not (tmp_path / "d").exists()
+
+
 def test_other_settings_refuse_to_mix(clean):
     root, _ = clean
     with pytest.raises(InvalidValueError, match="other settings.*resolution"):

@@ -592,6 +592,9 @@ def test_malformed_scene_json_is_reported_by_name(tmp_path):
     (lambda d: d["camera"].update(height=-1.0), r"camera: .*under the sea"),
     (lambda d: d["camera"].update(resolution=[48.5, 64]), r"camera: .*resolution"),
     (lambda d: d.update(seed=1.5), r"seed must be an integer"),
+    (lambda d: d.update(times=[]), r"times must hold at least one frame time"),
+    (lambda d: d.update(times=[0.0, 1e300]), r"times must be finite in float32"),  # inf once read
+    (lambda d: d["lighting"].update(sun_color=[1e39, 1.0, 1.0]), r"lighting\.sun_color must be finite in float32"),
 ])
 def test_invalid_scene_content_is_reported_with_the_file(tmp_path, edit, message):
     d = scene_to_dict(**example_scene())
@@ -607,6 +610,8 @@ def test_invalid_scene_content_is_reported_with_the_file(tmp_path, edit, message
 def test_scene_nan_is_refused_at_both_ends(tmp_path):
     with pytest.raises(InvalidValueError, match="times"):
         scene_to_dict(times=[0.0, np.nan])
+    with pytest.raises(ValueError, match="at least one frame time"):
+        scene_to_dict(times=[])
     path = tmp_path / "scene.json"
     path.write_text('{"version": "0.1.0", "times": [0.0, NaN]}')  # Python's json accepts NaN
     with pytest.raises(SceneFileError, match="times"):

@@ -53,6 +53,7 @@ import functools
 import hashlib
 import json
 import math
+import re
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -271,6 +272,54 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
+def _is_count(value, low: int) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= low
+
+
+def _read_settings(path: Path) -> dict:
+    """``dataset.json`` with the fields every reader uses checked (scenes, frames, resolution)."""
+    settings = read_json(path, "dataset settings file")
+    resolution = settings.get("resolution")
+    problems = [f"{key!r} must be an integer >= {low}; got {settings.get(key, 'nothing')!r}"
+                for key, low in (("scenes", 1), ("frames", 1)) if not _is_count(settings.get(key), low)]
+    if not (isinstance(resolution, list) and len(resolution) == 2 and all(_is_count(r, 1) for r in resolution)):
+        problems.append(f"'resolution' must be [height, width] in pixels; got {resolution!r}")
+    if problems:
+        raise FileFormatError(path, "; ".join(problems))
+    return settings
+
+
+def _read_splits(path: Path, n_scenes: int) -> dict:
+    """``splits.json``: each split a list of distinct scene indices in [0, n_scenes), the
+    splits disjoint (a scene in two splits would score a model on what it trained on)."""
+    splits = read_json(path, "dataset splits file")
+    seen: dict = {}
+    for name, scenes in splits.items():
+        if not (isinstance(scenes, list) and all(_is_count(i, 0) and i < n_scenes for i in scenes)):
+            raise FileFormatError(path, f"split {name!r} must be a list of scene indices in [0, {n_scenes}); "
+                                        f"got {scenes!r:.80}")
+        for i in scenes:
+            if i in seen:
+                raise FileFormatError(path, f"scene {i} is in split {seen[i]!r} and again in {name!r}")
+            seen[i] = name
+    return splits
+
+
+def _read_manifest(path: Path) -> dict:
+    """``manifest.json``'s ``files``: relative path -> {"bytes": int, "sha256": 64 hex digits}."""
+    files = read_json(path, "dataset manifest").get("files")
+    if not isinstance(files, dict):
+        raise FileFormatError(path, f"'files' must map relative paths to sizes and hashes; got {files!r:.80}")
+    for rel, entry in files.items():
+        if Path(rel).is_absolute() or ".." in Path(rel).parts:
+            raise FileFormatError(path, f"{rel!r}: manifest paths are relative to the dataset and stay inside it")
+        if not (isinstance(entry, dict) and _is_count(entry.get("bytes"), 0)
+                and isinstance(entry.get("sha256"), str) and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])):
+            raise FileFormatError(path, f"{rel!r}: an entry must be {{\"bytes\": size, \"sha256\": 64 hex "
+                                        f"digits}}; got {entry!r:.80}")
+    return files
+
+
 def _settings(n_scenes, n_frames, resolution, seed, ranges, half):
     import jaxocean
 
@@ -293,6 +342,9 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
     """
     if n_scenes < 1 or n_frames < 1:
         raise InvalidValueError(f"need at least one scene and one frame; got scenes={n_scenes}, frames={n_frames}")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2 ** 63:
+        # it passes through int64 (splits, scene keys)
+        raise InvalidValueError(f"seed must be an integer in [0, 2^63); got {seed!r}")
     ranges.validate()
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
@@ -385,8 +437,12 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
             problems.append(f"{directory / name}: missing")
     if problems:
         return problems
-    settings = read_json(directory / DATASET_FILENAME, "dataset settings file")
-    files = read_json(directory / MANIFEST_FILENAME, "dataset manifest")["files"]
+    try:
+        settings = _read_settings(directory / DATASET_FILENAME)
+        files = _read_manifest(directory / MANIFEST_FILENAME)
+        _read_splits(directory / SPLITS_FILENAME, settings["scenes"])
+    except (FileFormatError, ValueError) as err:  # the files that say what to check for
+        return [str(err)]
     resolution = tuple(settings["resolution"])
     items = sorted(files.items())
     if progress:
@@ -417,6 +473,13 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
                 for n in [SCENE_FILENAME] + [frame_name(f) for f in range(settings["frames"])]}
     for rel in sorted(expected - set(files)):
         problems.append(f"{directory / rel}: not in the manifest")
+    for rel in sorted(set(files) - expected):
+        problems.append(f"{directory / rel}: in the manifest but not one of the {settings['scenes']} scene(s) x "
+                        f"{settings['frames']} frame(s) of {DATASET_FILENAME}")
+    on_disk = {str(p.relative_to(directory)) for p in directory.glob("scene_*/*") if p.is_file()}
+    on_disk |= {str(p.relative_to(directory)) for p in directory.glob("scene_*") if p.is_file()}
+    for rel in sorted(on_disk - set(files) - expected):
+        problems.append(f"{directory / rel}: not in the manifest (a file the dataset does not hold)")
     return problems
 
 
@@ -458,8 +521,8 @@ class Dataset:
         for name in (DATASET_FILENAME, SPLITS_FILENAME):
             if not (self.root / name).exists():
                 raise FileFormatError(self.root / name, "missing: not a jaxocean dataset (run `jaxocean simulate`)")
-        self.settings = read_json(self.root / DATASET_FILENAME, "dataset settings file")
-        self.splits = read_json(self.root / SPLITS_FILENAME, "dataset splits file")
+        self.settings = _read_settings(self.root / DATASET_FILENAME)
+        self.splits = _read_splits(self.root / SPLITS_FILENAME, self.settings["scenes"])
         self.resolution = tuple(self.settings["resolution"])
         self.n_frames = self.settings["frames"]
         self._cache: dict = {}

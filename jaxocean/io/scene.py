@@ -162,6 +162,8 @@ def _leaf_to_json(leaf, where: str):
 def _times_to_json(times) -> list:
     if np.ndim(times) != 1:
         raise ValueError(f"scene times must be a 1-D sequence of frame times; got shape {np.shape(times)}")
+    if np.size(times) == 0:
+        raise ValueError("scene times must hold at least one frame time (pass times=None for a scene without frames)")
     return _leaf_to_json(times, "times")
 
 
@@ -239,7 +241,11 @@ def _leaf_from_json(value, where: str):
         raise SceneError(f"{where} must be finite; got {value!r:.80}")
     # The default float dtype, requested explicitly so that integers become floats; float32
     # without x64 (exact for float32 scenes), float64 with it.
-    return jnp.asarray(array, dtype=jnp.result_type(float))
+    dtype = jnp.result_type(float)
+    if np.any(np.abs(array.astype(np.float64)) > np.finfo(dtype).max):
+        raise SceneError(f"{where} must be finite in {np.dtype(dtype).name}, the precision scenes are read in; "
+                         f"got {value!r:.80}")
+    return jnp.asarray(array, dtype=dtype)
 
 
 def _namedtuple_from_json(d, section: str):
@@ -267,6 +273,8 @@ def _times_from_json(value, section: str):
     times = _leaf_from_json(value, "scene times")
     if times.ndim != 1:
         raise SceneError(f"scene times must be a list of numbers; got shape {times.shape}")
+    if times.size == 0:
+        raise SceneError("scene times must hold at least one frame time (leave 'times' out of a scene without frames)")
     return times
 
 
