@@ -493,6 +493,17 @@ def test_foreign_exr_with_extra_channels_reads(tmp_path):
     assert frame.normal is None
 
 
+def test_exr_whose_pixels_cover_part_of_the_image_is_refused(tmp_path):
+    path = tmp_path / "crop.exr"
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage,
+              "dataWindow": ((2, 3), (9, 8)), "displayWindow": ((0, 0), (15, 15))}
+    OpenEXR.File(header, {c: np.ones((6, 8), np.float32) for c in "RGB"}).write(str(path))
+    # read as they are, the 6 x 8 pixels would be a crop of the 16 x 16 image the camera sees
+    with pytest.raises(FrameError, match=r"crop\.exr: pixels cover the data window \(\(2, 3\), \(9, 8\)\) but "
+                                         r"the image is the display window \(\(0, 0\), \(15, 15\)\)"):
+        read_frame(path)
+
+
 def test_resolution_mismatch_is_reported(tmp_path):
     image, _ = random_frame(12)
     path = write_frame(tmp_path / "f.exr", image)
@@ -689,7 +700,33 @@ def test_save_png_refuses_nan_and_bad_shapes(tmp_path):
         save_png(tmp_path / "p.png", np.full((2, 2, 3), np.nan))
     with pytest.raises(ValueError, match="H, W, 3"):
         save_png(tmp_path / "p.png", np.zeros((2, 2)))
+    with pytest.raises(ValueError, match=r"save_png writes PNG files; name the file \.png"):
+        save_png(tmp_path / "p.jpg", np.zeros((2, 2, 3)))  # PNG bytes in a .jpg file before
     assert os.listdir(tmp_path) == []
+
+
+def test_cmyk_jpeg_loads_as_its_rgb(tmp_path):
+    from PIL import Image
+
+    rgb = np.zeros((8, 8, 3), np.uint8)
+    rgb[..., 0], rgb[..., 2] = 200, 30
+    Image.fromarray(rgb).convert("CMYK").save(tmp_path / "cmyk.jpg", quality=100)
+    # its four channels C, M, Y, K were read as R, G, B, alpha before: (0, 0.78, 0.88)
+    np.testing.assert_allclose(images.load_display(tmp_path / "cmyk.jpg").values, rgb / 255.0, atol=2 / 255)
+
+
+def test_float_and_signed_pixels_outside_the_display_range_are_refused(tmp_path):
+    from PIL import Image
+
+    Image.fromarray(np.full((4, 4), 0.25, np.float32), mode="F").save(tmp_path / "ok.tif")
+    assert np.all(images.load_display(tmp_path / "ok.tif").values == 0.25)
+    Image.fromarray(np.full((4, 4), 2.5, np.float32), mode="F").save(tmp_path / "radiance.tif")
+    with pytest.raises(FileFormatError, match=r"radiance\.tif: float pixels must be display values in \[0, 1\]; "
+                                              r"this file holds \[2\.5, 2\.5\]"):
+        images.load_display(tmp_path / "radiance.tif")
+    Image.fromarray(np.full((4, 4), 300, np.int32), mode="I").save(tmp_path / "signed.tif")
+    with pytest.raises(FileFormatError, match=r"signed\.tif: unsupported pixel type int32"):
+        images.load_display(tmp_path / "signed.tif")  # scaled by 2^31 - 1 to black before
 
 
 def test_converged_flag_round_trips_and_older_files_read_none(tmp_path):

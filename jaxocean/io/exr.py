@@ -552,6 +552,13 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
         raise FrameError(path, f"corrupt or truncated OpenEXR file ({_decode_problem(path, error, printed.text)})"
                          ) from error
 
+    data_window = tuple(tuple(int(v) for v in corner) for corner in header["dataWindow"])
+    display_window = tuple(tuple(int(v) for v in corner) for corner in header["displayWindow"])
+    if data_window != display_window:
+        # the pixels cover another rectangle than the image's: taken as they are, they would
+        # be a crop (or padding) that the camera's view does not know about
+        raise FrameError(path, f"pixels cover the data window {data_window} but the image is the display window "
+                               f"{display_window} ((x, y) min, max corners): crop or pad it to one window")
     missing_rgb = [name for name in RGB_CHANNELS if name not in pixels]
     if missing_rgb:
         raise FrameError(path, f"missing channel(s) {missing_rgb}; a frame needs {list(RGB_CHANNELS)}")

@@ -7,8 +7,9 @@ Observed ocean images come in two kinds:
   bring them back to linear radiance in two steps:
 
   1. integers to display values in [0, 1]: ``uint8 / 255``, ``uint16 / 65535`` (floats are
-     taken as display values already); a gray image is repeated over R, G, B and an alpha
-     channel is dropped;
+     taken as display values already, and a float file outside [0, 1] is refused; signed
+     integers are refused); a gray image is repeated over R, G, B and an alpha channel is
+     dropped; CMYK and other colour models Pillow decodes are converted to RGB;
   2. ``radiance = jaxocean.shading.inverse_tonemap(display, exposure, mode=space)``:
      ``space="srgb"`` (photographs and most video: the sRGB transfer curve),
      ``"bruneton"`` (images made by :func:`save_png` or the paper's renderer) or
@@ -152,6 +153,8 @@ def save_png(path, linear_image, exposure=1.0, mode: str = "bruneton") -> Path:
         the written path.
     """
     _check_space(mode)
+    if Path(path).suffix.lower() != ".png":
+        raise ValueError(f"save_png writes PNG files; name the file .png (got {str(path)!r})")
     image = np.asarray(linear_image)
     if image.ndim != 3 or image.shape[-1] != 3 or 0 in image.shape or image.dtype.kind not in "iuf":
         raise ValueError(f"save_png expects a real (H, W, 3) linear RGB image; got {image.dtype} {image.shape}")
@@ -168,8 +171,13 @@ def _check_space(space: str) -> None:
 
 
 def _plugin(path: Path) -> str | None:
-    """The imageio plugin for ``path``: Pillow for its formats, else imageio's choice."""
-    return "pillow" if path.suffix.lower() in _PILLOW_SUFFIXES else None
+    """The imageio plugin for ``path``: Pillow for its formats, and for TIFF when tifffile
+    (imageio's first choice, which reads more kinds of TIFF) is not installed; else imageio's
+    choice."""
+    suffix = path.suffix.lower()
+    if suffix in _PILLOW_SUFFIXES or (suffix in (".tif", ".tiff") and importlib.util.find_spec("tifffile") is None):
+        return "pillow"
+    return None
 
 
 def _video_plugin_available() -> bool:
@@ -189,12 +197,21 @@ def _display(pixels, path) -> tuple[np.ndarray, int | None]:
         raise FileFormatError(path, f"not an image of 1-4 channels: decoded shape {pixels.shape}")
     # Gray (+ alpha) -> gray; RGB (+ alpha) -> RGB: the alpha channel is not radiance.
     colour = pixels[..., 0] if pixels.shape[-1] <= 2 else pixels[..., :3]
-    if colour.dtype.kind in "ui":
+    if colour.dtype.kind == "u":
         top = np.iinfo(colour.dtype).max
         return colour / float(top), int(top).bit_length()
-    if colour.dtype.kind in "fb":
+    if colour.dtype.kind == "f":
+        # float pixels are taken as display values, so they must be ones
+        if colour.size and not (np.all(np.isfinite(colour)) and 0.0 <= colour.min() and colour.max() <= 1.0):
+            raise FileFormatError(path, f"float pixels must be display values in [0, 1]; this file holds "
+                                        f"[{np.nanmin(colour):.4g}, {np.nanmax(colour):.4g}]"
+                                        f"{' and NaN or inf' if not np.all(np.isfinite(colour)) else ''} (scene-"
+                                        f"referred radiance belongs in an OpenEXR file)")
         return colour.astype(np.float64), None
-    raise FileFormatError(path, f"unsupported pixel type {colour.dtype}")
+    if colour.dtype.kind == "b":  # 1-bit images: black and white display values
+        return colour.astype(np.float64), None
+    raise FileFormatError(path, f"unsupported pixel type {colour.dtype} (signed or complex pixels have no display "
+                                f"range): save 8- or 16-bit unsigned images")
 
 
 def _rgb(display: np.ndarray, gray_ndim: int) -> np.ndarray:
@@ -202,9 +219,16 @@ def _rgb(display: np.ndarray, gray_ndim: int) -> np.ndarray:
     return np.broadcast_to(display[..., None], display.shape + (3,)) if display.ndim == gray_ndim else display
 
 
+# Pillow modes whose channels are not R, G, B (+ alpha) or gray: decoded through Pillow's
+# conversion to RGB (a CMYK JPEG's four channels would otherwise be read as RGBA).
+_CONVERT_TO_RGB = ("CMYK", "YCbCr", "LAB", "HSV")
+
+
 def _decode_image(path: Path) -> tuple[np.ndarray, int | None]:
     try:
-        pixels = iio.imread(path, plugin=_plugin(path))
+        plugin = _plugin(path)
+        mode = iio.immeta(path, plugin=plugin).get("mode") if plugin == "pillow" else None
+        pixels = iio.imread(path, plugin=plugin, **({"mode": "RGB"} if mode in _CONVERT_TO_RGB else {}))
     except (OSError, ValueError) as error:
         raise FileFormatError(path, f"cannot read the image ({error})") from error
     if np.asarray(pixels).dtype == np.uint8 and _png_bit_depth(path) == 16:
