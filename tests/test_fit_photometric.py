@@ -248,6 +248,9 @@ def test_bad_inputs_raise_clear_errors(scene):
             ph.photometric(nan_frame, *args[1:])
         with pytest.raises(ValueError, match="images are float16: the fits run in float32 or float64"):
             ph.photometric(jnp.asarray(s["images"], jnp.float16), *args[1:])
+        for bad in (-1.0, float("nan"), "0.1"):
+            with pytest.raises(ValueError, match=r"noise must be a finite number >= 0 \(or None\)"):
+                ph.photometric(*args, noise=bad)
         with pytest.raises(ValueError, match="noise must be"):
             ph.photometric(*args, noise=-1.0)
         with pytest.raises(ValueError, match="include 'exposure' in fit"):

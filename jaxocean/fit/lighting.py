@@ -676,9 +676,8 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     spec = solvers.get_solver(solver)
     if structure not in STRUCTURES:
         raise ValueError(f"unknown structure {structure!r}; expected one of {STRUCTURES}")
-    if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer))
-                                  and math.isfinite(noise) and noise >= 0):
-        raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
+    if noise is not None:
+        check_nonnegative_number(noise, "noise must be a finite number >= 0 (or None)")
     check_nonnegative_number(normal_correlation, "normal_correlation must be a finite number of pixels >= 0")
     if normal_correlation > 0 and normal_noise is None:
         raise ValueError("normal_correlation is the correlation of normal_noise: pass normal_noise= too")

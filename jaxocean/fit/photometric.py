@@ -138,7 +138,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import render, shading
 from jaxocean._sea_scale import compress, sea_median
-from jaxocean.errors import InvalidValueError, is_concrete
+from jaxocean.errors import InvalidValueError, check_nonnegative_number, is_concrete
 from jaxocean.fit._image_inputs import fit_dtype
 from jaxocean.fit._photometry import sun_to_pq
 from jaxocean.fit._photometric_model import (COLOR_NAMES, Data, Static, all_residuals, frame_jacobian, layout,
@@ -465,9 +465,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         raise ValueError(f"waves must have leaves (N,); got {waves.omega.shape}")
     shading.validate_lighting(lighting)
     shading.check_horizon_gradient(horizon_gradient)
-    if noise is not None and not (isinstance(noise, (int, float, np.floating, np.integer)) and math.isfinite(noise)
-                                  and noise >= 0):
-        raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
+    if noise is not None:
+        check_nonnegative_number(noise, "noise must be a finite number >= 0 (or None)")
     if not (isinstance(max_steps, (int, np.integer)) and max_steps >= 1 and isinstance(rounds, (int, np.integer))
             and rounds >= 1):
         raise ValueError(f"max_steps and rounds must be positive ints; got {max_steps!r}, {rounds!r}")
