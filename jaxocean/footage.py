@@ -38,7 +38,7 @@ from jaxocean import camera as cam
 from jaxocean._stages import timed
 from jaxocean.errors import InvalidValueError
 from jaxocean.io.exr import require_file
-from jaxocean.io.images import VIDEO_SUFFIXES
+from jaxocean.io.images import is_video_file
 
 __all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
            "EVIDENCE_WIDTH", "BLACK_LEVEL"]
@@ -189,7 +189,7 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
     if step < 1:
         raise ValueError(f"step must be >= 1; got {step}")
 
-    video = len(frames) == 1 and frames[0].suffix.lower() in VIDEO_SUFFIXES + (".gif",)
+    video = len(frames) == 1 and is_video_file(frames[0])
     for f in frames:  # a missing file is named as such, before any count of frames
         require_file(f, "video file" if video else "frame file")
 

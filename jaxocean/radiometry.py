@@ -46,7 +46,7 @@ import numpy as np
 
 from jaxocean.errors import check_values, is_concrete
 from jaxocean.io.exr import FileFormatError, read_frame, require_file
-from jaxocean.io.images import VIDEO_SUFFIXES, load_display, load_display_video
+from jaxocean.io.images import VIDEO_SUFFIXES, is_video_file, load_display, load_display_video
 from jaxocean.nn.geometry import LUMINANCE
 from jaxocean.shading import inverse_tonemap, tonemap
 
@@ -217,7 +217,7 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
     if videos and len(paths) > 1:
         raise ValueError(f"load_frames reads one video file or a list of image files; got the video "
                          f"{str(videos[0])!r} among {len(paths)} files")
-    if len(paths) == 1 and (paths[0].suffix.lower() in VIDEO_SUFFIXES or paths[0].suffix.lower() == ".gif"):
+    if len(paths) == 1 and is_video_file(paths[0]):
         decoded = load_display_video(paths[0])
         display, gray = _gray_video(decoded.values)
         return _display_frames(display, gray, decoded.bits, response, high, low, tuple(paths))

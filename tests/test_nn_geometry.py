@@ -107,6 +107,19 @@ def test_bad_inputs_are_named(key, tmp_path):
     assert meta["config"]["widths"] == [4, 8, 8]
     with pytest.raises(ValueError, match="losses"):
         gt.variant(TINY_TRAIN, losses="image+typo").terms()
+    with pytest.raises(ValueError, match="losses"):  # '' was taken as "the config's losses"
+        gt.variant(TINY_TRAIN, losses="").terms()
+    # parameters of another dtype (loaded before, and predicted finite garbage)
+    geo.save(tmp_path / "int.npz", geo.GeometryModel(model.config, jax.tree.map(lambda x: np.asarray(x, np.int32),
+                                                                                 model.params)))
+    with pytest.raises(CheckpointError, match=r"int\.npz: array 0 is int32, the model expects float32"):
+        geo.load(tmp_path / "int.npz")
+    (tmp_path / "notes.txt").write_text("not a model")
+    with pytest.raises(CheckpointError, match=r"notes\.txt: not a jaxocean checkpoint \(those are \.npz files"):
+        geo.load(tmp_path / "notes.txt")
+    for field, value in (("widths", (-16, 32)), ("roughness_widths", ()), ("resnet_blocks", 0)):
+        with pytest.raises(ValueError, match=f"{field} must be"):
+            TINY._replace(**{field: value}).validate()
 
 
 def test_model_file_round_trip(key, tmp_path):
@@ -265,6 +278,32 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
     assert _cli("predict-geometry", scene / "frame_00000.exr", "--model", model_path, "--out", tmp_path / "p3") == 2
     assert "camera" in capsys.readouterr().err
     assert _cli("train-geometry", tiny_dataset, "--out", tmp_path / "r", "--losses", "image+nonsense") == 2
+    # a second, shorter prediction into the same directory leaves no frame of the first
+    assert _cli("predict-geometry", scene / "frame_00000.exr", "--scene", scene, "--model", model_path,
+                "--out", tmp_path / "pred") == 0
+    assert sorted(p.name for p in (tmp_path / "pred").iterdir()) == [
+        "frame_00000.exr", "frame_00000_normal.png", "frame_00000_roughness.png"]
+    assert "removed 3 frame file(s) of a previous prediction" in capsys.readouterr().err
+    # an --out that cannot be written is refused before the evaluation runs
+    assert _cli("eval-geometry", tiny_dataset, "--model", model_path, "--out", tmp_path) == 2
+    assert f"--out {tmp_path}: is a directory" in capsys.readouterr().err
+    # an animated GIF is a sequence of frames, as reconstruct takes it
+    import imageio.v3 as iio
+
+    gif = np.random.default_rng(0).integers(0, 255, (2, 32, 32, 3), dtype=np.uint8)
+    iio.imwrite(tmp_path / "clip.gif", gif, loop=0, duration=100)
+    assert _cli("predict-geometry", tmp_path / "clip.gif", "--scene", scene, "--model", model_path,
+                "--out", tmp_path / "gif") == 0
+    assert (tmp_path / "gif" / "frame_00001.exr").exists()
+    # a frame with a NaN pixel is named (written around jaxocean, whose writer refuses NaN)
+    import OpenEXR
+
+    planes = {c: np.array(frame.image[..., i]) for i, c in enumerate("RGB")}
+    planes["G"][3, 4] = np.nan
+    OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, planes).write(str(tmp_path / "nan.exr"))
+    assert _cli("predict-geometry", tmp_path / "nan.exr", "--scene", scene, "--model", model_path,
+                "--out", tmp_path / "p4") == 2
+    assert "nan.exr: holds non-finite pixel values" in capsys.readouterr().err
 
 
 def _ratios_to_flat(model):

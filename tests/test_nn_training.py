@@ -52,6 +52,19 @@ def test_the_time_budget_is_read_after_every_step(tmp_path):
     assert 1 <= result["steps"] < 4 and len(result["history"]) == 1
 
 
+@pytest.mark.parametrize("stop", ["time_budget", "early_stopping"])
+def test_running_a_stopped_run_again_changes_nothing(tmp_path, stop):
+    settings = (dict(time_budget_s=0.3, on_step=lambda n: time.sleep(0.2)) if stop == "time_budget"
+                else dict(patience=1, validate=lambda state: {"loss": 1.0}))  # no gain after the first epoch
+    first = _toy(tmp_path, epochs=5, **settings)
+    assert first["stopped"] == stop
+    before = (tmp_path / "checkpoint.npz").read_bytes()
+    again = _toy(tmp_path, epochs=5, **settings)  # took one more epoch (or step) each time before
+    assert again["stopped"] == stop and again["steps"] == first["steps"] and len(again["history"]) == len(
+        first["history"])
+    assert (tmp_path / "checkpoint.npz").read_bytes() == before
+
+
 def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path):
     full = _toy(tmp_path / "full")
 
@@ -68,6 +81,14 @@ def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_a_crop_longer_than_one_side_takes_that_whole_side():
+    frames = jnp.arange(8 * 24, dtype=jnp.float32).reshape(1, 8, 24, 1)
+    (window,) = gt._crop(jax.random.key(0), [frames], 16, 8, 24)  # a gather out of range before
+    assert window.shape == (1, 8, 16, 1)
+    x0 = int(window[0, 0, 0, 0])
+    np.testing.assert_array_equal(window, frames[:, :, x0:x0 + 16])
+
+
 def test_datasets_too_small_to_train_on_say_what_they_lack(tmp_path):
     config = gt.TrainConfig(model=geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8)), losses="image+gan",
                             epochs=1, steps_per_epoch=1, batch_size=1, crop=8, val_frames=1,
@@ -75,6 +96,10 @@ def test_datasets_too_small_to_train_on_say_what_they_lack(tmp_path):
     dataset.simulate(tmp_path / "ds7", 7, 1, (8, 8), seed=0, progress=False)
     with pytest.raises(ValueError, match="'gan' loss needs at least 2 frames per scene.*has 1"):
         gt.train(tmp_path / "ds7", tmp_path / "run", config, progress=False)
+    # seven 1-frame scenes leave five training frames: no batch of 8 (it trained 0 steps before)
+    with pytest.raises(ValueError, match=r"ds7: the train split \(5 frames\) must hold a batch \(8\)"):
+        gt.train(tmp_path / "ds7", tmp_path / "run", config._replace(losses="supervised", batch_size=8),
+                 progress=False)
     # three scenes: no validation split (it validated nothing and wrote no model)
     dataset.simulate(tmp_path / "ds3", 3, 2, (8, 8), seed=0, progress=False)
     with pytest.raises(ValueError, match="has 3 and 0 \\(simulate at least 7 scenes\\)"):

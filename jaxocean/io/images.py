@@ -45,13 +45,19 @@ from jaxocean.files import atomic_write
 from jaxocean.io.exr import FileFormatError, read_frame, require_file
 from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
 
-__all__ = ["VIDEO_SUFFIXES", "Display", "load_display", "load_display_video", "load_image", "load_video",
-           "save_png"]
+__all__ = ["VIDEO_SUFFIXES", "Display", "is_video_file", "load_display", "load_display_video", "load_image",
+           "load_video", "save_png"]
 
 VIDEO_SUFFIXES = (".mp4", ".m4v", ".mov", ".avi", ".mkv", ".webm", ".mpg", ".mpeg", ".wmv", ".flv")
 """Containers that imageio reads only through a video plugin (PyAV or imageio-ffmpeg)."""
 
 _EXR_SUFFIX = ".exr"
+
+
+def is_video_file(path) -> bool:
+    """Whether a frames argument naming this one file means every frame in it: a video
+    container (:data:`VIDEO_SUFFIXES`) or a GIF (an animation; one GIF of one frame too)."""
+    return Path(path).suffix.lower() in VIDEO_SUFFIXES + (".gif",)
 
 # Formats Pillow decodes: naming the plugin makes a broken file fail there, with Pillow's
 # message, instead of imageio probing every other backend (some warn while they fail).

@@ -37,7 +37,7 @@ from jaxocean.io.exr import checked_frame, write_frame
 from jaxocean.io.images import save_png
 from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, write_scene
 
-__all__ = ["HALF_MAX", "fits_half", "frame_name", "write_sequence"]
+__all__ = ["HALF_MAX", "fits_half", "frame_name", "remove_stale_frames", "write_sequence"]
 
 #: the largest finite half float: brighter radiance forces a float32 EXR
 HALF_MAX = 65504.0
@@ -48,7 +48,8 @@ def fits_half(values) -> bool:
     stored as half floats; writers fall back to float32 where it cannot."""
     return bool(np.abs(np.asarray(values)).max() < HALF_MAX)
 
-_FRAME_FILE = re.compile(r"frame_(\d{5,})\.(exr|png)")
+# a frame's files: frame_XXXXX.exr / .png, and the _normal / _roughness previews of predictions
+_FRAME_FILE = re.compile(r"frame_(\d{5,})(_normal|_roughness)?\.(exr|png)")
 
 
 def frame_name(index: int) -> str:
@@ -132,6 +133,14 @@ def _remove_previous(out: Path, n_frames: int) -> list[Path]:
     """Remove a previous sequence's ``scene.json`` and its frame files numbered ``>= n_frames``
     (the others are overwritten); returns the removed frame files."""
     (out / SCENE_FILENAME).unlink(missing_ok=True)
+    return remove_stale_frames(out, n_frames)
+
+
+def remove_stale_frames(out, n_frames: int) -> list[Path]:
+    """Remove the frame files in directory ``out`` (``frame_XXXXX.exr`` / ``.png`` and their
+    ``_normal`` / ``_roughness`` previews) numbered ``>= n_frames``: what a previous, longer
+    sequence left that the new one does not overwrite. Returns the removed files."""
+    out = Path(out)
     stale = sorted(path for path in out.iterdir()
                    if (m := _FRAME_FILE.fullmatch(path.name)) and int(m.group(1)) >= n_frames and path.is_file())
     for path in stale:

@@ -68,6 +68,10 @@ def _read(path: Path, meta_only: bool):
     """``(meta, arrays)`` of a checkpoint, every array read (the file is closed on return)."""
     if not path.exists():
         raise CheckpointError(path, "no such file")
+    if path.is_file():
+        with open(path, "rb") as f:
+            if f.read(4) != b"PK\x03\x04":  # np.load would try it as a pickle and say so
+                raise CheckpointError(path, "not a jaxocean checkpoint (those are .npz files, zip archives)")
     try:
         # our own file handle: np.load leaves its own open when the zip is bad
         with open(path, "rb") as f, np.load(f, allow_pickle=False) as data:
@@ -98,6 +102,9 @@ def load_tree(path, template, *, meta_only: bool = False):
         if arr.shape != tuple(want):
             raise CheckpointError(path, f"array {i} has shape {arr.shape}, the model expects {tuple(want)} "
                                   "(another architecture)")
+        want_dtype = np.dtype(leaf.dtype if hasattr(leaf, "dtype") else np.result_type(leaf))
+        if arr.dtype != want_dtype:
+            raise CheckpointError(path, f"array {i} is {arr.dtype}, the model expects {want_dtype}")
         out.append(arr)
     return jax.tree.unflatten(treedef, out), meta
 

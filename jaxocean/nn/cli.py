@@ -21,7 +21,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from jaxocean._cli_inputs import positive_float, positive_int
+from jaxocean._cli_inputs import check_out_dir, check_out_file, positive_float, positive_int
 
 __all__ = ["register"]
 
@@ -155,14 +155,21 @@ def _report_model(summary) -> int:
 def _load_frames(paths, space, exposure):
     import numpy as np
 
-    from jaxocean.io.images import VIDEO_SUFFIXES, load_image, load_video
+    from jaxocean.io.images import is_video_file, load_image, load_video
 
     paths = [Path(p) for p in paths]
-    if len(paths) == 1 and paths[0].suffix.lower() in VIDEO_SUFFIXES:
-        return load_video(paths[0], space=space, exposure=exposure)
-    if any(p.suffix.lower() in VIDEO_SUFFIXES for p in paths):
+    if len(paths) == 1 and is_video_file(paths[0]):
+        video = load_video(paths[0], space=space, exposure=exposure)
+        bad = [t for t in range(len(video)) if not np.all(np.isfinite(video[t]))]
+        if bad:
+            raise ValueError(f"{paths[0]}: frame(s) {bad[:10]} hold non-finite values (NaN or inf)")
+        return video
+    if any(is_video_file(p) for p in paths):
         raise ValueError("give one video file or image files, not both")
     images = [load_image(p, space=space, exposure=exposure) for p in paths]
+    for p, image in zip(paths, images):
+        if not np.all(np.isfinite(image)):
+            raise ValueError(f"{p}: holds non-finite pixel values (NaN or inf)")
     shapes = {im.shape for im in images}
     if len(shapes) > 1:
         raise ValueError(f"the frames differ in size: {sorted(shapes)}")
@@ -171,14 +178,16 @@ def _load_frames(paths, space, exposure):
 
 def _predict(args, camera_from_args) -> int:
     import imageio.v3 as iio
+    import numpy as np
 
     from jaxocean import plots
     from jaxocean.files import atomic_write
     from jaxocean.io import read_scene
     from jaxocean.io.exr import write_frame
-    from jaxocean.io.sequence import fits_half, frame_name
+    from jaxocean.io.sequence import fits_half, frame_name, remove_stale_frames
     from jaxocean.nn import geometry as geo
 
+    out = check_out_dir(args.out)
     model = geo.load(args.model)
     images = _load_frames(args.frames, args.space, args.exposure)
     scene = read_scene(args.scene) if args.scene else None
@@ -187,9 +196,11 @@ def _predict(args, camera_from_args) -> int:
     camera = camera_from_args(args, None if scene is None else scene.camera, tuple(images.shape[1:3]),
                               where=f"frame {args.frames[0]}")
     pred = geo.predict(model, images, camera)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"{out}: exists and is not a directory")
+    out.mkdir(parents=True, exist_ok=True)
+    stale = remove_stale_frames(out, len(images))
+    if stale:
+        print(f"note: removed {len(stale)} frame file(s) of a previous prediction in {out} beyond the new "
+              f"{len(images)} frame(s)", file=sys.stderr)
     for t in range(len(images)):
         g = {"normal": pred.normal[t], "roughness": pred.roughness[t], "mask": pred.mask[t],
              "slope_variance": pred.slope_variance[t]}
@@ -201,6 +212,9 @@ def _predict(args, camera_from_args) -> int:
             atomic_write(out / name.replace(".exr", f"_{suffix}.png"),
                          lambda tmp, rgb=rgb: iio.imwrite(tmp, rgb, extension=".png"))
     print(f"{len(images)} frame(s) -> {out}/frame_XXXXX.exr (+ _normal.png, _roughness.png)")
+    if not np.any(pred.mask):
+        print("jaxocean: warning: no pixel sees the sea (the view is above the horizon): the prediction is "
+              "empty; check the camera's pitch", file=sys.stderr)
     return 0
 
 
@@ -209,6 +223,8 @@ def _eval(args) -> int:
     from jaxocean.nn import geometry as geo
     from jaxocean.nn import geometry_train as gt
 
+    if args.out:
+        check_out_file(args.out)
     model = geo.load(args.model)
     rows = {"flat normal": gt.evaluate(gt.flat_method, args.dataset, args.split, max_frames=args.max_frames),
             "model": gt.evaluate(model, args.dataset, args.split, max_frames=args.max_frames)}

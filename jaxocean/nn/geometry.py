@@ -88,6 +88,10 @@ PRETRAINED = {"cpu": PRETRAINED_PATH, "gpu": PRETRAINED_PATH.with_name("geometry
 _FORMAT = "jaxocean.nn.geometry/1"
 
 
+def _is_positive_int(value) -> bool:
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
+
+
 class GeometryConfig(NamedTuple):
     """Architecture of a geometry model (static and hashable)."""
 
@@ -106,6 +110,13 @@ class GeometryConfig(NamedTuple):
             raise ValueError(f"normal_head must be one of {NORMAL_HEADS}; got {self.normal_head!r}")
         if self.color not in COLOR_MODES:
             raise ValueError(f"color must be one of {COLOR_MODES}; got {self.color!r}")
+        for name in ("widths", "roughness_widths"):
+            widths = getattr(self, name)
+            if not (isinstance(widths, tuple) and widths and all(_is_positive_int(w) for w in widths)):
+                raise ValueError(f"{name} must be a non-empty tuple of channel counts >= 1; got {widths!r}")
+        for name in ("resnet_width", "resnet_blocks"):
+            if not _is_positive_int(getattr(self, name)):
+                raise ValueError(f"{name} must be an integer >= 1; got {getattr(self, name)!r}")
         return self
 
     @property

@@ -51,7 +51,7 @@ from jaxocean.nn import augment as aug
 from jaxocean.nn import discriminators as disc
 from jaxocean.nn import geometry as geo
 from jaxocean.nn import metrics
-from jaxocean.nn.training import data_parallel, loss_terms, train_loop
+from jaxocean.nn.training import check_split_holds_batch, data_parallel, loss_terms, train_loop
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "variant", "train", "evaluate", "flat_method", "model_method",
            "augmented_method", "pixel_method"]
@@ -115,7 +115,7 @@ def variant(config: TrainConfig, *, losses=None, backbone=None, normal_head=None
         model = model._replace(backbone=backbone)
     if normal_head is not None:
         model = model._replace(normal_head=normal_head)
-    return config._replace(model=model.validate(), losses=losses or config.losses, **changes)
+    return config._replace(model=model.validate(), losses=config.losses if losses is None else losses, **changes)
 
 
 # --------------------------------------------------------------------------- batches
@@ -136,13 +136,15 @@ def _scene_inputs(images, camera, color):
 
 
 def _crop(key, arrays, crop, H, W):
-    """The same random ``crop x crop`` window of every array ``(S, H, W, ...)``."""
+    """The same random window of every array ``(S, H, W, ...)``: ``crop`` pixels along each
+    axis, or the whole axis where it is shorter."""
     if crop >= H and crop >= W:
         return arrays
+    ch, cw = min(crop, H), min(crop, W)
     ky, kx = jax.random.split(key)
-    y0 = jax.random.randint(ky, (), 0, H - crop + 1)
-    x0 = jax.random.randint(kx, (), 0, W - crop + 1)
-    return [jax.lax.dynamic_slice_in_dim(jax.lax.dynamic_slice_in_dim(a, y0, crop, 1), x0, crop, 2) for a in arrays]
+    y0 = jax.random.randint(ky, (), 0, H - ch + 1)
+    x0 = jax.random.randint(kx, (), 0, W - cw + 1)
+    return [jax.lax.dynamic_slice_in_dim(jax.lax.dynamic_slice_in_dim(a, y0, ch, 1), x0, cw, 2) for a in arrays]
 
 
 def _prepare(batch, key, color, crop, augment=None):
@@ -359,6 +361,8 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     if not val_windows or not data.windows("train"):
         raise ValueError(f"{data.root}: the dataset's train or validation split is empty "
                          f"({len(data.splits['train'])} / {len(data.splits['val'])} scenes); simulate at least 12 scenes")
+    check_split_holds_batch(data.root, "train", len(data.windows("train", sequence)),
+                            "frames" if sequence == 1 else f"runs of {sequence} frames", config.batch_size)
 
     def validate(state):
         model = geo.GeometryModel(config.model, state["g"])

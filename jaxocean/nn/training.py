@@ -172,12 +172,12 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
         from tqdm.auto import tqdm
         bar = tqdm(total=epochs * steps_per_epoch, initial=pos["epoch"] * steps_per_epoch + pos["batch"],
                    unit="step", desc="train", smoothing=0.05)
-    stopped, taken = "epochs", 0
+    taken = 0
     t_start = time.perf_counter() - pos["train_s"]
     interrupted = _Interrupt()
     try:
         with interrupted:
-            while pos["epoch"] < epochs:
+            while pos["epoch"] < epochs and not pos.get("stopped"):  # a finished run stays finished
                 it = batches(pos["epoch"])
                 for _ in range(pos["batch"]):  # resume mid-epoch: skip what was consumed
                     next(it)
@@ -224,21 +224,30 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
                 pos["epoch"] += 1
                 pos["batch"] = 0
                 pos["epoch_logs"] = {}
+                # why it stops goes into the checkpoint: running the command again is then a
+                # no-op, not one more epoch past the patience or the budget
+                if pos["bad_epochs"] >= patience:
+                    pos["stopped"] = "early_stopping"
+                elif time_budget_s is not None and pos["train_s"] >= time_budget_s:
+                    pos["stopped"] = "time_budget"
                 save()
                 write_json(run_dir / HISTORY, pos["history"])
                 _plot_curves(run_dir / CURVES, pos["history"])
                 if bar is not None:
                     bar.write(f"epoch {pos['epoch']}: " + ", ".join(f"{k} {v:.4g}" for k, v in scores.items()))
-                if pos["bad_epochs"] >= patience:
-                    stopped = "early_stopping"
-                    break
-                if time_budget_s is not None and pos["train_s"] >= time_budget_s:
-                    stopped = "time_budget"
-                    break
     finally:
         if bar is not None:
             bar.close()
-    return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": stopped, "steps": pos["step"]}
+    return {"state": state, "history": pos["history"], "best": pos["best"], "stopped": pos.get("stopped", "epochs"),
+            "steps": pos["step"]}
+
+
+def check_split_holds_batch(root, split: str, count: int, unit: str, batch_size: int) -> None:
+    """A ``ValueError`` naming the dataset unless ``split`` (``count`` of ``unit``) fills a batch:
+    an epoch drops the last, incomplete batch, so a smaller split would train no step."""
+    if count < batch_size:
+        raise ValueError(f"{root}: the {split} split ({count} {unit}) must hold a batch ({batch_size}); simulate "
+                         f"more scenes or frames, or train with a smaller batch")
 
 
 class _Interrupt(contextlib.AbstractContextManager):

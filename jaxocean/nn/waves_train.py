@@ -49,7 +49,7 @@ import optax
 from jaxocean.files import write_json
 from jaxocean.io.dataset import Dataset
 from jaxocean.nn import waves as wn
-from jaxocean.nn.training import data_parallel, loss_terms, train_loop
+from jaxocean.nn.training import check_split_holds_batch, data_parallel, loss_terms, train_loop
 from jaxocean.waves import GRAVITY, Waves
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "geometry_loss", "supervised_loss", "make_step", "init_state",
@@ -253,9 +253,9 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
                          f"{config.model.size_multiple} (the network's UNet)")
     scenes = _Scenes(data, config.model.frames)
     train_ids, val_ids = list(data.splits["train"]), list(data.splits["val"])
-    if len(train_ids) < config.batch_size or not val_ids:
-        raise ValueError(f"{data.root}: the train split ({len(train_ids)} scenes) must hold a batch "
-                         f"({config.batch_size}) and the validation split ({len(val_ids)}) at least one scene")
+    check_split_holds_batch(data.root, "train", len(train_ids), "scenes", config.batch_size)
+    if not val_ids:
+        raise ValueError(f"{data.root}: the validation split holds no scene; simulate at least 7 scenes")
     parallel = parallel or data_parallel()
     if config.batch_size % parallel.size:
         raise ValueError(f"batch size {config.batch_size} does not split over {parallel.size} devices")
