@@ -840,6 +840,24 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     assert abs(fit.alpha / alpha_true - 1) < 0.15
 
 
+@pytest.mark.parametrize("key, true", [
+    (101, dict(hs=2.326, tp=7.033, gamma=3.918, theta_mean=0.262, s_max=37.728)),
+    (102, dict(hs=2.132, tp=4.014, gamma=4.43, theta_mean=-2.798, s_max=30.538)),
+])
+def test_tp_std_covers_where_the_waves_fall_in_their_bins(key, true):
+    # 20 waves drawn exactly from the spectrum: Tp comes out 4-5% off, which the residual's
+    # scatter alone put at 11 and 14 standard deviations (the fit absorbs what not knowing
+    # the bins' edges does to the residual); with the edges' covariance 2.1 and 1.6
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        waves = spectrum.sample_waves(jax.random.key(key), spectrum.Spectrum(**true), 20).waves
+    fit = fit_spectrum.spectrum(waves)
+    assert fit.success and fit.peak_observed
+    z = (float(fit.spectrum.tp) - true["tp"]) / fit.tp_std
+    assert abs(z) < 3 and abs(float(fit.spectrum.tp) / true["tp"] - 1) > 0.02, z  # off, and the std says so
+    assert fit.gamma_std > 0
+
+
 @pytest.mark.slow  # an ensemble of spectrum fits
 def test_spectrum_uncertainties_describe_the_scatter_of_the_answer():
     # seas drawn from known spectra, 40 waves with 10% amplitude noise, fitted back: the
@@ -880,6 +898,17 @@ def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
     both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), wind, far)
     bad = fit_spectrum.spectrum(both)
     assert not bad.success and bad.misfit > 2 * bad.misfit_bound
+    assert abs(fit.direction_misfit) <= fit_spectrum.DIRECTION_Z_MAX
+    # two systems of one period from directions 3 rad apart: the frequency spectrum is one
+    # JONSWAP's, and a broad spreading between them was reported a success
+    one = spectrum.Spectrum(hs=1.0, tp=6.0, gamma=3.3, theta_mean=0.0, s_max=40.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        a = spectrum.sample_waves(jax.random.key(1), one, 30).waves
+        b = spectrum.sample_waves(jax.random.key(2), one._replace(theta_mean=3.0), 30).waves
+    crossed = fit_spectrum.spectrum(jax.tree.map(lambda x, y: jnp.concatenate([x, y]), a, b))
+    assert crossed.misfit <= crossed.misfit_bound and not crossed.success
+    assert crossed.direction_misfit < -fit_spectrum.DIRECTION_Z_MAX  # measured -3.9
     # a stated noise of the cumulative energy widens the bound: the same answer is accepted
     lenient = fit_spectrum.spectrum(both, noise=0.2)
     assert lenient.success and lenient.misfit == pytest.approx(bad.misfit)

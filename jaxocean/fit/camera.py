@@ -59,7 +59,13 @@ solver's convergence test passes in a wrong local minimum too; the loss tells th
 neighbouring minimum at -1.5% / -0.005 rad, where height and pitch trade against each other).
 Measured at the truth with noise on display values: loss / noise^2 = 0.71-0.75 (sigma 0.01,
 0.03; clipping and censored glints), hence ``NOISE_FACTOR = 1.5``. A fit of a noisy image
-without ``noise=`` reports failure: it cannot tell noise from a wrong camera.
+without ``noise=`` reports failure: it cannot tell noise from a wrong camera. With ``noise=``,
+a neighbouring minimum whose loss is within the bound passes as well, with a standard
+deviation that does not reach the truth (measured on a 16 x 16 float64 scene with display
+noise 0.02, one start at 8.7 m, ``search=(1, 1)``: 8.28 +- 0.04 m against the true 10 m,
+loss 1.04 noise^2, against 0.88 noise^2 at the truth): ``success`` says that the camera
+explains the image to its noise, not that no other camera does; the start search
+(``search``) is what looks for the right basin.
 
 Everything after validation is one jitted function; results are arrays only (``vmap`` with
 ``throw=False``).

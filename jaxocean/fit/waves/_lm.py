@@ -55,10 +55,15 @@ class WaveFit(NamedTuple):
     * ``waves``        fitted :class:`~jaxocean.waves.Waves` ``(N,)``, sorted by frequency
       by :func:`waves` (``refine`` keeps the input order).
     * ``uncertainty``  ``Waves`` of 1-sigma standard deviations of (h, omega, theta, phi):
-      the local curvature of the loss at the fit, scaled by its residual. It bounds the error
-      of a wave marked ``determined``; for an undetermined one (a stand-in for waves the
-      window does not separate) the fitted values can lie many of these sigmas from any true
-      wave, and the width is no error bar (:func:`forecast_model` widens it).
+      the local curvature of the loss at the fit, scaled by its residual: the error a wave
+      marked ``determined`` has from noise in the data, at the optimum. It is not a bound on
+      the error left when the refinement stops short of the optimum: on noise-free data
+      (residual far below the noise floor the refinement stops at) determined waves were
+      measured 5-30 of these sigmas from the truth, and on noisy data with ``converged``
+      False 5-12; read it with ``converged`` and, on clean data, as a lower limit. For an
+      undetermined wave (a stand-in for waves the window does not separate) the fitted
+      values can lie many of these sigmas from any true wave, and the width is no error bar
+      (:func:`forecast_model` widens it).
     * ``loss``         the paper's loss (:mod:`jaxocean.fit.waves`) at the fit.
     * ``normal_error`` mean angle [rad] between fitted and observed normals.
     * ``roughness_error`` mean absolute roughness difference.
