@@ -89,8 +89,11 @@ Parameters inside the solvers are ``(a, b, log omega, theta)`` per wave: no sing
 at ``h = 0`` and ``omega > 0`` by construction.
 
 Wave uncertainty (:class:`WaveFit` ``uncertainty``) is the Gauss-Newton covariance
-``sigma^2 (J^T J)^-1`` with ``sigma^2 = RSS / (M - 4N)``, mapped to ``(h, omega, theta,
-phi)``: cheap (the solver has ``J^T J``) and meaningful when the residual is noise.
+``sigma^2 (J^T J)^-1`` with ``sigma^2 = max(RSS / (M - 4N), noise^2)`` (``noise`` the stated
+noise, else the floor: the variance at which the refinement judges its steps, so a fit of
+noise-free data does not report the tiny spread of its residual), mapped to ``(h, omega,
+theta, phi)``: cheap (the solver has ``J^T J``) and meaningful when the residual is noise.
+:func:`refine` has no noise and uses the residual's variance alone.
 
 Noise correlated across the image (``noise_correlation=``, :func:`noise_cells`): a
 network's normal errors are smooth, and taken as independent pixels they pay the criterion's

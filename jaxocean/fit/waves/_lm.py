@@ -55,15 +55,16 @@ class WaveFit(NamedTuple):
     * ``waves``        fitted :class:`~jaxocean.waves.Waves` ``(N,)``, sorted by frequency
       by :func:`waves` (``refine`` keeps the input order).
     * ``uncertainty``  ``Waves`` of 1-sigma standard deviations of (h, omega, theta, phi):
-      the local curvature of the loss at the fit, scaled by its residual: the error a wave
-      marked ``determined`` has from noise in the data, at the optimum. It is not a bound on
-      the error left when the refinement stops short of the optimum: on noise-free data
-      (residual far below the noise floor the refinement stops at) determined waves were
-      measured 5-30 of these sigmas from the truth, and on noisy data with ``converged``
-      False 5-12; read it with ``converged`` and, on clean data, as a lower limit. For an
-      undetermined wave (a stand-in for waves the window does not separate) the fitted
-      values can lie many of these sigmas from any true wave, and the width is no error bar
-      (:func:`forecast_model` widens it).
+      the local curvature of the loss at the fit, scaled by its residual and, in
+      :func:`waves`, by no less than the noise variance its refinement stops at (the stated
+      ``noise``, else the floor: the refinement stops within a tenth of these sigmas of the
+      optimum). For a wave marked ``determined`` it is the error from noise in the data
+      (measured on noise-free 3-wave scenes: errors within 1.2 sigma; from the residual
+      alone they were 5-30 sigma). It does not cover a model that misses part of the sea:
+      with a swell the view cannot resolve and noise stated, determined waves were 5-12 sigma
+      off (``converged`` False). For an undetermined wave (a stand-in for waves the window
+      does not separate) the fitted values can lie many of these sigmas from any true wave,
+      and the width is no error bar (:func:`forecast_model` widens it).
     * ``loss``         the paper's loss (:mod:`jaxocean.fit.waves`) at the fit.
     * ``normal_error`` mean angle [rad] between fitted and observed normals.
     * ``roughness_error`` mean absolute roughness difference.
@@ -399,7 +400,7 @@ def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *,
 # =============================================================================== uncertainty
 
 
-def _uncertainty(y, jtj, active, half_rss, n_obs):
+def _uncertainty(y, jtj, active, half_rss, n_obs, sigma2_floor=0.0):
     """1-sigma of (h, omega, theta, phi) from the Gauss-Newton covariance.
 
     The variance of each derived quantity ``q(y)`` is the quadratic form ``g^T C g`` with
@@ -415,7 +416,8 @@ def _uncertainty(y, jtj, active, half_rss, n_obs):
     n = active.shape[0]
     dof = jnp.maximum(n_obs - 4.0 * jnp.sum(active), 1.0)
     # half_rss is 0.5 |r|^2 of residuals scaled by 1/sqrt(P); sigma^2 in those units
-    sigma2 = 2.0 * half_rss / dof
+    # not below the noise variance the refinement stops at (CHI2_TOL is a tenth of a sigma at it)
+    sigma2 = jnp.maximum(2.0 * half_rss / dof, 2.0 * sigma2_floor / n_obs)
     d = jnp.sqrt(jnp.maximum(jnp.diag(jtj), 1e-30))
     lam, vec = jnp.linalg.eigh(jtj / d[:, None] / d[None, :])
     lam = jnp.maximum(lam, jnp.finfo(jtj.dtype).eps * jnp.max(lam))
@@ -556,10 +558,10 @@ def dense_jtj(residual, y):
 
 
 def fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, steps, success, hist,
-               roughness_weight, n_min, n_max, t0, refine=ROWS):
+               roughness_weight, n_min, n_max, t0, refine=ROWS, sigma2=0.0):
     n = active.shape[0]
     w = to_waves(y, n)
-    unc = _uncertainty(y, jtj, active, half, 2.0 * n_valid)
+    unc = _uncertainty(y, jtj, active, half, 2.0 * n_valid, sigma2)
     lval, nerr, rerr = metrics(w, normals, roughness, camera, times, roughness_weight, n_min, n_max, refine)
     elapsed = time.perf_counter() - t0 if is_concrete(y) else float("nan")
     return WaveFit(waves=w, uncertainty=unc, loss=lval, normal_error=nerr, roughness_error=rerr,

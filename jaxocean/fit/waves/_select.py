@@ -744,7 +744,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     active, n_valid = best["active"], best["n_valid"]
     rw = rw if rough_info else 0.0
     result = fit_result(y, active, jtj, half, n_valid, normals, roughness, camera, times, total_steps, success,
-                        hist if history else None, rw, n_min, n_max, t0, state["refine"])
+                        hist if history else None, rw, n_min, n_max, t0, state["refine"], sigma2=sigma2)
     n_fit = current.omega.shape[0]
     result = _sorted(result, n_fit)
     if noise_correlation > 0:
