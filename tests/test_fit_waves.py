@@ -864,6 +864,18 @@ def test_tp_std_covers_where_the_waves_fall_in_their_bins(key, true):
     assert fit.gamma_std > 0
 
 
+def test_gamma_at_its_lower_bound_keeps_a_standard_deviation():
+    # a nearly Pierson-Moskowitz sea fits gamma = 1 + z^2 at z = 0, where the first-order
+    # 2 |z| std_z was 0: a gamma "known exactly" that is 0.16 off
+    true = dict(hs=1.774, tp=5.349, gamma=1.164, theta_mean=-2.901, s_max=33.464)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        waves = spectrum.sample_waves(jax.random.key(100), spectrum.Spectrum(**true), 20).waves
+    fit = fit_spectrum.spectrum(waves)
+    assert float(fit.spectrum.gamma) == pytest.approx(1.0, abs=1e-3)
+    assert fit.gamma_std > 0.01
+
+
 @pytest.mark.slow  # an ensemble of spectrum fits
 def test_spectrum_uncertainties_describe_the_scatter_of_the_answer():
     # seas drawn from known spectra, 40 waves with 10% amplitude noise, fitted back: the

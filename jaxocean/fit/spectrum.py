@@ -345,22 +345,32 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
             return p[:2]
         return p if bounded else np.array([p[0], p[1], math.sqrt(max(p[2] - 1.0, 0.0))])
 
-    def energy_residual(y):
+    # residuals of the spectrum's parameters p = (log hs, log tp, gamma), and of the solver's y
+    def energy_residual_p(p):
         # cumulative bin energies of the model against the data's, relative to the total
-        return jnp.cumsum(_bin_energy(to_params(y), edges_j)) / total - cum_j
+        return jnp.cumsum(_bin_energy(p, edges_j)) / total - cum_j
 
-    def roughness_residual(y):
+    def roughness_residual_p(p):
         # relative roughness residual of the informative rows
         fp, obs, share = rough_rows
-        model = share + _tail_roughness(to_params(y), fp, om_top, band_hi, n_min, n_max)
+        model = share + _tail_roughness(p, fp, om_top, band_hi, n_min, n_max)
         return (jnp.maximum(model, shading.MIN_SLOPE_VARIANCE) - obs) / obs
 
-    def residual(y, args):
-        r = energy_residual(y)
+    def residual_p(p):
+        r = energy_residual_p(p)
         if rough_rows is not None:
             scale = math.sqrt(roughness_weight * len(om) / max(int(rough_rows[0].shape[0]), 1))
-            r = jnp.concatenate([r, roughness_residual(y) * scale])
+            r = jnp.concatenate([r, roughness_residual_p(p) * scale])
         return r
+
+    def energy_residual(y):
+        return energy_residual_p(to_params(y))
+
+    def roughness_residual(y):
+        return roughness_residual_p(to_params(y))
+
+    def residual(y, args):
+        return residual_p(to_params(y))
 
     def grid_start(tps):
         # a grid over (Tp, gamma) with Hs^2 in closed form (energies are linear in Hs^2),
@@ -408,15 +418,13 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     g_fit = float(y[2])
     wp = 2 * math.pi / tp_fit
     fitted_density = np.asarray(spec._jonswap_kernel(edges_j, hs_fit, tp_fit, g_fit, 0.07, 0.09), np.float64)
-    std_y = _least_squares_std(lambda y_: residual(y_, None), y_solver, free, len(om),
+    # the covariance in the spectrum's own parameters: through the solver's z (gamma = 1 + z^2)
+    # gamma's standard deviation would vanish at gamma = 1, where d gamma / d z = 0
+    free_p = np.array([free[0], free[1], gamma is None])
+    std_p = _least_squares_std(residual_p, to_params(y_solver), free_p, len(om),
                                edge_cov=_edge_covariance(edges, fitted_density, total))
-    hs_std, tp_std = hs_fit * std_y[0], tp_fit * std_y[1]
-    if gamma is not None:
-        gamma_std = float("nan")
-    else:  # unbounded solvers fit z with gamma = 1 + z^2 (at z = 0 the first-order 2 |z| std_z
-        # vanishes: the second-order std_z^2 is what is left)
-        z = abs(float(y_solver[2]))
-        gamma_std = std_y[2] if bounded else max(2.0 * z * std_y[2], std_y[2] ** 2)
+    hs_std, tp_std = hs_fit * std_p[0], tp_fit * std_p[1]
+    gamma_std = float(std_p[2])  # NaN when gamma was given
 
     theta_mean, s_max, theta_std, s_max_std, directions_determined = _direction_mle(om, th, wp, weight=h * h)
     dir_misfit = (direction_misfit(om, th, wp, theta_mean, s_max, weight=h * h) if directions_determined
