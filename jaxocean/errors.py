@@ -16,7 +16,7 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["InvalidValueError", "is_concrete", "check_values", "check_finite", "check_number",
+__all__ = ["InvalidValueError", "is_concrete", "is_integer", "check_values", "check_finite", "check_number",
            "check_nonnegative_number"]
 
 
@@ -64,6 +64,12 @@ def check_number(value, message: str, low: float = 0.0, high: float = math.inf, 
     ok = isinstance(value, (int, float, np.floating, np.integer)) and math.isfinite(value)
     if not (ok and (value > low if low_open else value >= low) and (value < high if high_open else value <= high)):
         raise ValueError(f"{message}; got {value!r}")
+
+
+def is_integer(value, low: float = -math.inf) -> bool:
+    """Whether ``value`` is a Python or NumPy integer (not a bool) ``>= low``: a count or an
+    index given as a setting or read from a file."""
+    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= low
 
 
 def check_nonnegative_number(value, message: str) -> None:

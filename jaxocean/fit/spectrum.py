@@ -363,12 +363,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
             r = jnp.concatenate([r, roughness_residual_p(p) * scale])
         return r
 
-    def energy_residual(y):
-        return energy_residual_p(to_params(y))
-
-    def roughness_residual(y):
-        return roughness_residual_p(to_params(y))
-
     def residual(y, args):
         return residual_p(to_params(y))
 
@@ -434,12 +428,13 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
                            gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
                            s_max=jnp.asarray(s_max, dtype))
     # success: converged, and the answer explains the data to their stated noise
-    misfit = float(np.sqrt(np.mean(np.asarray(energy_residual(y_solver), np.float64) ** 2)))
+    p_solver = to_params(y_solver)
+    misfit = float(np.sqrt(np.mean(np.asarray(energy_residual_p(p_solver), np.float64) ** 2)))
     bound = math.sqrt(NOISE_FACTOR * (0.0 if noise is None else float(noise)) ** 2 + ENERGY_FLOOR ** 2)
     rough_misfit = rough_bound = float("nan")
     explained = misfit <= bound
     if rough_rows is not None and roughness_weight > 0:
-        rough_misfit = float(np.sqrt(np.mean(np.asarray(roughness_residual(y_solver), np.float64) ** 2)))
+        rough_misfit = float(np.sqrt(np.mean(np.asarray(roughness_residual_p(p_solver), np.float64) ** 2)))
         rn = 0.0 if roughness_noise is None else float(roughness_noise)
         rough_bound = math.sqrt(NOISE_FACTOR * rn ** 2 + ROUGHNESS_FLOOR ** 2)
         explained = explained and rough_misfit <= rough_bound
@@ -520,11 +515,23 @@ def _least_squares_std(residual, y, free, n_energy: int, edge_cov=None) -> np.nd
     return std
 
 
+def _spreading_s(om, wp, s_max):
+    """Mitsuyasu's ``s`` of each frequency (:func:`jaxocean.spectrum.mitsuyasu_s`'s law) in
+    float64 NumPy, for the direction fit's grid and finite differences."""
+    x = om / wp
+    return s_max * np.where(x > 1, x ** -2.5, x ** 5)
+
+
+def _mean_one(om, weight=None):
+    """The direction fit's per-wave weights (default 1) scaled to mean 1."""
+    weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
+    return weight * (weight.size / max(float(np.sum(weight)), 1e-300))
+
+
 def _spreading_loglik(theta_mean, s_max, om, th, wp):
     """Per-wave log-likelihood of the directions ``th`` under the Mitsuyasu spreading of
     their frequencies ``om``; ``theta_mean``, ``s_max`` broadcast against a trailing wave axis."""
-    x = om / wp
-    s = s_max * np.where(x > 1, x ** -2.5, x ** 5)  # s / s_max per wave
+    s = _spreading_s(om, wp, s_max)
     log_q = _lgamma(s + 1) - _lgamma(s + 0.5) - math.log(2 * math.sqrt(math.pi))
     c2 = 0.5 * (1 + np.cos(th - theta_mean))
     return log_q + s * np.log(np.maximum(c2, 1e-300))
@@ -550,10 +557,8 @@ def direction_misfit(om, th, wp, theta_mean, s_max, weight=None) -> float:
     directions put their energy away from the mean on both sides: their second moment is
     far below what the broad spreading fitted between them expects. NaN when the weights
     leave no variance."""
-    weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
-    weight = weight * (weight.size / max(float(np.sum(weight)), 1e-300))
-    x = om / wp
-    s = s_max * np.where(x > 1, x ** -2.5, x ** 5)
+    weight = _mean_one(om, weight)
+    s = _spreading_s(om, wp, s_max)
     m2, m4 = _cos_moment(s, 2), _cos_moment(s, 4)
     variance = np.maximum(0.5 * (1 + m4) - m2 ** 2, 0.0)
     scale = math.sqrt(float(np.sum(weight ** 2 * variance)))
@@ -568,8 +573,7 @@ def _direction_mle(om, th, wp, weight=None):
     (normalised to mean 1; default 1); the standard deviations from the sandwich covariance
     (NaN at the edge of the ``s_max`` grid, without an interior maximum, or not
     ``determined``: the weights give fewer than :data:`MIN_DIRECTION_WAVES` effective waves)."""
-    weight = np.ones_like(om) if weight is None else np.asarray(weight, np.float64)
-    weight = weight * (weight.size / max(float(np.sum(weight)), 1e-300))
+    weight = _mean_one(om, weight)
     n_eff = float(np.sum(weight) ** 2 / max(float(np.sum(weight * weight)), 1e-300))  # Kish's effective size
     determined = n_eff >= MIN_DIRECTION_WAVES
     th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)

@@ -57,6 +57,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
+from jaxocean.errors import is_integer
 from jaxocean.files import write_json
 from jaxocean.io.exr import FileFormatError, require_file
 from jaxocean.lens import Distortion, Intrinsics, Pose
@@ -209,7 +210,7 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
     if "image_size" not in data:
         f.fail("image_size", "missing")
     if (not isinstance(size, list) or len(size) != 2
-            or not all(isinstance(n, int) and not isinstance(n, bool) and n > 0 for n in size)):
+            or not all(is_integer(n, 1) for n in size)):
         f.fail("image_size", f"must be two positive integers [W, H]; got {size!r}")
     image_size = (size[0], size[1])
 

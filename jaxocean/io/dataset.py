@@ -67,7 +67,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import render, shading, spectrum
 from jaxocean._records import record_from_json, record_to_json
-from jaxocean.errors import InvalidValueError
+from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.files import read_json, write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
@@ -272,17 +272,13 @@ def _sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _is_count(value, low: int) -> bool:
-    return isinstance(value, int) and not isinstance(value, bool) and value >= low
-
-
 def _read_settings(path: Path) -> dict:
     """``dataset.json`` with the fields every reader uses checked (scenes, frames, resolution)."""
     settings = read_json(path, "dataset settings file")
     resolution = settings.get("resolution")
     problems = [f"{key!r} must be an integer >= {low}; got {settings.get(key, 'nothing')!r}"
-                for key, low in (("scenes", 1), ("frames", 1)) if not _is_count(settings.get(key), low)]
-    if not (isinstance(resolution, list) and len(resolution) == 2 and all(_is_count(r, 1) for r in resolution)):
+                for key, low in (("scenes", 1), ("frames", 1)) if not is_integer(settings.get(key), low)]
+    if not (isinstance(resolution, list) and len(resolution) == 2 and all(is_integer(r, 1) for r in resolution)):
         problems.append(f"'resolution' must be [height, width] in pixels; got {resolution!r}")
     if problems:
         raise FileFormatError(path, "; ".join(problems))
@@ -295,7 +291,7 @@ def _read_splits(path: Path, n_scenes: int) -> dict:
     splits = read_json(path, "dataset splits file")
     seen: dict = {}
     for name, scenes in splits.items():
-        if not (isinstance(scenes, list) and all(_is_count(i, 0) and i < n_scenes for i in scenes)):
+        if not (isinstance(scenes, list) and all(is_integer(i, 0) and i < n_scenes for i in scenes)):
             raise FileFormatError(path, f"split {name!r} must be a list of scene indices in [0, {n_scenes}); "
                                         f"got {scenes!r:.80}")
         for i in scenes:
@@ -313,7 +309,7 @@ def _read_manifest(path: Path) -> dict:
     for rel, entry in files.items():
         if Path(rel).is_absolute() or ".." in Path(rel).parts:
             raise FileFormatError(path, f"{rel!r}: manifest paths are relative to the dataset and stay inside it")
-        if not (isinstance(entry, dict) and _is_count(entry.get("bytes"), 0)
+        if not (isinstance(entry, dict) and is_integer(entry.get("bytes"), 0)
                 and isinstance(entry.get("sha256"), str) and re.fullmatch(r"[0-9a-f]{64}", entry["sha256"])):
             raise FileFormatError(path, f"{rel!r}: an entry must be {{\"bytes\": size, \"sha256\": 64 hex "
                                         f"digits}}; got {entry!r:.80}")
@@ -342,8 +338,7 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
     """
     if n_scenes < 1 or n_frames < 1:
         raise InvalidValueError(f"need at least one scene and one frame; got scenes={n_scenes}, frames={n_frames}")
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2 ** 63:
-        # it passes through int64 (splits, scene keys)
+    if not (is_integer(seed, 0) and seed < 2 ** 63):  # it passes through int64 (splits, scene keys)
         raise InvalidValueError(f"seed must be an integer in [0, 2^63); got {seed!r}")
     ranges.validate()
     out = Path(out)

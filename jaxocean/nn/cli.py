@@ -159,21 +159,20 @@ def _load_frames(paths, space, exposure):
 
     paths = [Path(p) for p in paths]
     if len(paths) == 1 and is_video_file(paths[0]):
-        video = load_video(paths[0], space=space, exposure=exposure)
-        bad = [t for t in range(len(video)) if not np.all(np.isfinite(video[t]))]
-        if bad:
-            raise ValueError(f"{paths[0]}: frame(s) {bad[:10]} hold non-finite values (NaN or inf)")
-        return video
-    if any(is_video_file(p) for p in paths):
-        raise ValueError("give one video file or image files, not both")
-    images = [load_image(p, space=space, exposure=exposure) for p in paths]
-    for p, image in zip(paths, images):
-        if not np.all(np.isfinite(image)):
-            raise ValueError(f"{p}: holds non-finite pixel values (NaN or inf)")
-    shapes = {im.shape for im in images}
+        frames = load_video(paths[0], space=space, exposure=exposure)
+        sources = [f"{paths[0]} frame {t}" for t in range(len(frames))]
+    else:
+        if any(is_video_file(p) for p in paths):
+            raise ValueError("give one video file or image files, not both")
+        frames = [load_image(p, space=space, exposure=exposure) for p in paths]
+        sources = [str(p) for p in paths]
+    for source, frame in zip(sources, frames):
+        if not np.all(np.isfinite(frame)):
+            raise ValueError(f"{source}: holds non-finite pixel values (NaN or inf)")
+    shapes = {frame.shape for frame in frames}
     if len(shapes) > 1:
         raise ValueError(f"the frames differ in size: {sorted(shapes)}")
-    return np.stack(images)
+    return np.stack(frames)
 
 
 def _predict(args, camera_from_args) -> int:

@@ -53,6 +53,7 @@ from jaxocean import shading
 from jaxocean._math import normal_from_slope, safe_normalize
 from jaxocean._records import record_from_json, record_to_json
 from jaxocean._sea_scale import compress, sea_median
+from jaxocean.errors import is_integer
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import load_model, load_tree, model_path, save_model
@@ -88,10 +89,6 @@ PRETRAINED = {"cpu": PRETRAINED_PATH, "gpu": PRETRAINED_PATH.with_name("geometry
 _FORMAT = "jaxocean.nn.geometry/1"
 
 
-def _is_positive_int(value) -> bool:
-    return isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1
-
-
 class GeometryConfig(NamedTuple):
     """Architecture of a geometry model (static and hashable)."""
 
@@ -112,10 +109,10 @@ class GeometryConfig(NamedTuple):
             raise ValueError(f"color must be one of {COLOR_MODES}; got {self.color!r}")
         for name in ("widths", "roughness_widths"):
             widths = getattr(self, name)
-            if not (isinstance(widths, tuple) and widths and all(_is_positive_int(w) for w in widths)):
+            if not (isinstance(widths, tuple) and widths and all(is_integer(w, 1) for w in widths)):
                 raise ValueError(f"{name} must be a non-empty tuple of channel counts >= 1; got {widths!r}")
         for name in ("resnet_width", "resnet_blocks"):
-            if not _is_positive_int(getattr(self, name)):
+            if not is_integer(getattr(self, name), 1):
                 raise ValueError(f"{name} must be an integer >= 1; got {getattr(self, name)!r}")
         return self
 

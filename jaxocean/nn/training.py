@@ -49,6 +49,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
+from jaxocean.errors import is_integer
 from jaxocean.files import write_json
 from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
 
@@ -144,7 +145,7 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
     """
     for name, value in (("epochs", epochs), ("steps_per_epoch", steps_per_epoch), ("patience", patience),
                         ("checkpoint_every", checkpoint_every)):
-        if not isinstance(value, (int, np.integer)) or isinstance(value, bool) or value < 1:
+        if not is_integer(value, 1):
             raise ValueError(f"{name} must be a positive integer; got {value!r}")
     if time_budget_s is not None and not (isinstance(time_budget_s, (int, float)) and time_budget_s > 0):
         raise ValueError(f"the time budget must be a positive number of seconds or None; got {time_budget_s!r}")
