@@ -333,13 +333,17 @@ def cmd_render(args):
     if not args.scene:
         inputs.check_memory(args.res, args.frames, "render")
     scene = inputs.scene_from_file(args.scene) if args.scene else inputs.scene_from_args(args)
+    seed = args.seed
     if args.scene:
+        from jaxocean.io import read_scene
+
+        seed = read_scene(args.scene).seed  # the scene file's own draw, kept as reedit keeps it
         inputs.check_memory(scene.camera.resolution, int(np.size(scene.times)), f"render {args.scene}")
     t0 = time.perf_counter()
     images, geo = jax.device_get(render_scene(scene))
     render_s = time.perf_counter() - t0
     from jaxocean.io import write_sequence
-    write_sequence(out, scene, images, geo, half=not args.float32, seed=None if args.scene else args.seed)
+    write_sequence(out, scene, images, geo, half=not args.float32, seed=seed)
     print(f"rendered {images.shape[0]} frame(s) of {images.shape[1]}x{images.shape[2]} in {render_s:.2f} s "
           f"(compile included) -> {args.out}")
     if not np.any(geo.mask):
@@ -408,6 +412,9 @@ def cmd_demo(args):
     if unknown:
         raise ValueError(f"unknown demo stages {sorted(unknown)}; choose from render, reconstruct, real, lighting, "
                          f"waves")
+    if args.real is not None and "real" not in stages:
+        raise ValueError(f"--real {args.real}: the real stage is not among --stages {args.stages}; add real to "
+                         f"--stages to reconstruct the clip, or leave --real out")
     if "real" in stages and args.real is not None and not (Path(args.real) / "camera.json").is_file():
         raise ValueError(f"--real {args.real}: no camera.json there")
     out = inputs.check_out_dir(args.out)
@@ -740,13 +747,24 @@ def cmd_forecast(args):
     if stored is not None and not args.undamped:
         # the fit's whole model (waves and long-wave band), each component damped outside the
         # fitted window by its frequency uncertainty: the least-squares forecast
-        band = Waves(*(jnp.asarray(stored["band"][name], scene.waves.omega.dtype) for name in Waves._fields))
+        try:
+            band = Waves(*(np.asarray(stored["band"][name], np.float64) for name in Waves._fields))
+            sigma = np.asarray(stored["frequency_sigma"], np.float64)
+            window = tuple(float(w) for w in stored["window_s"])
+        except (KeyError, TypeError, ValueError) as error:
+            raise ValueError(f"{args.waves}: wave_fit.forecast is malformed ({type(error).__name__}: {error}); it "
+                             f"needs window_s, frequency_sigma and band (re-run fit-waves, or pass --undamped)") \
+                from None
+        if len(window) != 2 or any(leaf.ndim != 1 or leaf.shape != band.omega.shape for leaf in band):
+            raise ValueError(f"{args.waves}: wave_fit.forecast needs window_s [t_first, t_last] and band lists of "
+                             f"one length; got window_s of {len(window)} and band lengths "
+                             f"{[np.shape(leaf) for leaf in band]}")
+        band = Waves(*(jnp.asarray(leaf, scene.waves.omega.dtype) for leaf in band))
         model = Waves(*(jnp.concatenate([a, b]) for a, b in zip(scene.waves, band)))
-        sigma = np.asarray(stored["frequency_sigma"], np.float64)
         if sigma.shape != model.omega.shape:
             raise ValueError(f"{args.waves}: wave_fit.forecast.frequency_sigma has {sigma.size} entries for "
                              f"{model.omega.shape[0]} waves and band stand-ins")
-        damp = dict(window=tuple(stored["window_s"]), frequency_sigma=jnp.asarray(sigma, model.omega.dtype))
+        damp = dict(window=window, frequency_sigma=jnp.asarray(sigma, model.omega.dtype))
         print(f"least-squares forecast: {np.size(scene.waves.omega)} wave(s) and {band.omega.shape[0]} long-wave "
               f"stand-in(s), each damped outside the fitted window ({damp['window'][0]:.4g}-{damp['window'][1]:.4g} "
               f"s) by its frequency uncertainty (--undamped: extrapolate every fitted wave as it is)")

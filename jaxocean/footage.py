@@ -216,6 +216,10 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                 raise InvalidValueError(f"{count} frames given for the {len(times)} times of {camera_path}")
             if frames and not video:
                 _check_scene_frame_order(frames, camera_path)
+            if height is not None:
+                raise InvalidValueError(f"{camera_path} is a scene.json: its camera gives the height "
+                                        f"({float(scene.camera.height):.6g} m); a camera height ({height} m) "
+                                        f"applies only to a camera file without poses")
             scene_camera = scene.camera
             H, W = scene.camera.resolution
             pose0 = lens.pose_of(scene.camera)
@@ -224,8 +228,16 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                                            lens.Distortion(), tuple(listed) * (len(times) if video else 1), times,
                                            poses, False)
         else:
-            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=height is None,
-                                                      check_files=not video)
+            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=False, check_files=not video)
+            if camera_file.poses is None and height is None:
+                raise cf_io.CameraFileError(json_path, "frames[0].camera_height_m: missing: no frame gives a pose "
+                                                       "(camera_height_m, pitch_rad, roll_rad, yaw_rad); give the "
+                                                       "camera height (reconstruct --camera-height) to take pitch "
+                                                       "and roll from the horizon")
+            if camera_file.poses is not None and height is not None:
+                raise InvalidValueError(f"{camera_path}: every frame gives a pose with its camera_height_m; a camera "
+                                        f"height ({height} m) applies only to a camera file without poses (pitch "
+                                        f"and roll then come from the horizon): leave it out, or edit the file")
             if video:
                 if n_video != len(camera_file.times):
                     raise InvalidValueError(f"the video {frames[0]} has {n_video} frames; the camera file "

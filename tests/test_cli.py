@@ -121,6 +121,14 @@ def test_render_of_a_scene_file_refuses_the_scene_options(tiny_scene, tmp_path, 
     assert "--hs, --frames: scene options apply only without a SCENE" in err and not out.exists()
 
 
+def test_render_of_a_scene_file_keeps_its_seed(tmp_path):
+    # re-rendering a drawn scene keeps the seed its waves were drawn from (reedit keeps it too)
+    first, again = tmp_path / "first", tmp_path / "again"
+    assert cli.main(["render", "--out", str(first), "--frames", "1", "--res", "8", "--waves", "2", "--seed", "7"]) == 0
+    assert cli.main(["render", str(first), "--out", str(again)]) == 0
+    assert json.loads((again / "scene.json").read_text())["seed"] == 7
+
+
 def test_render_names_camera_angles_in_degrees_and_warns_of_a_sky_only_view(tmp_path, capsys):
     with pytest.raises(SystemExit) as exit_info:
         cli.main(["render", "--out", str(tmp_path / "a"), "--camera-fov-deg", "200"])
@@ -329,6 +337,10 @@ def test_demo_render_stage_and_bad_stage(tmp_path, capsys):
     assert cli.main(["demo", "--out", str(tmp_path / "d2"), "--stages", "render,paint", "--frames", "1",
                      "--res", "8", "--waves", "4"]) == 2
     assert "unknown demo stages ['paint']" in capsys.readouterr().err
+    # a clip given for a stage that does not run is refused, not silently ignored
+    assert cli.main(["demo", "--out", str(tmp_path / "d3"), "--stages", "render", "--real", str(tmp_path),
+                     "--frames", "1", "--res", "8", "--waves", "4"]) == 2
+    assert "the real stage is not among --stages" in capsys.readouterr().err and not (tmp_path / "d3").exists()
 
 
 @pytest.mark.slow  # fits compile for minutes on a CPU; `make demo` runs the same code
@@ -517,6 +529,23 @@ def test_forecast_refuses_a_failed_fit_and_other_json(tiny_scene, tmp_path, caps
     assert cli.main(["forecast", str(light), "--frames", "0", "--out", str(tmp_path / "fc2")]) == 2
     assert capsys.readouterr().err == (f"jaxocean: error: {light}: this is a lighting fit result (jaxocean "
                                        f"fit-lighting); forecast needs waves (a fit-waves result or a scene.json)\n")
+
+
+def test_forecast_names_a_malformed_least_squares_section(tiny_scene, tmp_path, capsys):
+    from jaxocean import io
+
+    scene = io.read_scene(tiny_scene)
+    good = {"window_s": [0.0, 0.3], "frequency_sigma": [0.01, 0.01, 0.1],
+            "band": {"amplitude": [0.01], "omega": [1.5], "theta": [0.2], "phase": [0.3]}}
+    broken = ({k: v for k, v in good.items() if k != "window_s"}, "malformed (KeyError: 'window_s')",
+              dict(good, band=dict(good["band"], omega=[1.5, 2.0])), "band lists of one length")
+    for forecast_section, message in zip(broken[::2], broken[1::2]):
+        edited = tmp_path / "waves.json"
+        io.write_scene(edited, io.scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
+                                                times=scene.times, extra={"wave_fit": {
+                                                    "success": True, "forecast": forecast_section}}))
+        assert cli.main(["forecast", str(edited), "--frames", "0", "--out", str(tmp_path / "fc")]) == 2
+        assert message in capsys.readouterr().err
 
 
 def test_compile_cache_folder(monkeypatch, tmp_path):

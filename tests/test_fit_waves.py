@@ -846,6 +846,28 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     assert abs(fit.alpha / alpha_true - 1) < 0.15
 
 
+def test_a_peak_that_one_beyond_the_band_explains_is_not_claimed():
+    # waves drawn exactly from a 6 s sea, those above 1.25 wp reliable: the free fit puts a
+    # peak just inside the band (Tp 4.35 s, Hs 0.54 m, claimed observed), but a spectrum
+    # peaking beyond the band's long edge explains the energies as well; Hs and Tp are bounds
+    true_tp, true_hs = 6.0, 1.0
+    sea = spectrum.Spectrum(hs=true_hs, tp=true_tp, gamma=3.3, theta_mean=0.3, s_max=10.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        waves = spectrum.sample_waves(jax.random.key(3), sea, 60).waves
+    fit = fit_spectrum.spectrum(waves, reliable=np.asarray(waves.omega) > 1.25 * 2 * np.pi / true_tp)
+    assert fit.edge_peak_misfit <= fit.misfit_bound
+    assert not fit.peak_observed and np.isnan(fit.tp_std)
+    np.testing.assert_allclose(float(fit.spectrum.tp), 2 * np.pi / fit.omega_band[0], rtol=1e-5)
+    assert float(fit.spectrum.tp) < true_tp and float(fit.spectrum.hs) < true_hs  # lower bounds, and they hold
+
+
+def test_an_observed_peak_rules_out_peaks_beyond_the_band(sampled_sea):
+    _, waves = sampled_sea
+    fit = fit_spectrum.spectrum(waves)
+    assert fit.peak_observed and fit.edge_peak_misfit > 2 * fit.misfit_bound
+
+
 @pytest.mark.parametrize("key, true", [
     (101, dict(hs=2.326, tp=7.033, gamma=3.918, theta_mean=0.262, s_max=37.728)),
     (102, dict(hs=2.132, tp=4.014, gamma=4.43, theta_mean=-2.798, s_max=30.538)),

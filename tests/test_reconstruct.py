@@ -76,6 +76,32 @@ def test_frames_must_match_the_camera_file(tmp_path):
         rc.load_sequence(files, scene_json, step=0)
 
 
+def _camera_file(tmp_path, files, camera, times, *, pose: bool):
+    fy = (camera.resolution[0] / 2) / math.tan(float(camera.fov) / 2)
+    H, W = camera.resolution
+    frames = [dict({"file": Path(f).name, "t": float(t)},
+                   **({"camera_height_m": float(camera.height), "pitch_rad": float(camera.pitch), "roll_rad": 0.0,
+                       "yaw_rad": 0.0} if pose else {})) for f, t in zip(files, times)]
+    path = tmp_path / "camera.json"
+    path.write_text(json.dumps({"image_size": [W, H], "intrinsics": {"fx": fy, "fy": fy, "cx": (W - 1) / 2,
+                                                                     "cy": (H - 1) / 2}, "frames": frames}))
+    return path
+
+
+def test_camera_height_only_without_poses(tmp_path):
+    # a camera height given beside a pose (or a scene's camera) is refused, not silently ignored
+    files, scene_json, camera, times = _scene(tmp_path)
+    with pytest.raises(InvalidValueError, match="applies only to a camera file without poses"):
+        rc.load_sequence(files, scene_json, width=32, height=30.0)
+    posed = _camera_file(tmp_path, files, camera, times, pose=True)
+    with pytest.raises(InvalidValueError, match="applies only to a camera file without poses"):
+        rc.load_sequence([], posed, width=32, height=30.0)
+    # a file without poses and no height: the error says what to give
+    bare = _camera_file(tmp_path, files, camera, times, pose=False)
+    with pytest.raises(cf.CameraFileError, match=r"no frame gives a pose .*--camera-height"):
+        rc.load_sequence([], bare, width=32)
+
+
 @pytest.mark.skipif(not CLIP.exists(), reason="the real clip is not in this checkout")
 def test_sea_view_of_real_footage_lies_inside_every_frame():
     camera_file = cf.read_camera_file(CLIP / "camera.json")

@@ -45,7 +45,17 @@ observed roughness of the sub-pixel tail:
 Only the peak makes Hs and Tp separately identifiable: if the fitted waves stop above the
 peak (the camera sees a patch shorter than the peak wavelength), the tail fixes only the
 Phillips level ``alpha ~ Hs^2 wp^4``. ``SpectrumFit.peak_observed`` says whether the fitted
-peak lies inside the band of reliable frequencies. When it does not, the fit drifts along
+peak lies inside the band of reliable frequencies *and* the energies rule out every spectrum
+whose peak lies at or beyond the band's edges: the best of those (a grid over Tp and gamma,
+Hs in closed form) must leave more than ``misfit_bound``. A peak fitted just inside the
+band's long-wave edge that a peak beyond it explains as well is not observed (measured on
+the waves fitted to two dataset scenes from their slopes, whose true peak lay below the
+band, ``experiments/WAVES.md``: the free fit put a peak just inside, Tp 18 and 27 standard
+deviations off). The test sees the waves only: where a wave fit lost energy near the band's
+edge, a peak inside can explain the waves better than any beyond, and is reported
+observed (two default fits of the same table: Tp 10 and 37 standard deviations off).
+``success`` says that one spectrum explains the waves, not that the waves hold the sea's
+energy. When the peak is not observed, the fit drifts along
 the ``alpha`` valley (measured on a dataset scene: Tp 137 s, Hs 510 m for a 5 s, 0.7 m
 sea), so Hs and gamma are refitted with the peak pinned to the band's nearer edge: for a
 peak below the band, Tp becomes the longest period the reliable waves cover and Hs the
@@ -98,8 +108,13 @@ class SpectrumFit(NamedTuple):
     * ``steps``          solver steps.
     * ``n_waves``        number of waves the frequency and direction fits used.
     * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
-    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` (if not, Tp
-      is pinned to the band's nearer edge and Hs refitted: module docstring).
+    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` and the
+      energies rule out a peak at or beyond either edge: the best such spectrum's misfit
+      (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Tp is pinned to the band's
+      edge and Hs refitted: both are bounds (module docstring).
+    * ``edge_peak_misfit`` the least ``misfit`` of a spectrum whose peak lies at or beyond
+      an edge of ``omega_band`` (over a grid of Tp up to 4 times past the
+      edge (:data:`EDGE_REACH`) and of gamma, Hs in closed form).
     * ``alpha``          Phillips tail level ``A(gamma) (5/16) Hs^2 wp^4 / g^2`` with
       ``A`` the JONSWAP normalisation (identifiable even when the peak is not observed).
     * ``time_s``         wall time.
@@ -141,6 +156,7 @@ class SpectrumFit(NamedTuple):
     theta_std: float = float("nan")
     s_max_std: float = float("nan")
     direction_misfit: float = float("nan")
+    edge_peak_misfit: float = float("nan")
 
 
 class SeaState(NamedTuple):
@@ -155,6 +171,12 @@ class SeaState(NamedTuple):
 
 
 _GL = np.polynomial.legendre.leggauss(8)
+
+#: how far past an edge of the band (a factor on its period) the alternative peaks of the
+#: ``peak_observed`` test reach: at 4x the band sees the spectrum's ``omega^-5`` tail alone
+EDGE_REACH = np.geomspace(1.0, 4.0, 40)
+#: the peak enhancements of those alternatives
+EDGE_GAMMAS = (1.0, 1.5, 2.0, 3.3, 5.0, 7.0, 10.0)
 
 #: the fewest reliable waves a spectrum is fitted to (peak, width and level need three)
 MIN_WAVES = 3
@@ -366,19 +388,27 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     def residual(y, args):
         return residual_p(to_params(y))
 
-    def grid_start(tps):
-        # a grid over (Tp, gamma) with Hs^2 in closed form (energies are linear in Hs^2),
-        # evaluated in one vectorised call; the best point as a solver vector y
-        gammas = np.array([1.0, 2.0, 3.3, 5.0, 7.0] if gamma is None else [float(gamma)])
+    def grid(tps, gammas=(1.0, 2.0, 3.3, 5.0, 7.0)):
+        # spectra over a (Tp, gamma) grid with Hs^2 in closed form (energies are linear in
+        # Hs^2), evaluated in one vectorised call: their parameters p (M, 3), whether each is
+        # admissible (M,), and the RMS of each one's cumulative-energy residual (M,)
+        gammas = np.asarray(gammas if gamma is None else [float(gamma)], np.float64)
         G, TP = np.meshgrid(gammas, tps, indexing="ij")
-        grid = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
-        c1 = np.cumsum(np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(grid), np.float64), axis=-1)
+        p0 = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
+        c1 = np.cumsum(np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(p0), np.float64), axis=-1)
         ok = np.all(np.isfinite(c1), axis=-1) & (c1[:, -1] > 0)
         hs2 = np.where(ok, np.sum(c1 * cum_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
-        starts = np.stack([0.5 * np.log(np.maximum(hs2, 1e-300)), np.log(TP.ravel()), G.ravel()], -1)
+        ok &= hs2 > 0
+        params = np.stack([0.5 * np.log(np.maximum(hs2, 1e-300)), np.log(TP.ravel()), G.ravel()], -1)
+        rms = np.sqrt(np.mean(((c1 * hs2[:, None] - cum_data) / total) ** 2, -1))
+        return params, ok, np.where(ok & np.isfinite(rms), rms, np.inf)
+
+    def grid_start(tps):
+        # the grid's best point (energies and roughness) as a solver vector y
+        starts, ok, _ = grid(tps)
         starts_j = jnp.asarray(np.stack([from_params(p) for p in starts]), dtype)
         vals = np.asarray(jax.jit(jax.vmap(lambda y: jnp.sum(residual(y, None) ** 2)))(starts_j), np.float64)
-        vals = np.where(ok & (hs2 > 0) & np.isfinite(vals), vals, np.inf)
+        vals = np.where(ok & np.isfinite(vals), vals, np.inf)
         if not np.isfinite(vals).any():
             raise InvalidValueError("fit.spectrum found no admissible starting point (check the waves)")
         return starts_j[int(np.argmin(vals))]
@@ -401,10 +431,20 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     wp = 2 * math.pi / math.exp(y[1])
     # the tail level: JONSWAP in Hs-Tp form carries the normalisation A(gamma) into its tail
     alpha = float(spec.jonswap_normalisation(y[2])) * 5.0 / 16.0 * math.exp(2 * y[0]) * wp ** 4 / GRAVITY ** 2
-    peak_observed = bool(edges[0] <= wp <= edges[-1])
+    bound = math.sqrt(NOISE_FACTOR * (0.0 if noise is None else float(noise)) ** 2 + ENERGY_FLOOR ** 2)
+    # the best spectra with their peak at or beyond the band's long-wave and short-wave edge:
+    # a peak inside the band is observed only if the energies rule both out (module docstring)
+    edge_misfits = [float(np.min(grid(2 * np.pi / e * f, EDGE_GAMMAS)[2]))
+                    for e, f in ((edges[0], EDGE_REACH), (edges[-1], 1.0 / EDGE_REACH))]
+    edge_misfit = min(edge_misfits)
+    peak_observed = bool(edges[0] <= wp <= edges[-1]) and not edge_misfit <= bound
     if not peak_observed:
         # only alpha is determined, and the solver drifts along its valley: refit Hs and
-        # gamma with the peak pinned to the band's nearer edge (module docstring)
+        # gamma with the peak pinned to the band's nearer edge, or, for a peak inside the
+        # band that one outside explains as well, to the edge of the better such spectrum
+        # (module docstring)
+        if edges[0] <= wp <= edges[-1]:
+            wp = float(edges[0] if edge_misfits[0] <= edge_misfits[1] else edges[-1])
         wp = float(np.clip(wp, edges[0], edges[-1]))
         free[1] = False
         out, y, y_solver = least_squares(grid_start(np.array([2 * math.pi / wp])), free)
@@ -430,7 +470,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     # success: converged, and the answer explains the data to their stated noise
     p_solver = to_params(y_solver)
     misfit = float(np.sqrt(np.mean(np.asarray(energy_residual_p(p_solver), np.float64) ** 2)))
-    bound = math.sqrt(NOISE_FACTOR * (0.0 if noise is None else float(noise)) ** 2 + ENERGY_FLOOR ** 2)
     rough_misfit = rough_bound = float("nan")
     explained = misfit <= bound
     if rough_rows is not None and roughness_weight > 0:
@@ -446,7 +485,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
                        peak_observed=peak_observed, alpha=float(alpha), time_s=time.perf_counter() - t0,
                        misfit=misfit, misfit_bound=bound, roughness_misfit=rough_misfit, roughness_bound=rough_bound,
                        hs_std=float(hs_std), tp_std=float(tp_std), gamma_std=float(gamma_std),
-                       theta_std=theta_std, s_max_std=s_max_std, direction_misfit=dir_misfit)
+                       theta_std=theta_std, s_max_std=s_max_std, direction_misfit=dir_misfit,
+                       edge_peak_misfit=edge_misfit)
 
 
 def _edge_covariance(edges, density, total) -> np.ndarray:

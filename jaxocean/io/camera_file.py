@@ -30,7 +30,7 @@ A camera file is one JSON object beside (or above) the frames it describes::
   given with both, the times' mean step is ``1 / frame_rate_hz`` within 1%.
 * The pose (:class:`jaxocean.lens.Pose`): ``camera_height_m`` (> 0, the optical centre above
   mean sea level, heave included), ``pitch_rad`` (optical axis below the horizontal, in
-  (-pi/2, pi/2)), ``roll_rad`` (positive: the horizon descends to the right), ``yaw_rad``
+  (-pi/2, pi/2)), ``roll_rad`` (in (-pi/2, pi/2), positive: the horizon descends to the right), ``yaw_rad``
   (the *compass heading* of the optical axis, clockwise from north, despite its name), and
   optionally ``ship_east_m`` / ``ship_north_m`` (horizontal position relative to any fixed
   origin; 0 when absent). Every frame gives these four fields, or none does (then
@@ -80,6 +80,10 @@ DISTORTION_MODELS = ("brown-conrady",)
 
 _UNITS = {"length": "m", "angle": "rad", "time": "s"}
 _PIXEL_UNIT = "px; 0-based, pixel centre at integer coordinates (OpenCV convention)"
+#: the widest field of view [deg] a focal length may imply across the image: a pinhole
+#: lens with Brown-Conrady distortion covers less; wider means normalised or wrong units
+MAX_FIELD_OF_VIEW_DEG = 170.0
+
 _POSE_FIELDS = ("camera_height_m", "pitch_rad", "roll_rad", "yaw_rad")
 _OFFSET_FIELDS = ("ship_east_m", "ship_north_m")
 _FRAME_FIELDS = ("file", "t") + _POSE_FIELDS + _OFFSET_FIELDS
@@ -219,9 +223,15 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
     k = f.mapping(data["intrinsics"], "intrinsics")
     _refuse_unmodelled(f, k, "intrinsics", Intrinsics._fields, zero_allowed=("skew",))
     intrinsics = Intrinsics(*(f.number(k, name, f"intrinsics.{name}") for name in Intrinsics._fields))
-    for name in ("fx", "fy"):
-        if getattr(intrinsics, name) <= 0:
-            f.fail(f"intrinsics.{name}", f"focal length must be > 0 px; got {getattr(intrinsics, name)}")
+    for name, extent in (("fx", image_size[0]), ("fy", image_size[1])):
+        focal = getattr(intrinsics, name)
+        if focal <= 0:
+            f.fail(f"intrinsics.{name}", f"focal length must be > 0 px; got {focal}")
+        fov = 2.0 * math.degrees(math.atan(0.5 * extent / focal))
+        if fov > MAX_FIELD_OF_VIEW_DEG:
+            f.fail(f"intrinsics.{name}", f"{focal} px gives a field of view of {fov:.1f} deg across the image's "
+                                         f"{extent} px (a pinhole lens with Brown-Conrady distortion covers at most "
+                                         f"{MAX_FIELD_OF_VIEW_DEG:g}); focal lengths are in pixels, not normalised")
 
     distortion = Distortion()
     if data.get("distortion") is not None:
@@ -332,8 +342,9 @@ def _poses(f: _Fields, frames: list[dict], require_pose: bool) -> Pose | None:
             f.fail(f"frames[{n}].{name}", f"{requirement}; got {values[name][n]}")
 
     check("camera_height_m", values["camera_height_m"] > 0, "the camera must be above mean sea level (> 0 m)")
+    for name in ("pitch_rad", "roll_rad"):
+        check(name, (values[name] > -np.pi / 2) & (values[name] < np.pi / 2), "must lie in (-pi/2, pi/2) rad")
     pitch = values["pitch_rad"]
-    check("pitch_rad", (pitch > -np.pi / 2) & (pitch < np.pi / 2), "must lie in (-pi/2, pi/2) rad")
     return Pose(height=values["camera_height_m"], pitch=pitch, roll=values["roll_rad"], heading=values["yaw_rad"],
                 east=values["ship_east_m"], north=values["ship_north_m"])
 
