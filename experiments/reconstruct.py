@@ -26,9 +26,7 @@ per run on this 2-core machine.
 from __future__ import annotations
 
 import argparse
-import io
 import json
-import math
 import sys
 import time
 from pathlib import Path

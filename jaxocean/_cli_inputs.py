@@ -282,12 +282,24 @@ def scene_from_args(args):
     return SceneSample(waves, spec, cam, light, jnp.arange(args.frames, dtype=jnp.float32) * args.dt)
 
 
+def refuse_damped_forecast(scene, path, command: str) -> None:
+    """A damped least-squares forecast's frames come from the fitted waves, the long-wave
+    stand-ins and per-frame damping, which its scene.json's waves alone do not reproduce:
+    ``command`` would work from another sea than its frames show."""
+    if isinstance(scene.extra, dict) and scene.extra.get("forecast_damped") is True:
+        raise ValueError(f"{path}: its frames are a damped least-squares forecast (fitted waves, long-wave "
+                         f"stand-ins, damping outside the fitted window) that its scene.json's waves do not "
+                         f"reproduce; {command} the fit-waves result it came from ({scene.extra.get('forecast_from')}), "
+                         f"or a forecast made with --undamped")
+
+
 def scene_from_file(path):
     from jaxocean.io.dataset import SceneSample
     from jaxocean.io.scene import read_scene
 
     refuse_other_json(path, "render needs a scene.json (waves, camera, lighting and times) or its directory")
     sc = read_scene(path)
+    refuse_damped_forecast(sc, path, "render")
     missing = [n for n in ("waves", "camera", "lighting", "times") if getattr(sc, n) is None]
     if missing:
         raise ValueError(f"{path}: scene has no {', '.join(missing)}; render needs waves, camera, lighting and times")

@@ -560,7 +560,13 @@ def _project(camera: Camera, points) -> jax.Array:
     along_right = jnp.sum(relative * right, axis=-1)
     along_up = jnp.sum(relative * up, axis=-1)
     if camera.projection == "perspective":
-        depth = jnp.maximum(jnp.sum(relative * forward, axis=-1), 0)
+        depth = jnp.sum(relative * forward, axis=-1)
+        # a point on the optical axis at or behind the camera (the camera itself included)
+        # would divide 0 by 0 into the image centre: offset it upward, off the image like
+        # every other point behind the camera plane
+        on_axis_behind = (depth <= 0) & (along_right == 0) & (along_up == 0)
+        along_up = jnp.where(on_axis_behind, 1.0, along_up)
+        depth = jnp.maximum(depth, 0)
         along_right = safe_divide(along_right, depth)
         along_up = safe_divide(along_up, depth)
     return _pixel_from_ndc(along_right / half_u, along_up / half_v, camera.resolution)

@@ -253,7 +253,10 @@ def build_parser():
                                    "waves move them). A fit-waves result is forecast by the least-squares "
                                    "forecast (see --undamped): EXR + PNG per frame (numbered in output order; each "
                                    "file's metadata and scene.json's extra.forecast_frames give the requested "
-                                   "frame index) and scene.json. Camera and lighting come from the JSON unless "
+                                   "frame index) and scene.json (of a least-squares forecast it holds the fitted "
+                                   "waves without the long-wave stand-ins and the damping, which its frames "
+                                   "include: extra.forecast_damped marks it, and render, reedit and forecast "
+                                   "refuse it). Camera and lighting come from the JSON unless "
                                    "replaced by the options; the default lighting is jaxocean.shading's. "
                                    + _OUT_DIR_NOTE)
     p.add_argument("waves", help="JSON with waves (fit-waves output or scene.json)")
@@ -552,6 +555,7 @@ def cmd_reedit(args):
     inputs.refuse_other_json(args.scene, "reedit needs a scene: a scene directory or scene.json with waves, camera, "
                                    "lighting and times")
     scene = read_scene(args.scene)
+    inputs.refuse_damped_forecast(scene, args.scene, "reedit")
     n = 1 if scene.times is None else int(np.size(scene.times))
     frames = inputs.check_frames(args.frames, n, f"scene {args.scene}")
     if scene.camera is not None:
@@ -714,6 +718,7 @@ def cmd_forecast(args):
     scene = read_scene(args.waves)
     if scene.waves is None:
         raise ValueError(f"{args.waves}: no waves to forecast (expected a fit-waves JSON or a scene.json)")
+    inputs.refuse_damped_forecast(scene, args.waves, "forecast")
     wave_fit = (scene.extra or {}).get("wave_fit") if isinstance(scene.extra, dict) else None
     # only a JSON true vouches for the waves: a false, a missing or a hand-edited "false" does not
     if isinstance(wave_fit, dict) and wave_fit.get("success") is not True:
@@ -768,7 +773,7 @@ def cmd_forecast(args):
         print(f"least-squares forecast: {np.size(scene.waves.omega)} wave(s) and {band.omega.shape[0]} long-wave "
               f"stand-in(s), each damped outside the fitted window ({damp['window'][0]:.4g}-{damp['window'][1]:.4g} "
               f"s) by its frequency uncertainty (--undamped: extrapolate every fitted wave as it is)")
-    print(f"forecasting {np.size(scene.waves.omega)} wave(s) at t = "
+    print(f"forecasting {np.size(model.omega)} wave(s) at t = "
           f"{', '.join(f'{t:.4g}' for t in times)} s ({camera.resolution[0]}x{camera.resolution[1]})")
     t0 = time.perf_counter()
     # drawn as a camera sees it (render's own choice of the hits or rows path, as `simulate` draws)
@@ -779,7 +784,7 @@ def cmd_forecast(args):
     write_sequence(Path(args.out), sample, result.image, result.geometry, half=not args.float32,
                     frame_ids=frame_ids,
                     extra={"forecast_frames": frame_ids if args.times is None else None,
-                           "forecast_from": str(args.waves)})
+                           "forecast_from": str(args.waves), "forecast_damped": bool(damp)})
     print(f"rendered {len(times)} frame(s) in {render_s:.2f} s (compile included) -> {args.out}")
     for i, (f, t) in enumerate(zip(frame_ids, times)):
         label = f"frame {f}, " if args.times is None else ""

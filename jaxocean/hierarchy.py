@@ -47,6 +47,8 @@ def weights(waves: Waves, footprint, *, n_min: float = DEFAULT_N_MIN, n_max: flo
     if not n_max > n_min:
         raise ValueError(f"need n_max > n_min; got n_min={n_min}, n_max={n_max}")
     check_values(jnp.asarray(footprint) > 0, "footprint must be > 0 m", footprint)
+    if grid_cell is not None:
+        check_values(jnp.asarray(grid_cell) > 0, "grid_cell must be > 0 m", grid_cell)
     lam = wavelength(waves)
     w_normal = normal_weight(lam, footprint, n_min, n_max)
     cell = footprint if grid_cell is None else grid_cell

@@ -257,6 +257,8 @@ def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
         raise ValueError(f"t must be one time [s] (a scalar); got shape {jnp.shape(t)}: vmap over times to render "
                          "several frames")
     check_finite(t, "t")
+    if grid_cell is not None:
+        check_values(jnp.asarray(grid_cell) > 0, "grid_cell must be > 0 m (the geometry grid's cell size)", grid_cell)
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")

@@ -59,6 +59,8 @@ def make_waves(amplitude, omega, theta, phase=None, dtype=None) -> Waves:
     omega = jnp.asarray(omega, dtype)
     theta = jnp.asarray(theta, dtype)
     phase = jnp.zeros_like(omega) if phase is None else jnp.asarray(phase, dtype)
+    if phase.ndim == 0:  # one phase for every wave
+        phase = jnp.broadcast_to(phase, omega.shape)
     waves = Waves(amplitude, omega, theta, phase)
     validate(waves)
     return waves

@@ -17,6 +17,7 @@ from jaxocean.camera import (
     Camera,
     SeaHit,
     camera_frame,
+    camera_position,
     horizon_row,
     intersect_sea,
     make_camera,
@@ -119,6 +120,17 @@ def test_project_inverts_rays_above_the_horizon_too():
     np.testing.assert_allclose(project(camera, points), pixel_grid(camera.resolution), atol=1e-3)
     behind = origins - 5.0 * camera_frame(camera).forward
     assert np.all(np.isfinite(project(camera, behind)))
+
+
+@pytest.mark.parametrize("offset", [-5.0, 0.0])
+def test_project_puts_points_on_the_axis_behind_the_camera_off_the_image(offset):
+    # pitch 0, yaw 0: the frame is exact, so a point on the optical axis behind the camera
+    # (or the camera itself) has zero offsets and depth <= 0; it landed on the image centre
+    camera = make_camera(height=10.0, pitch=0.0, yaw=0.0, fov=0.8, resolution=(9, 9))
+    point = camera_position(camera) + offset * camera_frame(camera).forward
+    i, j = np.asarray(project(camera, point))
+    assert np.isfinite(i) and np.isfinite(j)
+    assert not (-0.5 <= i <= 8.5 and -0.5 <= j <= 8.5), (i, j)
 
 
 # --------------------------------------------------------------------------- sea hits

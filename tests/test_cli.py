@@ -325,6 +325,13 @@ def test_fit_waves_then_forecast(tiny_scene, tmp_path, capsys):
     assert json.loads((tmp_path / "fc" / "scene.json").read_text())["times"] == pytest.approx([0.0, 2.0])
     assert cli.main(["forecast", str(out), "--frames", "0,10", "--undamped", "--out", str(tmp_path / "fc2")]) == 0
     assert "least-squares" not in capsys.readouterr().out
+    # the damped forecast's scene.json holds the fitted waves only, which do not draw its
+    # frames: rendering, re-editing or forecasting it again is refused; the undamped one's do
+    for command in (["render", str(tmp_path / "fc")], ["reedit", str(tmp_path / "fc"), "--camera-height", "9"],
+                    ["forecast", str(tmp_path / "fc"), "--frames", "0"]):
+        assert cli.main(command + ["--out", str(tmp_path / "again")]) == 2
+        assert "damped least-squares forecast" in capsys.readouterr().err and not (tmp_path / "again").exists()
+    assert cli.main(["render", str(tmp_path / "fc2"), "--out", str(tmp_path / "again")]) == 0
 
 
 def test_demo_render_stage_and_bad_stage(tmp_path, capsys):

@@ -500,6 +500,23 @@ def test_camera_fit_reports_a_local_minimum_as_failure(x64):
         fit.camera(image, waves, 0.0, true_cam, lighting=light, coarse_steps=0)
 
 
+def test_camera_fit_rejects_bad_search_settings_before_work():
+    # n_starts=0 failed deep inside ("argmin of an empty sequence"), a NaN span returned a
+    # NaN camera without a word, and NumPy ints were refused as search sizes
+    waves = _sea(n=2, seed=3, scale=0.15)
+    true_cam = cam.make_camera(height=6.0, pitch=0.25, fov=0.7, resolution=(4, 4))
+    light = shading.make_lighting(**TRUTHS[0])
+    image = jnp.ones((4, 4, 3), jnp.float32)
+    kw = dict(lighting=light, plan=None, throw=False)
+    for bad, match in ((dict(n_starts=0), "n_starts must be an int >= 1"), (dict(grid=-1), "grid an int >= 0"),
+                       (dict(height_span=float("nan")), "height_span must be a finite number >= 0"),
+                       (dict(pitch_span=-0.1), "pitch_span must be a finite number >= 0")):
+        with pytest.raises(ValueError, match=match):
+            fit.camera(image, waves, 0.0, true_cam, **kw, **bad)
+    with pytest.raises(ValueError, match="search must be two positive ints"):
+        fit.camera(image, waves, 0.0, true_cam, search=(np.int64(0), 1), **kw)
+
+
 @pytest.mark.slow
 def test_camera_fit_under_jit_and_vmap(x64):
     # throw=False and an explicit plan: arrays only, one flag per start

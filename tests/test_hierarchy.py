@@ -46,6 +46,14 @@ def test_all_resolved_and_bad_input():
         hierarchy.weights(waves, 1.0, n_min=2.0, n_max=1.0)
 
 
+@pytest.mark.parametrize("grid_cell", [0.0, -1.0, float("nan")])
+def test_nonpositive_or_nan_grid_cell_is_rejected(grid_cell):
+    # a grid cell <= 0 or NaN sent every wave to (or out of) the displacement silently
+    waves = _waves_with_wavelengths([1.0, 2.0])
+    with pytest.raises(InvalidValueError, match="grid_cell must be > 0"):
+        hierarchy.weights(waves, 1.0, grid_cell=grid_cell)
+
+
 def test_weight_gradients_match_finite_differences(x64):
     waves = _waves_with_wavelengths([1.1, 1.3, 1.45])  # inside the transition band
 

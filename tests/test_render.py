@@ -252,6 +252,12 @@ def test_bad_inputs_raise_before_work():
         render.shade(normal, jnp.full((16, 12), 1e-3), c, light)
     with pytest.raises(ValueError, match="plan must be"):
         render.geometry(waves, c, 0.0, plan="fast")
+    # a NaN grid cell gave NaN positions, a negative one dropped the displacement, silently
+    for grid_cell in (float("nan"), -1.0, 0.0):
+        with pytest.raises(InvalidValueError, match="grid_cell must be > 0"):
+            render.geometry(waves, c, 0.0, grid_cell=grid_cell)
+        with pytest.raises(InvalidValueError, match="grid_cell must be > 0"):
+            render.render(waves, c, light, 0.0, grid_cell=grid_cell, plan=None)
     no_waves = jax.tree.map(lambda x: x[:0], waves)
     with pytest.raises(ValueError, match="at least one wave; a flat sea is one wave of zero amplitude"):
         render.render(no_waves, c, light, 0.0)

@@ -25,6 +25,14 @@ def test_wave_vector_and_steepness():
     np.testing.assert_array_equal(w.phase, [0.0, 0.0])
 
 
+
+def test_make_waves_broadcasts_the_phase():
+    # the docstring promises it; a scalar phase was a "leaves must share one shape" error
+    w = make_waves([0.5, 0.1], [1.0, 2.0], [0.0, 1.0], 0.25)
+    np.testing.assert_array_equal(w.phase, [0.25, 0.25])
+    assert w.phase.dtype == w.amplitude.dtype
+
+
 @pytest.mark.parametrize(
     "kwargs, match",
     [

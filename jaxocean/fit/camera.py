@@ -85,7 +85,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
-from jaxocean.errors import is_concrete
+from jaxocean.errors import check_nonnegative_number, is_concrete, is_integer
 from jaxocean.fit import _plausibility
 from jaxocean.fit import _image_inputs as inp
 from jaxocean.fit import _photometry as ph
@@ -387,8 +387,12 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         raise ValueError(f"levels must be decreasing hierarchy scales ending in 1; got {levels!r}")
     if noise is not None and not (math.isfinite(noise) and noise >= 0):
         raise ValueError(f"noise must be a finite number >= 0 (or None); got {noise!r}")
-    if len(search) != 2 or any(not isinstance(n, int) or n < 1 for n in search):
+    if len(search) != 2 or any(not is_integer(n, 1) for n in search):
         raise ValueError(f"search must be two positive ints (n_heights, n_pitches); got {search!r}")
+    check_nonnegative_number(height_span, "height_span must be a finite number >= 0")
+    check_nonnegative_number(pitch_span, "pitch_span must be a finite number >= 0 rad")
+    if not is_integer(n_starts, 1) or not is_integer(grid, 0):
+        raise ValueError(f"n_starts must be an int >= 1 and grid an int >= 0; got {n_starts!r}, {grid!r}")
     if lighting is None:
         if not fit_lighting:
             raise ValueError("pass the scene's lighting=, or fit_lighting=True to fit it jointly")

@@ -55,7 +55,11 @@ deviations off). The test sees the waves only: where a wave fit lost energy near
 edge, a peak inside can explain the waves better than any beyond, and is reported
 observed (two default fits of the same table: Tp 10 and 37 standard deviations off).
 ``success`` says that one spectrum explains the waves, not that the waves hold the sea's
-energy. When the peak is not observed, the fit drifts along
+energy. Where a peak beyond the band explains the energies as well as the one inside, the
+answer keeps the inside one, the shortest Tp and least Hs that explain them (beyond the
+long-wave edge, longer periods and more energy below the band do too): both are lower
+bounds (upper ones for the short-wave edge). When the fitted peak lies outside the band,
+the fit drifts along
 the ``alpha`` valley (measured on a dataset scene: Tp 137 s, Hs 510 m for a 5 s, 0.7 m
 sea), so Hs and gamma are refitted with the peak pinned to the band's nearer edge: for a
 peak below the band, Tp becomes the longest period the reliable waves cover and Hs the
@@ -110,8 +114,9 @@ class SpectrumFit(NamedTuple):
     * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
     * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` and the
       energies rule out a peak at or beyond either edge: the best such spectrum's misfit
-      (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Tp is pinned to the band's
-      edge and Hs refitted: both are bounds (module docstring).
+      (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Hs and Tp are bounds: a
+      peak fitted outside the band is pinned to its nearer edge and Hs refitted; one inside
+      is kept (module docstring).
     * ``edge_peak_misfit`` the least ``misfit`` of a spectrum whose peak lies at or beyond
       an edge of ``omega_band`` (over a grid of Tp up to 4 times past the
       edge (:data:`EDGE_REACH`) and of gamma, Hs in closed form).
@@ -303,6 +308,14 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
         raise ValueError(f"fit.spectrum takes Waves with leaves (N,); got {waves.omega.shape}")
     if roughness is not None and camera is None:
         raise ValueError("fitting the roughness tail needs the camera (its footprints)")
+    if roughness is not None:
+        r_shape = tuple(np.shape(roughness))
+        if len(r_shape) not in (2, 3) or r_shape[-2:] != tuple(camera.resolution):
+            raise ValueError(f"roughness must be (T, H, W) or (H, W) with (H, W) = {tuple(camera.resolution)}, the "
+                             f"camera's resolution; got shape {r_shape}")
+        # NaN marks a pixel without data (ignored); a negative slope variance is no data at all
+        check_values(~(np.asarray(roughness) < 0), "roughness (slope variance) must be >= 0 (NaN: no data)",
+                     roughness)
     if band is not None:
         try:
             lo_rel, hi_rel = (float(v) for v in band)
@@ -437,17 +450,19 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     edge_misfits = [float(np.min(grid(2 * np.pi / e * f, EDGE_GAMMAS)[2]))
                     for e, f in ((edges[0], EDGE_REACH), (edges[-1], 1.0 / EDGE_REACH))]
     edge_misfit = min(edge_misfits)
-    peak_observed = bool(edges[0] <= wp <= edges[-1]) and not edge_misfit <= bound
-    if not peak_observed:
+    inside = bool(edges[0] <= wp <= edges[-1])
+    peak_observed = inside and not edge_misfit <= bound
+    if not inside:
         # only alpha is determined, and the solver drifts along its valley: refit Hs and
-        # gamma with the peak pinned to the band's nearer edge, or, for a peak inside the
-        # band that one outside explains as well, to the edge of the better such spectrum
-        # (module docstring)
-        if edges[0] <= wp <= edges[-1]:
-            wp = float(edges[0] if edge_misfits[0] <= edge_misfits[1] else edges[-1])
+        # gamma with the peak pinned to the band's nearer edge (module docstring)
         wp = float(np.clip(wp, edges[0], edges[-1]))
         free[1] = False
         out, y, y_solver = least_squares(grid_start(np.array([2 * math.pi / wp])), free)
+    elif not peak_observed:
+        # a peak inside that one beyond an edge explains as well: the fitted peak is the
+        # nearest to the band's middle that explains the energies, so Hs and Tp are bounds
+        # (module docstring); Tp is held in the covariance, as a pinned Tp is
+        free[1] = False
     hs_fit, tp_fit = math.exp(y[0]), math.exp(y[1])
     g_fit = float(y[2])
     wp = 2 * math.pi / tp_fit
