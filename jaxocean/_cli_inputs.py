@@ -218,7 +218,7 @@ def check_out_dir(path) -> Path:
     """``--out`` of a command that writes a directory: not an existing file."""
     path = Path(path)
     if path.exists() and not path.is_dir():
-        raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory of frames)")
+        raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory there)")
     return path
 
 

@@ -1,6 +1,8 @@
 """Wave-estimation network: physical outputs, permutation-free loss, overfitting one scene,
 bad inputs, the shipped model and the net-started wave fit."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -117,6 +119,9 @@ def test_bad_inputs_name_the_problem(tiny_model):
         wn.predict(tiny_model, normals, rough, CAMERA, TIMES[:2])
     with pytest.raises(ValueError, match="strictly increasing"):
         wn.predict(tiny_model, normals, rough, CAMERA, TIMES[::-1])
+    # increasing in float64, one time in the network's float32 (spacing 8 s at 1e8 s)
+    with pytest.raises(ValueError, match="strictly increasing in float32"):
+        wn.predict(tiny_model, normals, rough, CAMERA, 1e8 + TIMES.astype(np.float64))
     # values: a frame with no valid normal, and vectors that are not unit normals
     with pytest.raises(ValueError, match="frame 1 has no valid sea normal"):
         holed = normals.copy()
@@ -201,6 +206,12 @@ def test_cli_train_waves_and_fit_waves_init_options(tmp_path, capsys):
     assert "--net-model is used with --init net only" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         cli.main(["fit-waves", str(tmp_path), "--out", str(tmp_path / "w.json"), "--init", "nett"])
+    # a file as the run directory is named as such, not an OS error
+    (tmp_path / "run.txt").write_text("x")
+    for command in ("train-waves", "train-geometry"):
+        code = cli.main([command, str(tmp_path), "--out", str(tmp_path / "run.txt")])
+        assert code == cli.EXIT_INPUT
+        assert "--out" in (err := capsys.readouterr().err) and "exists and is not a directory" in err, err
 
 
 @pytest.mark.slow
@@ -220,6 +231,32 @@ def test_train_writes_a_loadable_model_and_resumes(tmp_path):
     assert (tmp_path / "run" / "curves.png").exists()
     with pytest.raises(ValueError, match="unknown config"):
         wt.train(root, tmp_path / "run2", "gpu")
+
+
+@pytest.mark.slow
+def test_resume_with_the_dataset_spelt_otherwise_and_evaluate_errors(tmp_path, monkeypatch):
+    from jaxocean.io import dataset
+
+    root = tmp_path / "data"
+    dataset.simulate(root, 12, 4, (16, 16), seed=2, progress=False)
+    config = wt.TrainConfig(name="tiny", model=TINY, losses="geometry", epochs=3, steps_per_epoch=1,
+                            batch_size=2, time_budget_minutes=None)
+    # killed in the second epoch: the first one is in the checkpoint
+    first = wt.train(root, tmp_path / "run", config, progress=False, stop_after_steps=2)
+    assert first["stopped"] == "step_limit"
+    # the same dataset by a relative path: the same run, resumed (not "other settings")
+    monkeypatch.chdir(tmp_path)
+    summary = wt.train("data", tmp_path / "run", config, progress=False)
+    assert summary["stopped"] == "epochs" and summary["steps"] == 3
+    # the model's training time is the run's (over both calls), as in history.json
+    best = wn.model_info(tmp_path / "run" / "model.npz")["best"]
+    history = json.loads((tmp_path / "run" / "history.json").read_text())
+    assert best["wall_s"] == next(h["wall_s"] for h in history if h["steps"] == best["steps"])
+    model = wn.load(tmp_path / "run" / "model.npz")
+    with pytest.raises(ValueError, match="unknown split 'valid'"):
+        wt.evaluate_loss(model, root, "valid")
+    with pytest.raises(ValueError, match="no scene to evaluate"):
+        wt.evaluate_loss(model, root, scenes=[])
 
 
 def test_jitted_apply_equals_eager(tiny_model):

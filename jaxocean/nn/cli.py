@@ -122,6 +122,7 @@ def _train(args) -> int:
         changes["augment"] = (config.augment or DisplayAugment()) if args.augment else None
     config = config._replace(**changes)
     config.terms()
+    check_out_dir(args.out)
     summary = gt.train(args.dataset, args.out, config, progress=not args.quiet)
     summary.pop("state")
     print(f"stopped: {summary['stopped']} after {summary['steps']} steps; best validation loss "
@@ -137,6 +138,7 @@ def _train_waves(args) -> int:
                if v is not None}
     config = wt.CONFIGS[args.config]._replace(**changes)
     config.terms()
+    check_out_dir(args.out)
     summary = wt.train(args.dataset, args.out, config, progress=not args.quiet)
     summary.pop("state")
     print(f"stopped: {summary['stopped']} after {summary['steps']} steps ({summary['train_s'] / 60:.1f} min); "

@@ -334,13 +334,16 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
     """The waves of one scene (``Waves`` with ``(n,)`` leaves: the slots with presence above
     ``threshold``), or ``(Waves, WaveSlots)`` with ``return_slots=True``. Inputs as in the
     module docstring; ``ValueError`` names a wrong shape, frame count or resolution, and
-    frame times that are not finite and strictly increasing."""
+    frame times that are not finite and strictly increasing (in float32, the model's precision)."""
     normals = jnp.asarray(normals, jnp.float32)
     times_np = np.asarray(times, np.float64)
     rough = None if roughness is None else jnp.asarray(roughness, jnp.float32)
     _check_scene(model.config, normals, rough, camera, times_np)
     if not (np.all(np.isfinite(times_np)) and np.all(np.diff(times_np) > 0)):
         raise ValueError(f"times must be finite and strictly increasing; got {times_np}")
+    if not np.all(np.diff(times_np.astype(np.float32)) > 0):  # the network's precision
+        raise ValueError(f"times must be strictly increasing in float32, the network's precision; got {times_np} "
+                         "(subtract a time origin: the phases are then relative to it)")
     if not 0.0 <= threshold < 1.0:
         raise ValueError(f"threshold must be in [0, 1); got {threshold}")
     _check_normals(normals, camera)

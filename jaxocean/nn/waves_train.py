@@ -37,7 +37,6 @@ Every batch item is a scene's first ``frames`` frames (one window per scene).
 from __future__ import annotations
 
 import functools
-import time
 from pathlib import Path
 from typing import NamedTuple
 
@@ -224,8 +223,14 @@ def evaluate_loss(model: wn.WaveNetModel, dataset, split: str = "val", *, config
     """Mean normalised geometry loss and waves per scene of ``model`` on a split."""
     data = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     config = (config or CONFIGS["cpu"])._replace(model=model.config)
-    return _mean_logs(config, model.params, _Scenes(data, model.config.frames), data.splits[split] if scenes is None
-                      else scenes, batch_size)
+    if scenes is None:
+        if split not in data.splits:
+            raise ValueError(f"unknown split {split!r}; have {sorted(data.splits)}")
+        scenes = data.splits[split]
+    if not len(scenes):
+        raise ValueError(f"{data.root}: no scene to evaluate (scenes per split: "
+                         f"{', '.join(f'{k} {len(v)}' for k, v in data.splits.items())})")
+    return _mean_logs(config, model.params, _Scenes(data, model.config.frames), scenes, batch_size)
 
 
 def _mean_logs(config, params, scenes: _Scenes, indices, batch_size):
@@ -273,17 +278,16 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
         logs = _mean_logs(config, state["params"], scenes, val_ids, config.batch_size)
         return {"loss": logs["loss"], "geometry": logs["geometry"], "waves": logs["waves"]}
 
-    t0 = time.perf_counter()
     best_meta: dict = {}
 
     def on_best(state, scores, pos):
-        best_meta.update(val=scores, steps=pos["step"], wall_s=time.perf_counter() - t0)
+        best_meta.update(val=scores, steps=pos["step"], wall_s=pos["train_s"])  # over every call of a resumed run
         wn.save(out / "model.npz", wn.WaveNetModel(config.model, jax.device_get(state["params"])),
                 {"train_config": config.to_json(), "dataset": str(data.root), "best": best_meta})
 
     result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
                         steps_per_epoch=config.steps_per_epoch, key=key,
-                        signature={"config": config.to_json(), "dataset": str(data.root)},
+                        signature={"config": config.to_json(), "dataset": data.settings},
                         patience=config.patience,
                         time_budget_s=None if config.time_budget_minutes is None else 60 * config.time_budget_minutes,
                         on_best=on_best, parallel=parallel, progress=progress, stop_after_steps=stop_after_steps)
