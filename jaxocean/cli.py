@@ -294,7 +294,7 @@ def build_parser():
     p.add_argument("--width", type=int, default=128, help="width [px] of the rectified working view (default 128)")
     p.add_argument("--response", default="srgb", choices=("srgb", "gamma", "linear", "bruneton"),
                    help="display response of 8/16-bit frames (default srgb)")
-    p.add_argument("--gamma", type=inputs.positive_float, default=2.2,
+    p.add_argument("--gamma", type=inputs.positive_float,
                    help="exponent for --response gamma (default 2.2)")
     p.add_argument("--step", type=int, default=1, help="use every STEP-th frame (default 1)")
     p.add_argument("--max-frames", type=int, help="use at most this many frames")
@@ -802,8 +802,13 @@ def cmd_reconstruct(args) -> int:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1; got {getattr(args, name)}")
     if args.max_frames is not None and args.max_frames < 2:
         raise ValueError(f"--max-frames must be >= 2; got {args.max_frames}")
+    if args.gamma is not None and args.response != "gamma":
+        raise ValueError(f"--gamma is the exponent of --response gamma; the response is {args.response}")
+    if args.per_frame_exposure and args.no_refine:
+        raise ValueError("--per-frame-exposure sets stage 5's exposures, and --no-refine skips stage 5: give one")
+    gamma = {} if args.gamma is None else {"gamma": args.gamma}  # None: the library's default exponent
     result = reconstruct.reconstruct(args.frames, args.camera, out=out, width=args.width, response=args.response,
-                                     gamma=args.gamma, step=args.step, max_frames=args.max_frames,
+                                     step=args.step, max_frames=args.max_frames, **gamma,
                                      height=args.camera_height, wave_frames=args.wave_frames,
                                      max_waves=args.max_waves, overcast=args.overcast, refine=not args.no_refine,
                                      per_frame_exposure=args.per_frame_exposure, geometry_model=args.geometry_model)

@@ -148,7 +148,11 @@ def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcas
     allows, and that geometry determines every fitted field."""
     from jaxocean import fit
 
-    i = len(seq.times) // 2 if frame is None else frame
+    n = len(seq.times)
+    if frame is not None and not (isinstance(frame, (int, np.integer)) and 0 <= frame < n):
+        raise ValueError(f"lighting_stage: frame must be an index in [0, {n}) of the sequence's {n} frames; "
+                         f"got {frame!r}")
+    i = n // 2 if frame is None else int(frame)
 
     def run():
         over = _looks_overcast(seq, i) if overcast is None else overcast
@@ -298,6 +302,8 @@ def _cap_steepness(waves: Waves, why: list):
 
 
 def _spread(n: int, k: int | None) -> np.ndarray:
+    if k is not None and k < 1:
+        raise ValueError(f"frames must be >= 1 (or None for all {n}); got {k}")
     if k is None or k >= n:
         return np.arange(n)
     return np.unique(np.round(np.linspace(0, n - 1, k)).astype(int))
@@ -448,7 +454,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             spectrum_success=sf is not None and bool(sf.success),
             spectrum_misfit=None if sf is None else float(sf.misfit),
             geometry_spectrum=None if geo_sea is None else _geometry_sea_dict(geo_sea, seq.compass),
-            dispersion=None if check is None else _check_dict(check),
+            dispersion=None if check is None else _check_dict(check, seq.compass),
             dispersion_peak_period_s=None if check is None else float(check.peak_period_s),
             dispersion_direction_deg=None if check is None else direction_deg(float(check.peak_direction),
                                                                              seq.compass),
@@ -508,12 +514,15 @@ def _geometry_sea_dict(geo_sea, compass: bool) -> dict:
                 elevation_m2=[float(x) for x in geo_sea.spectrum.get("elevation", [])])
 
 
-def _check_dict(check) -> dict:
+def _check_dict(check, compass: bool) -> dict:
+    """The dispersion check's fields for ``result.json``; its peak direction in the report's
+    convention [deg] (:func:`direction_deg`), as every direction there."""
     out = {}
-    for name in ("shell_fraction", "null_fraction", "ratio", "peak_period_s", "peak_direction", "peak_wavelength_m",
-                 "success", "message"):
+    for name in ("shell_fraction", "null_fraction", "ratio", "peak_period_s", "peak_wavelength_m", "success",
+                 "message"):
         v = getattr(check, name, None)
         out[name] = v if isinstance(v, (str, bool, type(None))) else float(v)
+    out["peak_direction_deg"] = direction_deg(float(check.peak_direction), compass)
     return out
 
 

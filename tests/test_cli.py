@@ -587,3 +587,14 @@ def test_demo_sea_lines_say_when_the_spectrum_failed_and_what_is_a_bound():
     # no sea state is no number, not "nan"
     assert cli._value(float("nan"), ".2f", " m") == cli._value(None, ".1f") == "n/a"
     assert cli._value(1.234, ".2f", " m") == "1.23 m"
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--gamma", "1.8"], "--gamma is the exponent of --response gamma; the response is srgb"),
+    (["--per-frame-exposure", "--no-refine"], "--per-frame-exposure sets stage 5's exposures, and --no-refine"),
+])
+def test_reconstruct_refuses_options_it_would_ignore(extra, message, tmp_path, capsys):
+    # an option with no effect on the run asked for is an error, not silently dropped
+    assert cli.main(["reconstruct", "--camera", str(tmp_path / "none.json"), "--out", str(tmp_path / "out"),
+                     *extra]) == 2
+    assert message in capsys.readouterr().err

@@ -355,3 +355,42 @@ def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
                                          direction_deg=150.0, direction_std_deg=30.0, peak_period_s=2.8)
     path = report._sea_figure(tmp_path / "sea_geometry.png", flat)
     assert Path(path).stat().st_size > Path(tmp_path / "sea.png").stat().st_size
+
+
+def test_stage_frame_arguments_are_checked(tmp_path):
+    # a frame index outside the sequence, or a count of frames below 1, is refused up front
+    # with the argument named (not an IndexError from the middle of the stage)
+    files, scene_json, _, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    geo = SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (len(times), 32, 32, 1)),
+                          roughness=np.full((len(times), 32, 32), 1e-3, np.float32),
+                          slope_variance=np.full((len(times), 32, 32, 2), 5e-4, np.float32),
+                          mask=np.ones((len(times), 32, 32), bool))
+    for frame in (len(times), -1):
+        with pytest.raises(ValueError, match="frame must be an index"):
+            rc.lighting_stage(seq, geo, frame=frame)
+    for frames in (0, -2):
+        with pytest.raises(ValueError, match="frames must be >= 1"):
+            rc.waves_stage(seq, geo, frames=frames, evidence=None)
+        with pytest.raises(ValueError, match="frames must be >= 1"):
+            rc.photometric_stage(seq, jo.make_waves([0.0], [1.0], [0.0]), jo.make_lighting(), frames=frames,
+                                 evidence=None)
+
+
+def test_the_dispersion_check_reports_its_direction_in_degrees(tmp_path):
+    # result.json gives every direction in degrees in the report's convention: the images'
+    # dispersion check too, not its library azimuth in radians
+    files, scene_json, _, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    geo = SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (len(times), 32, 32, 1)),
+                          roughness=np.full((len(times), 32, 32), 1e-3, np.float32),
+                          mask=np.ones((len(times), 32, 32), bool))
+    check = SimpleNamespace(success=False, message="stub", ratio=1.0, shell_fraction=0.1, null_fraction=0.1,
+                            peak_period_s=2.0, peak_direction=0.5, peak_wavelength_m=6.0, peak_at_band_edge=False,
+                            current=np.zeros(2))
+    flat = jo.make_waves([0.0], [1.0], [0.0])
+    for compass in (False, True):
+        (sea, _, _), _ = rc.sea_stage(seq._replace(compass=compass), flat, geo, waves_ok=False, evidence=check)
+        assert "peak_direction" not in sea["dispersion"]
+        assert sea["dispersion"]["peak_direction_deg"] == pytest.approx(rc.direction_deg(0.5, compass))
+        assert sea["dispersion"]["peak_direction_deg"] == sea["dispersion_direction_deg"]
