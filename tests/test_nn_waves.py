@@ -215,7 +215,7 @@ def test_cli_train_waves_and_fit_waves_init_options(tmp_path, capsys):
 
 
 @pytest.mark.slow
-def test_train_writes_a_loadable_model_and_resumes(tmp_path):
+def test_train_writes_a_loadable_model_and_resumes(tmp_path, monkeypatch):
     from jaxocean.io import dataset
 
     root = tmp_path / "data"
@@ -224,35 +224,19 @@ def test_train_writes_a_loadable_model_and_resumes(tmp_path):
                             batch_size=2, time_budget_minutes=None)
     first = wt.train(root, tmp_path / "run", config, progress=False, stop_after_steps=3)
     assert first["stopped"] == "step_limit"
-    summary = wt.train(root, tmp_path / "run", config, progress=False)
+    # resumed with the same dataset given by a relative path: the same run, not "other settings"
+    monkeypatch.chdir(tmp_path)
+    summary = wt.train("data", tmp_path / "run", config, progress=False)
     assert summary["stopped"] == "epochs" and summary["steps"] == 4
     model = wn.load(tmp_path / "run" / "model.npz")
     assert model.config == TINY
     assert (tmp_path / "run" / "curves.png").exists()
-    with pytest.raises(ValueError, match="unknown config"):
-        wt.train(root, tmp_path / "run2", "gpu")
-
-
-@pytest.mark.slow
-def test_resume_with_the_dataset_spelt_otherwise_and_evaluate_errors(tmp_path, monkeypatch):
-    from jaxocean.io import dataset
-
-    root = tmp_path / "data"
-    dataset.simulate(root, 12, 4, (16, 16), seed=2, progress=False)
-    config = wt.TrainConfig(name="tiny", model=TINY, losses="geometry", epochs=3, steps_per_epoch=1,
-                            batch_size=2, time_budget_minutes=None)
-    # killed in the second epoch: the first one is in the checkpoint
-    first = wt.train(root, tmp_path / "run", config, progress=False, stop_after_steps=2)
-    assert first["stopped"] == "step_limit"
-    # the same dataset by a relative path: the same run, resumed (not "other settings")
-    monkeypatch.chdir(tmp_path)
-    summary = wt.train("data", tmp_path / "run", config, progress=False)
-    assert summary["stopped"] == "epochs" and summary["steps"] == 3
     # the model's training time is the run's (over both calls), as in history.json
     best = wn.model_info(tmp_path / "run" / "model.npz")["best"]
     history = json.loads((tmp_path / "run" / "history.json").read_text())
     assert best["wall_s"] == next(h["wall_s"] for h in history if h["steps"] == best["steps"])
-    model = wn.load(tmp_path / "run" / "model.npz")
+    with pytest.raises(ValueError, match="unknown config"):
+        wt.train(root, tmp_path / "run2", "gpu")
     with pytest.raises(ValueError, match="unknown split 'valid'"):
         wt.evaluate_loss(model, root, "valid")
     with pytest.raises(ValueError, match="no scene to evaluate"):
