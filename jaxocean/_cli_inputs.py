@@ -8,7 +8,7 @@
   against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
   :func:`json_kind`), :func:`check_frames`.
-* Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``),
+* Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``; the file's with its seed),
   :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
 
@@ -294,6 +294,7 @@ def refuse_damped_forecast(scene, path, command: str) -> None:
 
 
 def scene_from_file(path):
+    """The ``SceneSample`` of a scene file and the seed it was drawn with (None if unknown)."""
     from jaxocean.io.dataset import SceneSample
     from jaxocean.io.scene import read_scene
 
@@ -303,8 +304,7 @@ def scene_from_file(path):
     missing = [n for n in ("waves", "camera", "lighting", "times") if getattr(sc, n) is None]
     if missing:
         raise ValueError(f"{path}: scene has no {', '.join(missing)}; render needs waves, camera, lighting and times")
-    return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times)
-
+    return SceneSample(sc.waves, sc.spectrum, sc.camera, sc.lighting, sc.times), sc.seed
 
 
 def lighting_from_file(path, allow_failed: bool = False):

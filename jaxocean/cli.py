@@ -335,12 +335,9 @@ def cmd_render(args):
     out = inputs.check_out_dir(args.out)
     if not args.scene:
         inputs.check_memory(args.res, args.frames, "render")
-    scene = inputs.scene_from_file(args.scene) if args.scene else inputs.scene_from_args(args)
-    seed = args.seed
+    # a scene file keeps its own draw's seed, as reedit keeps it
+    scene, seed = inputs.scene_from_file(args.scene) if args.scene else (inputs.scene_from_args(args), args.seed)
     if args.scene:
-        from jaxocean.io import read_scene
-
-        seed = read_scene(args.scene).seed  # the scene file's own draw, kept as reedit keeps it
         inputs.check_memory(scene.camera.resolution, int(np.size(scene.times)), f"render {args.scene}")
     t0 = time.perf_counter()
     images, geo = jax.device_get(render_scene(scene))

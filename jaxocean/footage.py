@@ -228,12 +228,8 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                                            lens.Distortion(), tuple(listed) * (len(times) if video else 1), times,
                                            poses, False)
         else:
-            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=False, check_files=not video)
-            if camera_file.poses is None and height is None:
-                raise cf_io.CameraFileError(json_path, "frames[0].camera_height_m: missing: no frame gives a pose "
-                                                       "(camera_height_m, pitch_rad, roll_rad, yaw_rad); give the "
-                                                       "camera height (reconstruct --camera-height) to take pitch "
-                                                       "and roll from the horizon")
+            camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=height is None,
+                                                      check_files=not video)
             if camera_file.poses is not None and height is not None:
                 raise InvalidValueError(f"{camera_path}: every frame gives a pose with its camera_height_m; a camera "
                                         f"height ({height} m) applies only to a camera file without poses (pitch "

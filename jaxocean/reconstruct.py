@@ -46,6 +46,7 @@ from jaxocean import radiometry
 from jaxocean import shading
 from jaxocean._math import slope_from_normal
 from jaxocean._stages import StageReport, timed
+from jaxocean.errors import is_integer
 from jaxocean.files import json_safe
 from jaxocean.footage import DEFAULT_WIDTH, Sequence, load_sequence, sea_view
 from jaxocean.waves import Waves, wavenumber
@@ -149,7 +150,7 @@ def lighting_stage(seq: Sequence, geometry, *, frame: int | None = None, overcas
     from jaxocean import fit
 
     n = len(seq.times)
-    if frame is not None and not (isinstance(frame, (int, np.integer)) and 0 <= frame < n):
+    if frame is not None and not (is_integer(frame, 0) and frame < n):
         raise ValueError(f"lighting_stage: frame must be an index in [0, {n}) of the sequence's {n} frames; "
                          f"got {frame!r}")
     i = n // 2 if frame is None else int(frame)

@@ -326,7 +326,9 @@ def _poses(f: _Fields, frames: list[dict], require_pose: bool) -> Pose | None:
 
     if not consistent(_POSE_FIELDS):
         if require_pose:
-            f.fail("frames[0].camera_height_m", f"missing: no frame gives a pose ({list(_POSE_FIELDS)})")
+            f.fail("frames[0].camera_height_m", f"missing: no frame gives a pose ({', '.join(_POSE_FIELDS)}); "
+                                                "give the camera height (reconstruct --camera-height) to take "
+                                                "pitch and roll from the horizon")
         return None
     values = {name: np.array([f.number(frame, name, f"frames[{n}].{name}") for n, frame in enumerate(frames)])
               for name in _POSE_FIELDS}

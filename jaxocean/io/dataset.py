@@ -550,12 +550,17 @@ class Dataset:
             self._cache_bytes += size
         return frame
 
-    def windows(self, split: str, sequence: int = 1):
+    def scenes_of(self, split: str) -> list:
+        """The scene indices of ``split``; ``ValueError`` for a split the dataset does not have."""
         if split not in self.splits:
             raise ValueError(f"unknown split {split!r}; have {sorted(self.splits)}")
+        return self.splits[split]
+
+    def windows(self, split: str, sequence: int = 1):
+        scenes = self.scenes_of(split)
         if not 1 <= sequence <= self.n_frames:
             raise ValueError(f"sequence must be in [1, {self.n_frames}]; got {sequence}")
-        return [(s, f) for s in self.splits[split] for f in range(self.n_frames - sequence + 1)]
+        return [(s, f) for s in scenes for f in range(self.n_frames - sequence + 1)]
 
     def batches(self, key, split: str = "train", batch_size: int = 8, sequence: int = 1, drop_last: bool = True):
         windows = self.windows(split, sequence)

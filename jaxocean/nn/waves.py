@@ -339,11 +339,11 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
     times_np = np.asarray(times, np.float64)
     rough = None if roughness is None else jnp.asarray(roughness, jnp.float32)
     _check_scene(model.config, normals, rough, camera, times_np)
-    if not (np.all(np.isfinite(times_np)) and np.all(np.diff(times_np) > 0)):
-        raise ValueError(f"times must be finite and strictly increasing; got {times_np}")
-    if not np.all(np.diff(times_np.astype(np.float32)) > 0):  # the network's precision
-        raise ValueError(f"times must be strictly increasing in float32, the network's precision; got {times_np} "
-                         "(subtract a time origin: the phases are then relative to it)")
+    # increasing in float32 (the network's precision) implies increasing in float64
+    if not (np.all(np.isfinite(times_np)) and np.all(np.diff(times_np.astype(np.float32)) > 0)):
+        raise ValueError(f"times must be finite and strictly increasing in float32, the network's precision; got "
+                         f"{times_np} (times that increase only in float64: subtract a time origin, the phases are "
+                         "then relative to it)")
     if not 0.0 <= threshold < 1.0:
         raise ValueError(f"threshold must be in [0, 1); got {threshold}")
     _check_normals(normals, camera)

@@ -224,9 +224,7 @@ def evaluate_loss(model: wn.WaveNetModel, dataset, split: str = "val", *, config
     data = dataset if isinstance(dataset, Dataset) else Dataset(dataset)
     config = (config or CONFIGS["cpu"])._replace(model=model.config)
     if scenes is None:
-        if split not in data.splits:
-            raise ValueError(f"unknown split {split!r}; have {sorted(data.splits)}")
-        scenes = data.splits[split]
+        scenes = data.scenes_of(split)
     if not len(scenes):
         raise ValueError(f"{data.root}: no scene to evaluate (scenes per split: "
                          f"{', '.join(f'{k} {len(v)}' for k, v in data.splits.items())})")
