@@ -36,8 +36,8 @@ __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positiv
 
 
 def resolution_arg(text: str):
-    try:
-        parts = [int(p) for p in text.lower().replace("x", " ").split()]
+    try:  # "16x" or "x16" is neither N nor HxW: int("") refuses the empty side
+        parts = [int(p) for p in text.lower().split("x")]
     except ValueError:
         parts = []
     if len(parts) == 1:

@@ -238,8 +238,12 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                 if n_video != len(camera_file.times):
                     raise InvalidValueError(f"the video {frames[0]} has {n_video} frames; the camera file "
                                             f"{camera_path} lists {len(camera_file.times)}")
+                # every frame comes from the video, not from the files the camera file lists
+                camera_file = camera_file._replace(files=(frames[0].resolve(),) * n_video)
             else:
                 camera_file = cf_io.select(camera_file, _frame_files(frames, camera_file.files, camera_path))
+                if frames:  # the frames given are read (a frame matched by name may lie in another folder)
+                    camera_file = camera_file._replace(files=tuple(f.resolve() for f in frames))
         idx = np.arange(0, len(camera_file.times), step)[:max_frames]
         if len(idx) < 2:
             raise InvalidValueError(f"reconstruct needs at least 2 frames; {len(idx)} selected")

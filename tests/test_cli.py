@@ -25,6 +25,14 @@ def test_usage_errors_exit_2(capsys):
     assert "resolution must be N or HxW" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("text", ["16x", "x16", "16xx16", "16x16x"])
+def test_a_resolution_with_a_missing_side_is_refused(text):
+    # "16x" was read as 16x16
+    with pytest.raises(Exception, match="resolution must be N or HxW"):
+        _cli_inputs.resolution_arg(text)
+    assert _cli_inputs.resolution_arg(" 16X24 ") == (16, 24) and _cli_inputs.resolution_arg("8") == (8, 8)
+
+
 def test_bad_values_exit_2_with_message(tmp_path, capsys):
     code = cli.main(["render", "--out", str(tmp_path / "r"), "--camera-height", "-3", "--frames", "1",
                      "--res", "8", "--waves", "4"])

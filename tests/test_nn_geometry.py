@@ -344,3 +344,41 @@ def test_the_shipped_gpu_model_loads_by_name_and_beats_flat():
     # measured 0.35x and 0.61x (the cpu model: 0.52x and 0.62x)
     linear, display = _ratios_to_flat(model)
     assert linear < 0.5 and display < 0.7, (linear, display)
+
+
+def test_evaluate_warms_up_every_frame_count_it_times(tiny_dataset):
+    # max_frames that cuts a scene short scores it with fewer frames: that count's compile
+    # belongs to the warm-up, not to frames_per_s (was: 0.7 frames/s against 500)
+    calls = []
+
+    def method(images, scene):
+        calls.append(len(images))
+        return gt.flat_method(images, scene)
+
+    out = gt.evaluate(method, tiny_dataset, "train", max_frames=3)
+    assert out["frames"] == 3
+    timed = calls[-2:]  # the two scenes scored, 2 frames and 1
+    assert sorted(timed) == [1, 2] and set(calls[:-2]) == {1, 2}
+
+
+def test_evaluate_names_frames_without_slope_variance(tiny_dataset, tmp_path, capsys):
+    # a dataset written before slope_variance was stored reads, but cannot be scored (was: a
+    # TypeError traceback from stacking None)
+    import shutil
+
+    from jaxocean.io import read_frame
+    from jaxocean.io.exr import write_frame
+
+    root = tmp_path / "old"
+    shutil.copytree(tiny_dataset, root)
+    s = dataset.Dataset(root).splits["test"][0]
+    path = dataset.scene_dir(root, s) / "frame_00000.exr"
+    f = read_frame(path)
+    write_frame(path, f.image, {"normal": f.normal, "roughness": f.roughness, "mask": f.mask}, half=False)
+    from jaxocean.io.exr import IncompleteFrameWarning
+
+    with pytest.raises(ValueError, match="lack slope_variance channels"), pytest.warns(IncompleteFrameWarning):
+        gt.evaluate(gt.flat_method, root, "test", warmup=False)
+    with pytest.warns(IncompleteFrameWarning):
+        assert _cli("eval-geometry", root) == 2
+    assert "lack slope_variance channels" in capsys.readouterr().err

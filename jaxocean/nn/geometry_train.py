@@ -469,6 +469,9 @@ def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timin
     for s, frames in by_scene.items():
         sc = data.scene(s)
         fr = [data.frame(s, f) for f in frames]
+        if any(x.slope_variance is None for x in fr):  # the scores compare against it
+            raise ValueError(f"{data.root}: scene {s}'s frames lack slope_variance channels (written by an older "
+                             "jaxocean); regenerate the dataset with `jaxocean simulate`")
         images = np.stack([x.image for x in fr])
         t0 = time.perf_counter()
         pred = method(images, sc)
@@ -512,10 +515,13 @@ def evaluate(method, dataset, split: str = "test", *, max_frames: int | None = N
         sizes = ", ".join(f"{name} {len(scenes)}" for name, scenes in data.splits.items())
         raise ValueError(f"{data.root}: the {split!r} split holds no frame to score (scenes per split: {sizes}); "
                          "choose another split (--split), or simulate more scenes (the test split holds 10% of them)")
-    if warmup:  # compile for the frame count of the first scene
-        s = windows[0][0]
-        images = np.stack([data.frame(s, f).image for s2, f in windows if s2 == s])
-        jax.block_until_ready(method(images, data.scene(s)).normal)
+    if warmup:  # compile for every frame count a scene is scored with (max_frames can cut the last one short)
+        by_scene: dict = {}
+        for s, f in windows:
+            by_scene.setdefault(s, []).append(f)
+        for s in {len(frames): s for s, frames in reversed(by_scene.items())}.values():
+            images = np.stack([data.frame(s, f).image for f in by_scene[s]])
+            jax.block_until_ready(method(images, data.scene(s)).normal)
     timing: dict = {}
     out = _score_frames(method, data, windows, per_scene=True, timing=timing)
     out["frames_per_s"] = timing["frames"] / max(timing["s"], 1e-9)
