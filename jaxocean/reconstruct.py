@@ -365,8 +365,8 @@ def _hs_uncertainty(waves: Waves, std: Waves | None) -> float:
     return float(4 * np.sqrt(np.sum((h * sh) ** 2)) / (2 * np.sqrt(m0)))
 
 
-def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None, waves_ok: bool = True,
-              evidence="auto"):
+def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None, determined=None,
+              waves_ok: bool = True, evidence="auto"):
     """Stage 6a: the sea state. Hs, Tp and the mean direction of ``waves`` and of the
     JONSWAP spectrum fitted to them (:func:`jaxocean.fit.spectrum`); whether the peak lies
     in the observed band (else Hs and Tp are bounds); the spreading; the mean square slope
@@ -374,7 +374,9 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     computed from the images alone (sequences of at least ``spacetime.MIN_FRAMES`` frames).
     Success: the spectrum fit succeeded, the waves before it did (``waves_ok``) and the
     images show dispersive waves (when the check could run). ``evidence``: the check
-    (:func:`space_time_evidence`) when already computed, else ``"auto"``.
+    (:func:`space_time_evidence`) when already computed, else ``"auto"``. ``determined``:
+    bool ``(N,)``, the waves whose parameters the wave fit measured (its ``determined``):
+    only their energies can show the spectral peak (None: every wave's).
 
     The geometry's own space-time spectrum (:func:`geometry_sea_spectrum`) is reported
     beside (``geometry_spectrum``). Where no wave is confirmed (``waves_ok`` False) it
@@ -410,7 +412,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
                 tp = max(tp, float(check.peak_period_s))
             hs_std, tp_std, theta_std, spread_std, gam_std = geo_sea.hs_band_std_m, nan, geo_sea.direction_std, nan, nan
         elif n_reliable >= fit.spectrum_fit.MIN_WAVES:
-            sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness)
+            sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness, determined=determined)
             s = sf.spectrum
             hs, tp, theta, spread, gam = (float(x) for x in (s.hs, s.tp, s.theta_mean, s.s_max, s.gamma))
             observed = bool(sf.peak_observed)
@@ -445,7 +447,8 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
                         "did not succeed) and the geometry's own spectrum, with the images' dispersion check, "
                         "gives none" if unconfirmed
                    else None if observed
-                   else "Hs and Tp are bounds: the spectral peak lies outside the observed band"
+                   else "Hs and Tp are bounds, not estimates: the waves the fit determined do not show the "
+                        "spectral peak (it lies outside their band, or one beyond it explains them as well)"
                    if sf is not None else "no wave was found: no sea state" if no_waves
                    else "Hs and Tp are those of the fitted waves alone (too few resolved waves for a spectrum)"),
             omega_band=None if sf is None else [float(x) for x in sf.omega_band],
@@ -622,11 +625,13 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
         if rep.success:
             waves, lighting = photo.waves, photo.lighting
         waves_ok = waves_ok or rep.success
-    (sea, check, sfit), rep = sea_stage(seq, waves, geometry, std=wfit.uncertainty if photo is None or not
-                                        stages["photometric"].success else None, waves_ok=waves_ok,
-                                        evidence=evidence)
-    say(rep)
     refined = photo is not None and stages["photometric"].success
+    determined = wfit.determined
+    if refined and photo.determined is not None:
+        determined = photo.determined
+    (sea, check, sfit), rep = sea_stage(seq, waves, geometry, std=None if refined else wfit.uncertainty,
+                                        determined=determined, waves_ok=waves_ok, evidence=evidence)
+    say(rep)
     from jaxocean.fit.photometric import mean_exposure
 
     # the least-squares forecast: each wave damped outside the fitted window by what the window
@@ -639,8 +644,7 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
 
         basis = wfit
         if refined:
-            basis = wfit._replace(waves=photo.waves, long_waves=None,
-                                  determined=wfit.determined if photo.determined is None else photo.determined)
+            basis = wfit._replace(waves=photo.waves, long_waves=None, determined=determined)
         model = forecast_model(basis, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
         plan = forecast_plan(basis, model[0].omega.shape[0])
     outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0,
@@ -663,6 +667,8 @@ def result_dict(result: Reconstruction) -> dict:
     listed = [dict(amplitude_m=float(h), omega_rad_s=float(w), period_s=2 * math.pi / float(w),
                    direction_deg=direction_deg(float(t), seq.compass), phase_rad=float(p))
               for h, w, t, p in zip(*(np.asarray(x, np.float64) for x in waves))]
+    if not np.any(np.asarray(waves.amplitude) > 0):
+        listed = []  # a flat sea handed on (no wave found): its zero-amplitude stand-in is no wave
     stages = {name: dict(success=r.success, seconds=r.seconds, message=r.message, details=json_safe(r.details))
               for name, r in result.stages.items()}
     # the flag beside the numbers, for scripts that read only this section

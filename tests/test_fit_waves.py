@@ -863,6 +863,34 @@ def test_a_peak_that_one_beyond_the_band_explains_is_not_claimed():
     assert float(fit.spectrum.tp) < true_tp and float(fit.spectrum.hs) < true_hs
 
 
+def test_only_determined_energies_show_a_peak(sampled_sea):
+    # a wave fit that missed the sea below 1.2 wp and modelled 1.2-2 wp with stand-ins whose
+    # energies are off (0.3x, then 2.5x: Table 2's failure): taking their energies as measured
+    # puts an "observed" peak at Tp 3.1 s (true 5 s, 40 sigma off); with the fit's
+    # determined mask the peak is not observed, and Hs and Tp are lower bounds that hold
+    truth, waves = sampled_sea
+    wp = 2 * np.pi / float(truth.tp)
+    om = np.asarray(waves.omega)
+    reliable = om > 1.2 * wp
+    stand_in = reliable & (om < 2.0 * wp)
+    gain = np.where(stand_in & (om < 1.5 * wp), 0.3, np.where(stand_in, 2.5, 1.0))
+    fitted = waves._replace(amplitude=waves.amplitude * jnp.asarray(np.sqrt(gain), waves.amplitude.dtype))
+    unmasked = fit_spectrum.spectrum(fitted, reliable=reliable)
+    assert unmasked.peak_observed and unmasked.success  # the failure the mask is for
+    assert abs(float(unmasked.spectrum.tp) - 5.0) > 10 * unmasked.tp_std
+    fit = fit_spectrum.spectrum(fitted, reliable=reliable, determined=~stand_in)
+    assert fit.edge_peak_misfit <= fit.misfit_bound
+    assert not fit.peak_observed and np.isnan(fit.tp_std) and fit.success
+    assert float(fit.spectrum.tp) < 5.0 and float(fit.spectrum.hs) < 1.2
+    # every wave determined is the default; fewer than MIN_WAVES measured bins show no peak
+    full = fit_spectrum.spectrum(fitted, reliable=reliable, determined=np.ones(60, bool))
+    assert full.edge_peak_misfit == unmasked.edge_peak_misfit and full.peak_observed
+    few = fit_spectrum.spectrum(waves, determined=np.arange(60) < 2)
+    assert not few.peak_observed and np.isnan(few.edge_peak_misfit)
+    with pytest.raises(ValueError, match="determined must be a bool mask"):
+        fit_spectrum.spectrum(waves, determined=np.ones(59, bool))
+
+
 def test_an_observed_peak_rules_out_peaks_beyond_the_band(sampled_sea):
     _, waves = sampled_sea
     fit = fit_spectrum.spectrum(waves)

@@ -126,6 +126,26 @@ def test_unlisted_frame_is_refused(tmp_path):
         rc.load_sequence([stray], CLIP / "camera.json")
 
 
+def test_frames_matched_by_name_are_the_ones_read(tmp_path):
+    # frames given from another folder pair with the camera file's entries of their names,
+    # and are the files read (not the listed files of those names); a video is read as given
+    import imageio.v3 as iio
+
+    files, _, camera, times = _scene(tmp_path)
+    posed = _camera_file(tmp_path, files, camera, times, pose=True)
+    (tmp_path / "gray").mkdir()
+    gray = [tmp_path / "gray" / Path(f).name for f in files]
+    for f, g in zip(files, gray):
+        iio.imwrite(g, iio.imread(f)[..., 0])
+    seq, rep = rc.load_sequence(gray, posed, width=32)
+    assert rep.success and seq.gray
+    assert seq.files == tuple(str(g.resolve()) for g in gray)
+    video = tmp_path / "clip.gif"
+    iio.imwrite(video, np.stack([iio.imread(f) for f in files]), duration=100, loop=0)
+    seq, _ = rc.load_sequence([video], posed, width=32)
+    assert seq.files == (str(video.resolve()),) * len(times)
+
+
 @pytest.mark.slow  # the whole pipeline compiles every stage (about 2 min)
 def test_reconstruct_command_end_to_end(tmp_path):
     from jaxocean import cli
@@ -143,7 +163,7 @@ def test_reconstruct_command_end_to_end(tmp_path):
     for stage in data["stages"].values():
         assert isinstance(stage["success"], bool) and stage["seconds"] >= 0
     assert code == (0 if all(s["success"] for s in data["stages"].values()) else 1)
-    assert data["waves"] and all(w["omega_rad_s"] > 0 for w in data["waves"])
+    assert all(w["omega_rad_s"] > 0 and w["amplitude_m"] > 0 for w in data["waves"])
     page = (out / "report.html").read_text()
     # which surface model the wave fit ended on, in the result and on the page
     surface = data["stages"]["waves"]["details"]["surface"]
@@ -154,6 +174,20 @@ def test_reconstruct_command_end_to_end(tmp_path):
     found = data["stages"]["waves"]["details"]["n_waves"] > 0
     assert data["stages"]["forecast"]["details"]["forecast"] == ("least-squares (damped)" if found
                                                                   else "as fitted (no wave fit)")
+    assert data["waves"] or not found
+
+
+def test_result_json_lists_no_wave_for_the_flat_sea():
+    # the flat sea a failed wave stage hands on (one zero-amplitude stand-in) is no wave of
+    # result.json, as it is none of the sea state and of the sea figure
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
+    stage = SimpleNamespace(success=False, seconds=0.0, message="no wave found", details={})
+    seq = SimpleNamespace(compass=False, camera=camera, times=np.arange(2) * 0.1, files=("a.png", "b.png"))
+    result = SimpleNamespace(sequence=seq, stages={"waves": stage, "spectrum": stage},
+                             sea={"waves": jo.make_waves([0.0], [1.0], [0.0]), "hs_m": math.nan})
+    assert rc.result_dict(result)["waves"] == []
+    result.sea["waves"] = jo.make_waves([0.1, 0.0], [1.0, 2.0], [0.0, 0.5])
+    assert [w["amplitude_m"] for w in rc.result_dict(result)["waves"]] == pytest.approx([0.1, 0.0])
 
 
 def test_steep_waves_are_capped_and_reported():
@@ -307,6 +341,27 @@ def test_unconfirmed_waves_give_no_headline_sea_state(tmp_path):
     # the same waves, confirmed: their numbers are the headline
     (sea, _, _), _ = rc.sea_stage(seq, waves, geo, waves_ok=True, evidence=None)
     assert sea["hs_m"] == pytest.approx(sea["waves_hs_m"]) and sea["source"] == "the fitted waves"
+
+
+def test_the_sea_stage_hands_the_determined_mask_to_the_spectrum_fit(tmp_path, monkeypatch):
+    # only the waves the fit measured can show the spectral peak (fit.spectrum's determined)
+    files, scene_json, camera, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    waves = jo.make_waves([0.05, 0.04, 0.03, 0.02], [2.5, 3.0, 3.5, 4.0], [0.3, 0.5, 0.7, 0.9], [0.0] * 4)
+    geo = SimpleNamespace(normal=jnp.tile(jnp.asarray([0.0, 0.0, 1.0]), (len(times), 32, 32, 1)),
+                          roughness=jnp.full((len(times), 32, 32), 1e-3), mask=jnp.ones((len(times), 32, 32), bool))
+    seen = {}
+    real = jo.fit.spectrum
+
+    def spy(w, **kw):
+        seen.update(kw)
+        return real(w, **kw)
+
+    monkeypatch.setattr(jo.fit, "spectrum", spy)
+    monkeypatch.setattr(jo.fit, "resolvable", lambda w, c: np.ones(w.omega.shape, bool))
+    mask = np.array([True, True, False, True])
+    rc.sea_stage(seq, waves, geo, determined=mask, waves_ok=True, evidence=None)
+    np.testing.assert_array_equal(seen["determined"], mask)
 
 
 def test_the_photometric_stage_needs_the_images_to_confirm_its_waves(tmp_path, monkeypatch):

@@ -52,10 +52,16 @@ band's long-wave edge that a peak beyond it explains as well is not observed (me
 the waves fitted to two dataset scenes from their slopes, whose true peak lay below the
 band, ``experiments/WAVES.md``: the free fit put a peak just inside, Tp 18 and 27 standard
 deviations off). The test sees the waves only: where a wave fit lost energy near the band's
-edge, a peak inside can explain the waves better than any beyond, and is reported
-observed (two default fits of the same table: Tp 10 and 37 standard deviations off).
-``success`` says that one spectrum explains the waves, not that the waves hold the sea's
-energy. Where a peak beyond the band explains the energies as well as the one inside, the
+edge, a peak inside can explain the waves better than any beyond (two default fits of the
+same table: Tp 10 and 37 standard deviations off, with every wave's energy taken as
+measured). Hence ``determined``: given the wave fit's mask of measured waves, a bin's
+energy counts as measured only where its wave and both neighbours (whose frequencies set
+its edges) are determined; the alternatives' misfit is then taken over the measured bins
+alone (each other bin holds the alternative's own energy), from the measured bins' edges,
+and the peak must lie between those edges. Fewer than :data:`MIN_WAVES` measured bins show
+no peak. On Table 2's fits the determined waves sit in the tail, so their peaks are bounds
+(``experiments/WAVES.md``). ``success`` says that one spectrum explains the waves, not
+that the waves hold the sea's energy. Where a peak beyond the band explains the energies as well as the one inside, the
 answer keeps the inside one, the shortest Tp and least Hs that explain them (beyond the
 long-wave edge, longer periods and more energy below the band do too): both are lower
 bounds (upper ones for the short-wave edge). When the fitted peak lies outside the band,
@@ -112,14 +118,16 @@ class SpectrumFit(NamedTuple):
     * ``steps``          solver steps.
     * ``n_waves``        number of waves the frequency and direction fits used.
     * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
-    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` and the
-      energies rule out a peak at or beyond either edge: the best such spectrum's misfit
+    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` (with
+      ``determined``: inside the measured bins' band) and the measured energies rule out
+      a peak at or beyond either edge: the best such spectrum's misfit
       (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Hs and Tp are bounds: a
       peak fitted outside the band is pinned to its nearer edge and Hs refitted; one inside
       is kept (module docstring).
     * ``edge_peak_misfit`` the least ``misfit`` of a spectrum whose peak lies at or beyond
       an edge of ``omega_band`` (over a grid of Tp up to 4 times past the
-      edge (:data:`EDGE_REACH`) and of gamma, Hs in closed form).
+      edge (:data:`EDGE_REACH`) and of gamma, Hs in closed form); with ``determined``, of
+      the measured bins and their band; NaN with fewer than :data:`MIN_WAVES` of them.
     * ``alpha``          Phillips tail level ``A(gamma) (5/16) Hs^2 wp^4 / g^2`` with
       ``A`` the JONSWAP normalisation (identifiable even when the peak is not observed).
     * ``time_s``         wall time.
@@ -269,12 +277,16 @@ def sea_state(waves: Waves) -> SeaState:
     return SeaState(hs=4.0 * math.sqrt(m0), tp=tp, theta_mean=theta_mean, m0=m0)
 
 
-def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=spec.SAMPLE_BAND, gamma=None,
+def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determined=None, band=spec.SAMPLE_BAND,
+             gamma=None,
              solver: str = "lm", max_steps: int = 200, roughness_weight: float = 1.0, noise=None,
              roughness_noise=None, n_min=hierarchy.DEFAULT_N_MIN, n_max=hierarchy.DEFAULT_N_MAX) -> SpectrumFit:
     """Fit a JONSWAP / Mitsuyasu :class:`~jaxocean.spectrum.Spectrum` to waves (module
     docstring). ``waves``: leaves ``(N,)``; ``reliable``: bool ``(N,)`` of waves to trust
-    (default: resolvable by ``camera`` when given, else all); ``roughness``: observed
+    (default: resolvable by ``camera`` when given, else all); ``determined``: bool ``(N,)``
+    of waves whose parameters were measured (:func:`jaxocean.fit.waves`' ``determined``;
+    default: every reliable wave), which alone can show a peak (``peak_observed``, module
+    docstring); ``roughness``: observed
     ``(T, H, W)`` or ``(H, W)`` sub-pixel slope variance (needs ``camera``); ``band``: the
     sampling band in units of wp (its upper end bounds the roughness tail, so it matters
     only with ``roughness``); ``gamma``: fix the peak enhancement (None fits it).
@@ -329,6 +341,11 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     reliable = np.asarray(reliable, bool)
     if reliable.shape != (n,):
         raise ValueError(f"reliable must be a bool mask (N,) = ({n},); got {reliable.shape}")
+    if determined is None:
+        determined = np.ones(n, bool)
+    determined = np.asarray(determined, bool)
+    if determined.shape != (n,):
+        raise ValueError(f"determined must be a bool mask (N,) = ({n},); got {determined.shape}")
     if reliable.sum() < MIN_WAVES:
         raise InvalidValueError(f"fit.spectrum needs at least {MIN_WAVES} reliable waves; got {int(reliable.sum())}")
     if gamma is not None:
@@ -344,6 +361,10 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     h, om, th = h[order], om[order], th[order]
     edges = _bin_edges(om)
     e_data = 0.5 * h * h
+    # a bin's energy is measured where its wave is determined and so are the neighbours
+    # whose frequencies set its edges (a stand-in's frequency is not measured)
+    det = determined[reliable][order]
+    measured = det & np.r_[True, det[:-1]] & np.r_[det[1:], True]
     cum_data = np.cumsum(e_data)
     total = cum_data[-1]
     dtype = jnp.result_type(float)
@@ -401,19 +422,25 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     def residual(y, args):
         return residual_p(to_params(y))
 
-    def grid(tps, gammas=(1.0, 2.0, 3.3, 5.0, 7.0)):
+    def grid(tps, gammas=(1.0, 2.0, 3.3, 5.0, 7.0), known=None):
         # spectra over a (Tp, gamma) grid with Hs^2 in closed form (energies are linear in
         # Hs^2), evaluated in one vectorised call: their parameters p (M, 3), whether each is
-        # admissible (M,), and the RMS of each one's cumulative-energy residual (M,)
+        # admissible (M,), and the RMS of each one's cumulative-energy residual (M,).
+        # ``known`` (n,): the bins whose data energy is taken as measured; each other bin
+        # holds the model's own energy (no residual), and the residual is relative to the
+        # total so completed (default: every bin, the data's total)
+        known = np.ones(len(om), bool) if known is None else known
         gammas = np.asarray(gammas if gamma is None else [float(gamma)], np.float64)
         G, TP = np.meshgrid(gammas, tps, indexing="ij")
         p0 = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
-        c1 = np.cumsum(np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(p0), np.float64), axis=-1)
-        ok = np.all(np.isfinite(c1), axis=-1) & (c1[:, -1] > 0)
-        hs2 = np.where(ok, np.sum(c1 * cum_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
+        e1 = np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(p0), np.float64)
+        c1, c_data = np.cumsum(e1 * known, axis=-1), np.cumsum(e_data * known)
+        ok = np.all(np.isfinite(e1), axis=-1) & (c1[:, -1] > 0)
+        hs2 = np.where(ok, np.sum(c1 * c_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
         ok &= hs2 > 0
         params = np.stack([0.5 * np.log(np.maximum(hs2, 1e-300)), np.log(TP.ravel()), G.ravel()], -1)
-        rms = np.sqrt(np.mean(((c1 * hs2[:, None] - cum_data) / total) ** 2, -1))
+        completed = c_data[-1] + hs2 * np.sum(e1 * ~known, -1)
+        rms = np.sqrt(np.mean(((c1 * hs2[:, None] - c_data) / completed[:, None]) ** 2, -1))
         return params, ok, np.where(ok & np.isfinite(rms), rms, np.inf)
 
     def grid_start(tps):
@@ -447,11 +474,16 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, band=s
     bound = math.sqrt(NOISE_FACTOR * (0.0 if noise is None else float(noise)) ** 2 + ENERGY_FLOOR ** 2)
     # the best spectra with their peak at or beyond the band's long-wave and short-wave edge:
     # a peak inside the band is observed only if the energies rule both out (module docstring)
-    edge_misfits = [float(np.min(grid(2 * np.pi / e * f, EDGE_GAMMAS)[2]))
-                    for e, f in ((edges[0], EDGE_REACH), (edges[-1], 1.0 / EDGE_REACH))]
-    edge_misfit = min(edge_misfits)
+    # the edges are those of the measured bins (with ``determined``: module docstring)
     inside = bool(edges[0] <= wp <= edges[-1])
-    peak_observed = inside and not edge_misfit <= bound
+    if measured.sum() >= MIN_WAVES:
+        first, last = np.flatnonzero(measured)[[0, -1]]
+        lo_m, hi_m = edges[first], edges[last + 1]
+        edge_misfit = min(float(np.min(grid(2 * np.pi / e * f, EDGE_GAMMAS, measured)[2]))
+                          for e, f in ((lo_m, EDGE_REACH), (hi_m, 1.0 / EDGE_REACH)))
+        peak_observed = bool(lo_m <= wp <= hi_m) and not edge_misfit <= bound
+    else:  # too few measured energies to show a peak
+        edge_misfit, peak_observed = float("nan"), False
     if not inside:
         # only alpha is determined, and the solver drifts along its valley: refit Hs and
         # gamma with the peak pinned to the band's nearer edge (module docstring)
