@@ -244,6 +244,9 @@ def json_kind(data: dict) -> str | None:
         return "a dataset's splits (splits.json)"
     if "outputs" in data and "frames" in data:
         return "a demo summary (summary.json; its scene is the render directory beside it)"
+    if {"image_size", "intrinsics"} <= data.keys():
+        return ("a camera file (camera.json of real footage: intrinsics and a pose per frame; "
+                "jaxocean reconstruct --camera takes it)")
     return None
 
 

@@ -370,6 +370,9 @@ def cmd_simulate(args):
         ranges = ranges._replace(n_waves=args.waves)
     stats = simulate(args.out, args.scenes, args.frames, args.res, args.seed, ranges, half=not args.float32,
                      progress=not args.quiet)
+    if stats["repaired"]:
+        print(f"jaxocean: note: scene(s) {', '.join(map(str, stats['repaired']))} differed from the dataset's "
+              f"manifest.json (a file changed or damaged since it was written): rendered again", file=sys.stderr)
     print(f"{stats['generated']} scene(s) generated, {stats['skipped']} already complete; "
           f"{stats['frames_per_s']:.1f} frames/s; {stats['bytes'] / 1e6:.1f} MB in {args.out}")
     if args.scenes < 7:  # the splits keep a tenth for test and a tenth of the rest for validation
@@ -612,6 +615,7 @@ def _match_report(fitted, truth) -> dict:
 
 
 def cmd_fit_waves(args):
+    from jaxocean.fit.waves import NoWaveFound
     from jaxocean.fit.waves import waves as fit_waves
     from jaxocean.io import read_scene, scene_to_dict
 
@@ -646,10 +650,19 @@ def cmd_fit_waves(args):
     normals, roughness = _read_geometry_frames(scene_dir, frames, scene.camera.resolution)
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
-    result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
-                       noise=args.noise, noise_correlation=args.noise_correlation, throw=False,
-                       verbose=args.verbose,
-                       init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
+    try:
+        result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
+                           noise=args.noise, noise_correlation=args.noise_correlation, throw=False,
+                           verbose=args.verbose,
+                           init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
+    except NoWaveFound as error:  # a fit that found nothing, not bad input: exit 1 with its JSON
+        report = {"source": str(scene_dir), "frames": frames, "n_waves": 0, "success": False,
+                  "noise": args.noise, "noise_correlation_px": float(args.noise_correlation), "message": str(error)}
+        write_json(args.out, scene_to_dict(camera=scene.camera, lighting=scene.lighting, times=all_times,
+                                            extra={"wave_fit": report}))
+        print(f"-> {args.out}")
+        print(f"jaxocean: the wave fit failed: {error}; see extra.wave_fit in the JSON", file=sys.stderr)
+        return EXIT_PROBLEMS
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite
@@ -690,12 +703,17 @@ def cmd_fit_waves(args):
     print(f"-> {args.out}")
     if not success:
         from jaxocean.fit.waves import normal_error_bound
+        from jaxocean.waves import too_steep
 
         bound = normal_error_bound(args.noise)
+        steep = int(too_steep(w).sum()) if finite else 0
         why = ("non-finite waves" if not finite else
                f"stopped at --max-waves {args.max_waves}" if args.n_waves is None and result.n_waves >= args.max_waves
                else f"the waves leave a mean normal error of {float(result.normal_error):.3g} rad, above "
-                    f"{bound:.3g} rad for the stated noise")
+                    f"{bound:.3g} rad for the stated noise" if not float(result.normal_error) <= bound
+               else f"{steep} of {int(result.n_waves)} fitted waves are steeper than k h = 1 (looping crests: no "
+                    f"sea surface; noisy geometry without --noise?)" if steep
+               else "the fit reported failure")
         print(f"jaxocean: the wave fit failed: {why}; see extra.wave_fit in the JSON", file=sys.stderr)
         return EXIT_PROBLEMS
     return EXIT_OK

@@ -309,6 +309,43 @@ def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_fit_waves_that_finds_no_wave_exits_1_with_its_json(tiny_scene, tmp_path, capsys):
+    # at a stated noise far above the waves' slopes the fit finds nothing: a failed fit
+    # (exit 1, JSON written, as the help and the README say), not bad input (exit 2)
+    out = tmp_path / "waves.json"
+    assert cli.main(["fit-waves", str(tiny_scene), "--noise", "1.0", "--out", str(out)]) == 1
+    assert "no wave found" in capsys.readouterr().err
+    data = json.loads(out.read_text())
+    report = data["extra"]["wave_fit"]
+    assert report["success"] is False and report["n_waves"] == 0 and "no wave found" in report["message"]
+    assert data["waves"] is None and data["camera"]["resolution"] == [16, 16]
+
+
+def test_fit_waves_failure_names_steep_waves(tiny_scene, tmp_path, capsys, monkeypatch):
+    # fit.waves fails a fit that explains the data with looping crests (k h > 1); the
+    # command must say so, not claim a normal error above the bound that it is below
+    import jaxocean.fit.waves
+    from jaxocean.waves import Waves
+
+    fw = sys.modules["jaxocean.fit.waves"]  # the package (jaxocean.fit.waves is also the function's name)
+
+    steep = Waves(*(np.asarray(v, np.float32) for v in ([0.5, 0.01], [6.0, 3.0], [0.0, 1.0], [0.0, 0.0])))  # k h 1.8
+    zeros = Waves(*(np.zeros(2, np.float32) for _ in range(4)))
+
+    def fake(normals, roughness, camera, times, **kwargs):
+        return fw.WaveFit(steep, zeros, loss=np.float32(1e-9), normal_error=np.float32(1e-5),
+                          roughness_error=np.float32(0.0), steps=np.int32(3), success=np.bool_(False),
+                          n_waves=np.int32(2), time_s=np.float32(0.1), converged=np.bool_(True))
+
+    monkeypatch.setattr(fw, "waves", fake)
+    out = tmp_path / "waves.json"
+    assert cli.main(["fit-waves", str(tiny_scene), "--n-waves", "2", "--out", str(out)]) == 1
+    err = capsys.readouterr().err
+    assert "1 of 2 fitted waves are steeper than k h = 1" in err
+    assert "above" not in err
+    assert json.loads(out.read_text())["extra"]["wave_fit"]["success"] is False
+
+
 @pytest.mark.slow  # the wave fit compiles for about a minute on a CPU
 def test_fit_waves_then_forecast(tiny_scene, tmp_path, capsys):
     out = tmp_path / "waves.json"

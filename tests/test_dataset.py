@@ -115,6 +115,22 @@ def test_resume_after_crash_equals_clean_run(clean, tmp_path, monkeypatch):
     assert _files(tmp_path) == _files(root)  # byte-identical, no stray temporary files
 
 
+def test_rerun_renders_again_scenes_that_differ_from_the_manifest(clean, tmp_path):
+    # a finished dataset rerun: a damaged file is not blessed into a new manifest
+    root, _ = clean
+    copy = _copy(root, tmp_path)
+    truncated = copy / "scene_00001" / "frame_00001.exr"
+    truncated.write_bytes(truncated.read_bytes()[:100])
+    flipped = copy / "scene_00002" / "frame_00000.exr"
+    data = bytearray(flipped.read_bytes())
+    data[len(data) // 2] ^= 0xFF  # same size, one byte changed
+    flipped.write_bytes(bytes(data))
+    stats = dataset.simulate(copy, ranges=RANGES, progress=False, **SMALL)
+    assert stats["repaired"] == [1, 2] and stats["generated"] == 2 and stats["skipped"] == 1
+    assert _files(copy) == _files(root)  # rendered again, byte-identical, manifest as before
+    assert dataset.check(copy) == []
+
+
 def test_check_names_corrupt_and_missing_files(clean, tmp_path):
     import shutil
 

@@ -606,6 +606,9 @@ def test_malformed_scene_json_is_reported_by_name(tmp_path):
     (lambda d: d.update(times=[]), r"times must hold at least one frame time"),
     (lambda d: d.update(times=[0.0, 1e300]), r"times must be finite in float32"),  # inf once read
     (lambda d: d["lighting"].update(sun_color=[1e39, 1.0, 1.0]), r"lighting\.sun_color must be finite in float32"),
+    # a bool inside the lists is a mistake as much as a bare one (NumPy would read true as 1.0)
+    (lambda d: d["lighting"].update(sun_color=[True, 1.0, 1.0]), r"lighting\.sun_color must be a number"),
+    (lambda d: d.update(times=[0.0, False]), r"times must be a number"),
 ])
 def test_invalid_scene_content_is_reported_with_the_file(tmp_path, edit, message):
     d = scene_to_dict(**example_scene())

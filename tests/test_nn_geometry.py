@@ -132,6 +132,20 @@ def test_model_file_round_trip(key, tmp_path):
     assert geo.model_info(tmp_path / "m.npz")["note"] == "x"
 
 
+def test_apply_jits_with_the_model_as_an_argument(key):
+    # the config (strings, tuples) is static: jit traces the params alone
+    model = geo.init(key, TINY)
+    camera = cam.make_camera(height=10.0, pitch=0.5, fov=0.8, resolution=(16, 16))
+    feats, mask = geo.features(jax.random.uniform(key, (16, 16, 3)), camera)
+    args = (feats[None], jnp.zeros(1), mask[None])
+    jitted = jax.jit(geo.apply)(model, *args)
+    for want, got in zip(geo.apply(model, *args), jitted):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-7)
+    leaves, treedef = jax.tree.flatten(model)
+    assert len(leaves) == len(jax.tree.leaves(model.params))
+    assert jax.tree.unflatten(treedef, leaves).config == model.config
+
+
 def test_metrics_reference_values():
     n_true = np.zeros((1, 2, 2, 3))
     n_true[..., 2] = 1
@@ -304,6 +318,32 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
     assert _cli("predict-geometry", tmp_path / "nan.exr", "--scene", scene, "--model", model_path,
                 "--out", tmp_path / "p4") == 2
     assert "nan.exr: holds non-finite pixel values" in capsys.readouterr().err
+
+
+def test_cli_predict_names_a_camera_file_and_an_image_of_another_size(tmp_path, capsys):
+    import imageio.v3 as iio
+
+    from jaxocean import io
+
+    model_path = tmp_path / "m.npz"
+    geo.save(model_path, geo.init(jax.random.key(0), TINY))
+    image = tmp_path / "f.png"
+    iio.imwrite(image, np.zeros((20, 24, 3), np.uint8))
+    # a camera file is named as one, with what --scene takes, not as a scene missing 'version'
+    camera_file = tmp_path / "camera.json"
+    camera_file.write_text(json.dumps({"image_size": [24, 20], "intrinsics": {"fx": 20, "fy": 20, "cx": 12, "cy": 10},
+                                       "frames": [{"file": "f.png", "t": 0.0}]}))
+    assert _cli("predict-geometry", image, "--scene", camera_file, "--model", model_path, "--out", tmp_path / "p") == 2
+    err = capsys.readouterr().err
+    assert f"{camera_file}: this is a camera file" in err and "reconstruct --camera" in err
+    assert "predict-geometry --scene needs a scene directory or scene.json" in err and "--camera-height" in err
+    # an image of another size than the scene's camera: the file and both sizes named
+    scene = tmp_path / "scene.json"
+    io.write_scene(scene, io.scene_to_dict(camera=cam.make_camera(height=10.0, pitch=0.5, fov=0.8,
+                                                                  resolution=(16, 16))))
+    assert _cli("predict-geometry", image, "--scene", scene, "--model", model_path, "--out", tmp_path / "p") == 2
+    assert (f"{image}: 24x20 pixels (width x height), but the camera of --scene {scene} is 16x16"
+            in capsys.readouterr().err)
 
 
 def _ratios_to_flat(model):

@@ -22,7 +22,10 @@ A dataset is a directory::
   missing scene. A scene's ``scene.json`` is written last, atomically, after its frames: a
   scene without it is incomplete and is made again from scratch on the next run (same key,
   same files). Killing and rerunning the same command therefore finishes the dataset with
-  no partial or duplicate file, byte-identical to an uninterrupted run.
+  no partial or duplicate file, byte-identical to an uninterrupted run. Rerun on a finished
+  dataset, it checks each scene's files against the ``manifest.json`` it wrote (size, then
+  SHA-256) and renders a scene whose files changed since again (``stats["repaired"]``), so
+  the manifest it writes never vouches for a damaged file.
 * :func:`check(directory)` verifies every file against ``manifest.json`` and reads every
   frame; it returns the list of problems (each naming its file).
 * :class:`Dataset` loads batches by split, shuffled by key, as arrays; consecutive frame
@@ -329,6 +332,30 @@ def _scene_complete(directory: Path, n_frames: int) -> bool:
                                                          for f in range(n_frames))
 
 
+def _scene_files(out: Path, index: int, n_frames: int) -> list:
+    """Scene ``index``'s files as (path relative to ``out``, path), scene.json first."""
+    d = scene_dir(out, index)
+    names = [SCENE_FILENAME] + [frame_name(f) for f in range(n_frames)]
+    return [(str((d / name).relative_to(out)), d / name) for name in names]
+
+
+def _file_entry(path: Path) -> dict:
+    return {"bytes": path.stat().st_size, "sha256": _sha256(path)}
+
+
+def _matches_manifest(out: Path, index: int, n_frames: int, recorded: dict, known: dict) -> bool:
+    """Whether a complete scene's files are those ``recorded`` (a manifest's ``files``):
+    sizes first, then hashes, which go into ``known`` for the new manifest."""
+    files = _scene_files(out, index, n_frames)
+    if any(rel not in recorded or path.stat().st_size != recorded[rel]["bytes"] for rel, path in files):
+        return False
+    entries = {rel: _file_entry(path) for rel, path in files}
+    if any(entries[rel]["sha256"] != recorded[rel]["sha256"] for rel in entries):
+        return False
+    known.update(entries)
+    return True
+
+
 def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed: int = 0,
              ranges: SceneRanges = SceneRanges(), *, half: bool = True, progress: bool = True,
              writers: int = 2) -> dict:
@@ -355,7 +382,17 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
         write_json(settings_path, settings)
 
     todo = [i for i in range(n_scenes) if not _scene_complete(scene_dir(out, i), n_frames)]
-    stats = dict(scenes=n_scenes, generated=len(todo), skipped=n_scenes - len(todo), render_s=0.0, write_s=0.0)
+    # a finished run's manifest vouches for its scenes: one whose files changed since (a
+    # truncated or damaged frame) is rendered again rather than written into a new manifest
+    manifest_path = out / MANIFEST_FILENAME
+    recorded = _read_manifest(manifest_path) if manifest_path.exists() else None
+    known: dict = {}
+    missing = set(todo)
+    repaired = [] if recorded is None else [i for i in range(n_scenes) if i not in missing
+                                            and not _matches_manifest(out, i, n_frames, recorded, known)]
+    todo = sorted(todo + repaired)
+    stats = dict(scenes=n_scenes, generated=len(todo), skipped=n_scenes - len(todo), repaired=repaired,
+                 render_s=0.0, write_s=0.0)
     base = jax.random.key(seed)
     pool = ThreadPoolExecutor(max_workers=max(1, writers))
     pending = []
@@ -384,7 +421,7 @@ def simulate(out, n_scenes: int, n_frames: int = 10, resolution=(128, 128), seed
             bar.close()
     stats["wall_s"] = time.perf_counter() - t_start
     write_json(out / SPLITS_FILENAME, split_scenes(n_scenes, seed))
-    _write_manifest(out, n_scenes, n_frames)
+    _write_manifest(out, n_scenes, n_frames, known)
     stats["frames_per_s"] = stats["generated"] * n_frames / max(stats["wall_s"], 1e-9)
     stats["bytes"] = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
     return stats
@@ -409,13 +446,13 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
     return time.perf_counter() - t0
 
 
-def _write_manifest(out: Path, n_scenes: int, n_frames: int) -> None:
+def _write_manifest(out: Path, n_scenes: int, n_frames: int, known: dict | None = None) -> None:
+    """``manifest.json`` of every scene's files; ``known``: entries already hashed (scenes not rewritten)."""
+    known = known or {}
     files = {}
     for i in range(n_scenes):
-        d = scene_dir(out, i)
-        for name in [SCENE_FILENAME] + [frame_name(f) for f in range(n_frames)]:
-            p = d / name
-            files[str(p.relative_to(out))] = {"bytes": p.stat().st_size, "sha256": _sha256(p)}
+        for rel, p in _scene_files(out, i, n_frames):
+            files[rel] = known[rel] if rel in known else _file_entry(p)
     write_json(out / MANIFEST_FILENAME, {"files": files})
 
 

@@ -231,8 +231,8 @@ def _check_keys(d, *, required, optional, where: str) -> None:
 def _leaf_from_json(value, where: str):
     expected = f"{where} must be a number or nested lists of numbers of one shape"
     try:
-        # bool is a number to NumPy; in a scene it is a mistake.
-        array = np.asarray(value, dtype=object if isinstance(value, bool) else None)
+        # bool is a number to NumPy; in a scene it is a mistake (at any depth of the lists).
+        array = np.asarray(value, dtype=object if _holds_bool(value) else None)
     except ValueError:  # ragged lists
         raise SceneError(f"{expected}; got {value!r:.80}") from None
     if array.dtype.kind not in "iuf":
@@ -246,6 +246,13 @@ def _leaf_from_json(value, where: str):
         raise SceneError(f"{where} must be finite in {np.dtype(dtype).name}, the precision scenes are read in; "
                          f"got {value!r:.80}")
     return jnp.asarray(array, dtype=dtype)
+
+
+def _holds_bool(value) -> bool:
+    """Whether ``value`` is a bool or nested lists holding one."""
+    if isinstance(value, list):
+        return any(_holds_bool(v) for v in value)
+    return isinstance(value, bool)
 
 
 def _namedtuple_from_json(d, section: str):

@@ -182,6 +182,7 @@ def _predict(args, camera_from_args) -> int:
     import numpy as np
 
     from jaxocean import plots
+    from jaxocean._cli_inputs import refuse_other_json
     from jaxocean.files import atomic_write
     from jaxocean.io import read_scene
     from jaxocean.io.exr import write_frame
@@ -189,6 +190,10 @@ def _predict(args, camera_from_args) -> int:
     from jaxocean.nn import geometry as geo
 
     out = check_out_dir(args.out)
+    if args.scene:
+        refuse_other_json(args.scene, "predict-geometry --scene needs a scene directory or scene.json holding the "
+                                      "camera; or give the camera as --camera-height and --camera-pitch-deg "
+                                      "(--camera-fov-deg, --camera-yaw-deg)")
     model = geo.load(args.model)
     images = _load_frames(args.frames, args.space, args.exposure)
     scene = read_scene(args.scene) if args.scene else None
@@ -196,6 +201,11 @@ def _predict(args, camera_from_args) -> int:
         raise ValueError(f"{args.scene}: the scene has no camera")
     camera = camera_from_args(args, None if scene is None else scene.camera, tuple(images.shape[1:3]),
                               where=f"frame {args.frames[0]}")
+    (H, W), (Hc, Wc) = images.shape[1:3], camera.resolution
+    if (H, W) != (Hc, Wc):
+        frames = args.frames[0] if len(args.frames) == 1 else f"{args.frames[0]} (and the other frames)"
+        raise ValueError(f"{frames}: {W}x{H} pixels (width x height), but the camera of --scene {args.scene} is "
+                         f"{Wc}x{Hc}: give frames of that size, or a scene whose camera has theirs")
     pred = geo.predict(model, images, camera)
     out.mkdir(parents=True, exist_ok=True)
     stale = remove_stale_frames(out, len(images))

@@ -134,7 +134,14 @@ class GeometryConfig(NamedTuple):
         return record_from_json(cls, d, "geometry config").validate()
 
 
+# a pytree node without leaves (the config is its static aux data): jax.jit(apply)(model, ...)
+# traces the params alone, and jax.tree.map over a model maps its params
+jax.tree_util.register_pytree_node(GeometryConfig, lambda config: ((), config), lambda config, _: config)
+
+
 class GeometryModel(NamedTuple):
+    """A geometry network: its ``config`` (static under ``jax.jit``) and ``params``."""
+
     config: GeometryConfig
     params: dict
 

@@ -14,9 +14,10 @@ yaw (radians) that defines the along-view direction ``(cos yaw, sin yaw)``.
   paper's "normal MAE"), ``cos_loss`` (mean ``1 - cos``: its "CosSim loss"),
   ``within_{k}deg`` (fraction), ``skill_along`` / ``skill_across`` / ``skill`` (the slope
   skill R^2 = 1 - sum |s - s_hat|^2 / sum |s - mean(s)|^2, slope ``s = (-n_x/n_z,
-  -n_y/n_z)``; 0 for the flat prediction, 1 when exact) and ``unfolded_skill_*`` the same
-  over pixels whose true normal is tilted less than 60 degrees (``unfolded_fraction`` of
-  them), ``roughness_mse`` (of sigma^2 =
+  -n_y/n_z)``; 1 when exact, 0 for the true slopes' mean; the flat prediction scores
+  ``-N |mean(s)|^2 / sum |s - mean(s)|^2 <= 0`` over N pixels, 0 only where the true slopes
+  average 0) and ``unfolded_skill_*`` the same over pixels whose true normal is tilted
+  less than 60 degrees (``unfolded_fraction`` of them), ``roughness_mse`` (of sigma^2 =
   sum of the pair, dimensionless), ``log_slope_variance_mse`` (of log10 of each variance,
   decades^2), ``image_mse`` (display values in [0, 1]).
 
