@@ -411,20 +411,21 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
                 # or above the elevation's frequency): the longer bound holds
                 tp = max(tp, float(check.peak_period_s))
             hs_std, tp_std, theta_std, spread_std, gam_std = geo_sea.hs_band_std_m, nan, geo_sea.direction_std, nan, nan
+            alpha = geo_sea.tail_alpha
         elif n_reliable >= fit.spectrum_fit.MIN_WAVES:
             sf = fit.spectrum(waves, camera=seq.camera, roughness=geometry.roughness, determined=determined)
             s = sf.spectrum
             hs, tp, theta, spread, gam = (float(x) for x in (s.hs, s.tp, s.theta_mean, s.s_max, s.gamma))
-            observed = bool(sf.peak_observed)
+            observed, alpha = bool(sf.peak_observed), float(sf.alpha)
             # the spectrum fit's scatter and the waves' own amplitude errors, independent
             hs_std = math.hypot(sf.hs_std, hs_std_waves) if math.isfinite(hs_std_waves) else sf.hs_std
             tp_std, theta_std, spread_std, gam_std = sf.tp_std, sf.theta_std, sf.s_max_std, sf.gamma_std
         elif no_waves:
-            hs, tp, theta, spread, gam = nan, nan, nan, nan, nan
+            hs, tp, theta, spread, gam, alpha = nan, nan, nan, nan, nan, nan
             observed = False
             hs_std, tp_std, theta_std, spread_std, gam_std = nan, nan, nan, nan, nan
         else:  # too few resolved waves for a spectrum: the waves' own bulk numbers, marked as bounds
-            hs, tp, theta, spread, gam = float(state.hs), float(state.tp), float(state.theta_mean), nan, nan
+            hs, tp, theta, spread, gam, alpha = float(state.hs), float(state.tp), float(state.theta_mean), nan, nan, nan
             observed = False
             hs_std, tp_std, theta_std, spread_std, gam_std = hs_std_waves, nan, nan, nan, nan
         # waves that no stage confirmed give no headline sea state (they stay reported as
@@ -432,7 +433,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         # rather than the sea state of waves that do not explain the data
         unconfirmed = not waves_ok and not from_geometry and not no_waves
         if unconfirmed:
-            hs, tp, theta, spread, gam = nan, nan, nan, nan, nan
+            hs, tp, theta, spread, gam, alpha = nan, nan, nan, nan, nan, nan
             hs_std, tp_std, theta_std, spread_std, gam_std = nan, nan, nan, nan, nan
             observed = False
         sea = dict(
@@ -440,6 +441,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             direction_deg=direction_deg(theta, seq.compass), direction_std_deg=math.degrees(theta_std),
             direction_convention="clockwise from north" if seq.compass else "counter-clockwise from +x",
             spreading_s_max=spread, spreading_std=spread_std, gamma=gam, gamma_std=gam_std, peak_observed=observed,
+            tail_alpha=alpha,
             source=("space-time spectrum of the geometry" if from_geometry else None if no_waves or unconfirmed
                     else "spectrum fit of the waves" if sf is not None else "the fitted waves"),
             bound=(_geometry_bound(geo_sea) if from_geometry

@@ -841,9 +841,9 @@ def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     assert float(fit.spectrum.tp) < 5.0 and float(fit.spectrum.hs) < 1.2
     # a pinned Tp is a bound: it has no standard deviation; Hs (refitted) has one
     assert np.isnan(fit.tp_std) and np.isfinite(fit.hs_std) and fit.hs_std > 0
-    # the Phillips level of the tail is still right
+    # the Phillips level of the tail is still right (measured: -2%)
     alpha_true = float(spectrum.jonswap_normalisation(3.3)) * 5 / 16 * 1.2 ** 2 * (2 * np.pi / 5.0) ** 4 / GRAVITY ** 2
-    assert abs(fit.alpha / alpha_true - 1) < 0.15
+    assert abs(fit.alpha / alpha_true - 1) < 0.1
 
 
 def test_a_peak_that_one_beyond_the_band_explains_is_not_claimed():
@@ -882,6 +882,9 @@ def test_only_determined_energies_show_a_peak(sampled_sea):
     assert fit.edge_peak_misfit <= fit.misfit_bound
     assert not fit.peak_observed and np.isnan(fit.tp_std) and fit.success
     assert float(fit.spectrum.tp) < 5.0 and float(fit.spectrum.hs) < 1.2
+    # the tail level comes from the measured tail (-5%), not the misplaced peak's fit (+75%)
+    alpha_true = float(spectrum.jonswap_normalisation(3.3)) * 5 / 16 * 1.2 ** 2 * wp ** 4 / GRAVITY ** 2
+    assert abs(fit.alpha / alpha_true - 1) < 0.1 and abs(unmasked.alpha / alpha_true - 1) > 0.3
     # every wave determined is the default; fewer than MIN_WAVES measured bins show no peak
     full = fit_spectrum.spectrum(fitted, reliable=reliable, determined=np.ones(60, bool))
     assert full.edge_peak_misfit == unmasked.edge_peak_misfit and full.peak_observed

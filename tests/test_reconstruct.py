@@ -274,6 +274,7 @@ def test_the_geometry_spectrum_gives_the_sea_state_where_no_wave_was_confirmed(t
     hs_true = 4 * math.sqrt((0.03 ** 2 + 0.02 ** 2) / 2)  # both waves lie in the band
     assert geo["band_m"][0] > 2 * math.pi * 9.81 / 3.6 ** 2 > 2 * math.pi * 9.81 / 4.4 ** 2 > geo["band_m"][1]
     assert sea["hs_m"] == geo["hs_band_m"] and abs(sea["hs_m"] - hs_true) < 2 * sea["hs_std_m"]
+    assert sea["tail_alpha"] == geo["tail_alpha"]
     # the energy-weighted direction of travel (library azimuth 0.55 rad), within its sigma
     assert abs((sea["direction_deg"] - math.degrees(0.55) + 180) % 360 - 180) < sea["direction_std_deg"]
     if geo["peak_at_band_edge"]:  # the longer of the two lower bounds on Tp
@@ -334,7 +335,7 @@ def test_unconfirmed_waves_give_no_headline_sea_state(tmp_path):
                           roughness=jnp.full((len(times), 32, 32), 1e-3), mask=jnp.ones((len(times), 32, 32), bool))
     (sea, _, _), rep = rc.sea_stage(seq, waves, geo, waves_ok=False, evidence=None)
     assert not rep.success
-    assert all(math.isnan(sea[k]) for k in ("hs_m", "tp_s", "direction_deg", "hs_std_m"))
+    assert all(math.isnan(sea[k]) for k in ("hs_m", "tp_s", "direction_deg", "hs_std_m", "tail_alpha"))
     assert sea["source"] is None and "no wave was confirmed" in sea["bound"] and not sea["peak_observed"]
     # the waves' own numbers stay reported, under their own names
     assert sea["waves_hs_m"] == pytest.approx(float(jo.fit.sea_state(waves).hs))
@@ -360,8 +361,9 @@ def test_the_sea_stage_hands_the_determined_mask_to_the_spectrum_fit(tmp_path, m
     monkeypatch.setattr(jo.fit, "spectrum", spy)
     monkeypatch.setattr(jo.fit, "resolvable", lambda w, c: np.ones(w.omega.shape, bool))
     mask = np.array([True, True, False, True])
-    rc.sea_stage(seq, waves, geo, determined=mask, waves_ok=True, evidence=None)
+    (sea, _, sfit), _ = rc.sea_stage(seq, waves, geo, determined=mask, waves_ok=True, evidence=None)
     np.testing.assert_array_equal(seen["determined"], mask)
+    assert sea["tail_alpha"] == sfit.alpha
 
 
 def test_the_photometric_stage_needs_the_images_to_confirm_its_waves(tmp_path, monkeypatch):
