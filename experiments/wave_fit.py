@@ -53,7 +53,7 @@ sys.path.insert(0, __file__.rsplit("/", 1)[0])
 import benchutil  # noqa: E402
 
 from jaxocean import camera as cam  # noqa: E402
-from jaxocean import fit, render  # noqa: E402
+from jaxocean import fit, render, spectrum  # noqa: E402
 from jaxocean.fit import waves_fit as fw  # noqa: E402
 from jaxocean.io import dataset  # noqa: E402
 from jaxocean.waves import make_waves, wave_vector  # noqa: E402
@@ -203,7 +203,11 @@ def score_sea(fitted, scene, geo, determined=None) -> dict:
     sea = fit.spectrum(fitted, camera=scene.camera, roughness=geo.roughness, determined=determined)
     oracle = fit.spectrum(scene.waves)
     hs, tp, th = float(scene.spectrum.hs), float(scene.spectrum.tp), float(scene.spectrum.theta_mean)
+    # the Phillips tail level of the true spectrum, in fit.spectrum's definition
+    alpha = (float(spectrum.jonswap_normalisation(scene.spectrum.gamma)) * 5 / 16 * hs ** 2 * (2 * math.pi / tp) ** 4
+             / 9.81 ** 2)
     return dict(fit_hs=float(sea.spectrum.hs), fit_tp=float(sea.spectrum.tp),
+                fit_alpha=float(sea.alpha), alpha=alpha, alpha_rel_error=float(sea.alpha) / alpha - 1,
                 fit_theta_mean=float(sea.spectrum.theta_mean), peak_observed=bool(sea.peak_observed),
                 sea_success=bool(sea.success), sea_misfit=float(sea.misfit),
                 oracle_hs=float(oracle.spectrum.hs), oracle_tp=float(oracle.spectrum.tp),

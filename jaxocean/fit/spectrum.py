@@ -75,7 +75,7 @@ without, the level of the measured bins at or above :data:`TAIL_START` times the
 peak frequency (which lies at or above the sea's when Tp is a lower bound), matched to the
 tail ``alpha g^2 omega^-5`` by the ratio of their energies (the free fit's level moves with
 its misplaced peak: on Table 2's default fits, errors -32% to +166% from the free fit,
--26% to +8% from the measured tail, ``experiments/WAVES.md``); with fewer than
+-26% to +9% from the measured tail, ``experiments/WAVES.md``); with fewer than
 :data:`MIN_WAVES` such bins the free fit's.
 
 ``correct_amplitudes(waves, spectrum, reliable=None)`` is the spectrum correction:
