@@ -29,7 +29,7 @@ import numpy as np
 from jaxocean.files import read_json
 
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
-           "fov_degrees", "pitch_degrees",
+           "fov_degrees", "pitch_degrees", "sun_elevation_degrees",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
            "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
            "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
@@ -112,12 +112,17 @@ def pitch_degrees(text: str):
     return _degrees_between(text, -90.0, 90.0, "a pitch in degrees below the horizon, in (-90, 90)")
 
 
-def _degrees_between(text, low, high, what):
+def sun_elevation_degrees(text: str):
+    """A sun elevation in degrees, in [-90, 90] (the library checks it in radians)."""
+    return _degrees_between(text, -90.0, 90.0, "a sun elevation in degrees, in [-90, 90]", closed=True)
+
+
+def _degrees_between(text, low, high, what, closed: bool = False):
     try:
         value = float(text)
     except ValueError:
         value = math.nan
-    if not low < value < high:
+    if not (low <= value <= high if closed else low < value < high):
         raise argparse.ArgumentTypeError(f"expected {what}; got {text!r}")
     return value
 

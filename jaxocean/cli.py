@@ -93,7 +93,7 @@ def _add_lighting_edits(p):
     g.add_argument("--allow-failed-lighting", action="store_true",
                    help="use the lighting of a fit-lighting result that reported failure (refused otherwise)")
     g.add_argument("--sun-azimuth", type=float, help="sun azimuth [deg from +x]")
-    g.add_argument("--sun-elevation", type=float, help="sun elevation [deg]")
+    g.add_argument("--sun-elevation", type=inputs.sun_elevation_degrees, help="sun elevation [deg]")
 
 
 _SCENE_OPTION_DEFAULTS = {
@@ -127,7 +127,8 @@ def _add_scene_options(p):
     g.add_argument("--res", type=inputs.resolution_arg, default=None, help="HxW pixels (default 128x192)")
     g.add_argument("--sun-azimuth", type=float, default=None, help="sun azimuth [deg from +x]; the camera looks "
                    "along +x unless --camera-yaw-deg turns it")
-    g.add_argument("--sun-elevation", type=float, default=None, help="sun elevation [deg]")
+    g.add_argument("--sun-elevation", type=inputs.sun_elevation_degrees, default=None,
+                   help="sun elevation [deg]")
     g.add_argument("--frames", type=inputs.positive_int, default=None, help="number of frames (default 24)")
     g.add_argument("--dt", type=inputs.positive_float, default=None, help="time between frames [s] (default 0.1)")
 
@@ -178,17 +179,22 @@ def build_parser():
     p.add_argument("directory", help="dataset directory (made by `jaxocean simulate`)")
     p.add_argument("--quick", action="store_true", help="hashes and scene files only, do not decode frames")
 
-    p = sub.add_parser("demo", help="the main job: render a scene, fit its lighting, fit waves and forecast",
+    p = sub.add_parser("demo", help="the main job: render a scene, reconstruct it from its frames, and more "
+                                    "stages (--stages)",
                        description="Render a default JONSWAP scene: an animation (EXR + PNG + GIF), normal and "
-                                   "roughness maps and a contact sheet; then fit the lighting of its first frame "
-                                   "from a random start and re-edit it (lighting_fit.png); then fit the waves of "
-                                   "a small swell from its geometry and forecast it (wave_fit.png, "
-                                   "forecast_strip.png). Summary in summary.json.")
+                                   "roughness maps and a contact sheet; then the other --stages (by default "
+                                   "reconstruct and real): reconstruct its frames from 8-bit PNG "
+                                   "(reconstruct_vs_truth.png, reconstruct/), reconstruct real footage (real/, "
+                                   "with --real); on request, fit the lighting of its first frame from a random "
+                                   "start and re-edit it (lighting_fit.png), and fit the waves of a small swell "
+                                   "from its geometry and forecast it (wave_fit.png, forecast_strip.png). Summary "
+                                   "in summary.json.")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
     p.add_argument("--stages", default="render,reconstruct,real",
                    help="comma-separated stages: render (always), reconstruct (the rendered frames as 8-bit PNG, "
-                        "everything but the frames and the camera forgotten, reconstructed, forecast and re-edited "
-                        "beside the truth), real (reconstruct on the clip of real footage given by --real), "
+                        "everything but the frames and the camera forgotten, reconstructed, its forecast beside the "
+                        "truth's in reconstruct_vs_truth.png, its re-edited views in reconstruct/report.html), "
+                        "real (reconstruct on the clip of real footage given by --real), "
                         "lighting (lighting fit from the true geometry -> re-render -> error map -> re-edited "
                         "views), waves (wave fit of a small swell from its true geometry -> forecast strip); "
                         "default render,reconstruct,real")
@@ -200,7 +206,8 @@ def build_parser():
                                    "geometry channels (normal, roughness, mask), given the camera that saw it: "
                                    "from --scene, or from the --camera-* options (height and pitch needed, field "
                                    "of view 45 deg and yaw 0 by default). Writes jaxocean.fit.fit_to_dict JSON; "
-                                   "exit code 1 when the fit does not converge (the JSON is written anyway).")
+                                   "exit code 1 when the fit does not succeed (its JSON's success: converging is not "
+                                   "enough; the JSON is written anyway).")
     p.add_argument("frame", help="EXR frame with normal.X/Y/Z, roughness and mask channels")
     p.add_argument("--scene", help="scene directory or scene.json holding the frame's camera")
     p.add_argument("--out", required=True, help="output JSON file")
@@ -223,7 +230,8 @@ def build_parser():
                                    "Writes a scene-format JSON with the fitted waves, the scene's camera, lighting "
                                    "and times, and the fit's report under extra.wave_fit; compares with the "
                                    "scene's own waves when it has them. Exit code 1 when the fit does not "
-                                   "converge (the JSON is written anyway). Compilation takes a minute on a CPU.")
+                                   "succeed (extra.wave_fit.success: converging is not enough; the JSON is written "
+                                   "anyway). Compilation takes a minute on a CPU.")
     p.add_argument("scene", help="scene directory (scene.json + frame_XXXXX.exr)")
     p.add_argument("--out", required=True, help="output JSON file (e.g. waves.json)")
     p.add_argument("--frames", type=inputs.index_list, help="frame indices to fit, e.g. 0,1,2 (default all)")
@@ -402,6 +410,11 @@ def cmd_check(args):
     return EXIT_OK
 
 
+#: the figures each demo stage writes into --out (besides its directories)
+_DEMO_FIGURES = {"lighting": ("lighting_fit.png",), "waves": ("wave_fit.png", "forecast_strip.png"),
+                 "reconstruct": ("reconstruct_vs_truth.png",)}
+
+
 def cmd_demo(args):
     import imageio.v3 as iio
     import jax
@@ -423,6 +436,18 @@ def cmd_demo(args):
     out = inputs.check_out_dir(args.out)
     inputs.check_memory(args.res, args.frames, "demo")
     scene = inputs.scene_from_args(args)
+    # a previous demo's figures are not this run's: removed, so that a stage not run now (or one
+    # that stops before its figure) leaves none beside a summary.json that does not list it
+    stale = []
+    for stage, names in _DEMO_FIGURES.items():
+        for path in (out / name for name in names):
+            if path.is_file():
+                path.unlink()
+                if stage not in stages:
+                    stale.append(path)
+    if stale:
+        print(f"note: removed {len(stale)} figure(s) of a previous demo in {out} from stages not run now: "
+              f"{', '.join(p.name for p in stale)}", file=sys.stderr)
     print(f"demo: {args.waves} waves from JONSWAP(Hs={args.hs} m, Tp={args.tp} s, gamma={args.gamma}), "
           f"{args.frames} frames of {args.res[0]}x{args.res[1]}")
     t0 = time.perf_counter()
@@ -438,7 +463,7 @@ def cmd_demo(args):
              plots.roughness_to_rgb(geo.roughness[f], geo.mask[f])] for f in picks]
     sheet = plots.contact_sheet(out / "contact_sheet.png", rows, col_titles=["image (tone-mapped)", "normal",
                                                                              "roughness (log10 sigma^2)"],
-                                row_titles=[f"t = {float(scene.times[f]):.1f} s" for f in picks],
+                                row_titles=[f"t = {float(scene.times[f]):.3g} s" for f in picks],
                                 title="jaxocean demo: JONSWAP sea, per-pixel hierarchical geometry")
     summary = {"frames": int(images.shape[0]), "resolution": list(args.res), "waves": args.waves,
                "render_s_with_compile": render_s, "outputs": {"frames": str(render_dir), "animation":
@@ -452,7 +477,7 @@ def cmd_demo(args):
         print("lighting: fit sun and colours to frame 0 from a random start, re-render, re-edit ...", flush=True)
         frame0 = jax.tree.map(lambda x: x[0], geo)
         summary["lighting_fit"] = r = demo.lighting_stage(out, scene, images[0], frame0)
-        print(f"  {'converged' if r['success'] else 'FAILED'} in {r['steps']} steps "
+        print(f"  {'succeeded' if r['success'] else 'FAILED'} in {r['steps']} steps "
               f"({r['wall_s_with_compile']:.1f} s with compile): sun {r['sun_error_deg']:.2e} deg off, "
               f"max display error {r['max_display_error']:.1e}\n  figure:        {r['figure']}")
         write_json(out / "summary.json", summary)
@@ -517,6 +542,8 @@ def cmd_fit_lighting(args):
               f"shades its geometry with the isotropic roughness, which does not reproduce an image rendered with "
               f"anisotropic slope variance; the fitted lighting (colours above all) can be off. Re-render the frame "
               f"to fit it exactly", file=sys.stderr)
+    if args.scene:
+        inputs.refuse_other_json(args.scene, "--scene takes the frame's scene directory or scene.json (its camera)")
     scene = read_scene(args.scene) if args.scene else None
     if scene is not None and scene.camera is None:
         raise ValueError(f"{args.scene}: the scene has no camera")

@@ -14,7 +14,7 @@ Called by ``jaxocean demo`` (:mod:`jaxocean.cli`); usable from a notebook too.
 
 * :func:`reconstruct_stage` (the mission's path): the rendered scene written as 8-bit PNG
   frames; everything but the frames and the camera forgotten; :func:`jaxocean.reconstruct.
-  reconstruct` run on them; its forecast and re-edited view shown beside the truth.
+  reconstruct` run on them; its forecast shown beside the truth's.
 * :func:`real_stage`: ``reconstruct`` on a short clip of real ship-borne footage.
 
 Sizes are small on purpose: the demo must run in a few minutes on a laptop CPU.
@@ -161,8 +161,8 @@ DEMO_RECONSTRUCT = dict(width=64, wave_frames=6, max_waves=8, refine_steps=8, re
 
 def reconstruct_stage(out: Path, scene, images) -> dict:
     """Write ``images (T, H, W, 3)`` of ``scene`` as 8-bit PNG frames with a camera-and-times
-    ``scene.json`` (no waves, no lighting), reconstruct them, and compare the forecast and
-    a re-rendered view with the truth (``reconstruct_vs_truth.png``)."""
+    ``scene.json`` (no waves, no lighting), reconstruct them, and compare the forecast with
+    the truth's (``reconstruct_vs_truth.png``; the re-rendered views are in the reconstruct report)."""
     from jaxocean import fit
     from jaxocean import reconstruct as rc
     from jaxocean.io.images import save_png

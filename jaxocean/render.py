@@ -130,19 +130,22 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
     if not is_concrete(waves, camera):
         raise ValueError("render.plan needs concrete inputs; inside jit pass plan=RenderPlan(...), plan=None "
                          "or plan='auto' (chosen inside the compiled function)")
-    hit = cam.intersect_sea(camera, max_distance=max_distance)
-    mask = np.asarray(hit.mask)
-    if not mask.any():
-        return RenderPlan(active=(), refine=0)
-    fp = np.asarray(hit.footprint)[mask]
-    ws = hierarchy.weights(waves, jnp.asarray([fp.min(), fp.max()]), n_min=n_min, n_max=n_max,
-                           grid_cell=grid_cell)
-    # weights are monotone in the footprint: the smallest footprint gives the largest weights
-    w_disp, w_norm = np.asarray(ws.displacement[0]), np.asarray(ws.normal[0])
-    active = tuple(int(i) for i in np.nonzero((w_disp > 0) | (w_norm > 0))[0])
-    if refine != "auto":
-        return RenderPlan(active=active, refine=int(refine))
-    needed = bool(_needs_refinement(waves, hit, grid_cell, n_min=n_min, n_max=n_max))
+    # concrete inputs inside an outer trace (jit over the time only, say): computed now, not
+    # staged into the caller's function, so that the plan is the same as an eager call's
+    with jax.ensure_compile_time_eval():
+        hit = cam.intersect_sea(camera, max_distance=max_distance)
+        mask = np.asarray(hit.mask)
+        if not mask.any():
+            return RenderPlan(active=(), refine=0)
+        fp = np.asarray(hit.footprint)[mask]
+        ws = hierarchy.weights(waves, jnp.asarray([fp.min(), fp.max()]), n_min=n_min, n_max=n_max,
+                               grid_cell=grid_cell)
+        # weights are monotone in the footprint: the smallest footprint gives the largest weights
+        w_disp, w_norm = np.asarray(ws.displacement[0]), np.asarray(ws.normal[0])
+        active = tuple(int(i) for i in np.nonzero((w_disp > 0) | (w_norm > 0))[0])
+        if refine != "auto":
+            return RenderPlan(active=active, refine=int(refine))
+        needed = bool(_needs_refinement(waves, hit, grid_cell, n_min=n_min, n_max=n_max))
     return RenderPlan(active=active, refine=MAX_REFINE_ITERATIONS if needed else 0)
 
 

@@ -337,7 +337,11 @@ def _pm_kernel(omega, hs, tp):
 def _jonswap_kernel(omega, hs, tp, gamma, sigma_a, sigma_b):
     x = omega * tp / (2.0 * jnp.pi)
     enhancement = 1.0 + _peak_excess(x, gamma, sigma_a, sigma_b)
-    return _pm_kernel(omega, hs, tp) * enhancement * jonswap_normalisation(gamma, sigma_a, sigma_b)
+    # the normalisation's quadrature is built in the default float type (its Python-float
+    # parameters are not weak there): return the inputs' dtype, as every spectrum does
+    norm = jonswap_normalisation(gamma, sigma_a, sigma_b).astype(jnp.result_type(omega, hs, tp, gamma, sigma_a,
+                                                                                  sigma_b))
+    return _pm_kernel(omega, hs, tp) * enhancement * norm
 
 
 @jax.jit

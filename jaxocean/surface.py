@@ -35,6 +35,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxocean._math import inv_sqrt, materialize, safe_normalize, sincos, tiny
 from jaxocean._roughness import wave_slope_variance
@@ -63,13 +64,20 @@ def _level(weights, level: str):
     return jnp.asarray(weights)
 
 
-def _check(waves: Waves, xy=None):
+def _check(waves: Waves, xy=None, t=None, weights=None, level: str | None = None):
     validate(waves)
     if waves.omega.ndim != 1:
         raise ValueError(f"surface functions take Waves with leaves (N,); got {waves.omega.shape} "
                          "(use jax.vmap for batches of seas)")
     if xy is not None and jnp.shape(xy)[-1:] != (2,):
         raise ValueError(f"xy must have a trailing axis of size 2; got shape {jnp.shape(xy)}")
+    if t is not None and jnp.ndim(t) != 0:
+        # an array t would broadcast against the wave axis (one time per wave): a wrong value
+        raise ValueError(f"t must be one time [s] (a scalar); got shape {jnp.shape(t)}: vmap over times")
+    w = _level(weights, level) if level is not None else None
+    n = waves.omega.shape[-1]
+    if w is not None and jnp.ndim(w) > 0 and jnp.shape(w)[-1] not in (1, n):
+        raise ValueError(f"{level} weights must be per wave (..., N) with N = {n}; got shape {jnp.shape(w)}")
 
 
 def phase(waves: Waves, xy, t):
@@ -121,7 +129,7 @@ def normal_from_sums(a_xx, a_xy, a_yy, b_x, b_y):
 
 def displacement(waves: Waves, xy, t, weights=None):
     """Trochoid displacement p(X, t) - (X, 0) at rest positions ``xy (..., 2)`` -> ``(..., 3)``."""
-    _check(waves, xy)
+    _check(waves, xy, t, weights, "displacement")
     cos_psi, sin_psi = _weighted_trig(waves, xy, t, _level(weights, "displacement"))
     sin_coeffs, cos_coeffs = _displacement_coeffs(waves)
     return _displacement_from_sums(jnp.dot(sin_psi, sin_coeffs), jnp.dot(cos_psi, cos_coeffs))
@@ -135,7 +143,7 @@ def surface_point(waves: Waves, xy, t, weights=None):
 
 def normal(waves: Waves, xy, t, weights=None):
     """Unit surface normal ``(..., 3)`` at rest positions ``xy (..., 2)``."""
-    _check(waves, xy)
+    _check(waves, xy, t, weights, "normal")
     cos_psi, sin_psi = _weighted_trig(waves, xy, t, _level(weights, "normal"))
     sin_coeffs, cos_coeffs = _normal_coeffs(waves)
     a = jnp.dot(cos_psi, cos_coeffs)
@@ -421,7 +429,9 @@ def on_rows(waves: Waves, origin, step, n_cols: int, t, weights=None, *, block: 
     ``with_displacement=False`` computes the normal's five sums only (5/8 of the product;
     for a renderer that does not need hit positions) and returns ``displacement=None``.
     """
-    _check(waves)
+    _check(waves, t=t)
+    if not (isinstance(n_cols, (int, np.integer)) and n_cols >= 1):
+        raise ValueError(f"n_cols must be a positive int; got {n_cols!r}")
     origin, step = jnp.asarray(origin), jnp.asarray(step)
     if origin.ndim != 2 or origin.shape[-1] != 2 or step.shape != origin.shape:
         raise ValueError(f"origin and step must both be (R, 2); got {origin.shape} and {step.shape}")

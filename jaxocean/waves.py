@@ -53,8 +53,13 @@ class Waves(NamedTuple):
 
 
 def make_waves(amplitude, omega, theta, phase=None, dtype=None) -> Waves:
-    """Build ``Waves`` from array-likes, broadcasting ``phase`` (default 0) and validating."""
+    """Build ``Waves`` from array-likes, broadcasting ``phase`` (default 0) and validating.
+
+    ``dtype`` defaults to that of ``amplitude``, promoted to the default float type when it
+    is not floating (so that integers such as ``make_waves([1], [2], [0])`` are accepted)."""
     amplitude = jnp.asarray(amplitude, dtype)
+    if dtype is None and not jnp.issubdtype(amplitude.dtype, jnp.floating):
+        amplitude = amplitude.astype(jnp.result_type(float))
     dtype = amplitude.dtype if dtype is None else dtype
     omega = jnp.asarray(omega, dtype)
     theta = jnp.asarray(theta, dtype)

@@ -644,3 +644,93 @@ def test_reconstruct_refuses_options_it_would_ignore(extra, message, tmp_path, c
     assert cli.main(["reconstruct", "--camera", str(tmp_path / "none.json"), "--out", str(tmp_path / "out"),
                      *extra]) == 2
     assert message in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["render", "demo", "reedit", "forecast"])
+def test_sun_elevation_out_of_range_is_named_in_degrees(command, tmp_path, capsys):
+    # --sun-elevation 100 reached the library and came back as "[-pi/2, pi/2] rad; got
+    # [1.745...]": the user gave degrees
+    argv = [command] + (["scene.json"] if command in ("reedit", "forecast") else []) + \
+        (["--frames", "0"] if command == "forecast" else []) + ["--out", str(tmp_path / "o"), "--sun-elevation", "100"]
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "a sun elevation in degrees, in [-90, 90]; got '100'" in err
+    assert "rad" not in err and not (tmp_path / "o").exists()
+    assert _cli_inputs.sun_elevation_degrees("90") == 90.0 and _cli_inputs.sun_elevation_degrees("-90") == -90.0
+
+
+def test_reedit_of_some_frames_names_their_source_frames(tiny_scene, tmp_path):
+    from jaxocean import io
+
+    # reedit --frames 1,2 wrote frame metadata 0, 1 beside the times of frames 1 and 2
+    out = tmp_path / "edited"
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "1,2", "--out", str(out)]) == 0
+    source = [io.read_frame(tiny_scene / f"frame_0000{i}.exr").meta for i in (1, 2)]
+    edited = [io.read_frame(out / f"frame_0000{i}.exr").meta for i in (0, 1)]
+    assert [m["frame"] for m in edited] == [1, 2]
+    assert [m["time"] for m in edited] == pytest.approx([m["time"] for m in source])
+    assert json.loads((out / "scene.json").read_text())["extra"]["reedited_frames"] == [1, 2]
+
+
+def test_demo_help_names_what_its_default_stages_write(capsys):
+    # the description promised a lighting fit and a wave fit, which run only when asked for
+    with pytest.raises(SystemExit):
+        cli.main(["demo", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "(by default reconstruct and real)" in out and "reconstruct_vs_truth.png" in out
+    assert "on request, fit the lighting" in out
+
+
+def test_demo_rerun_with_fewer_stages_leaves_no_old_figure(tmp_path, capsys):
+    # a figure of a previous demo's stage stayed in --out beside a summary.json without it
+    out = tmp_path / "demo"
+    out.mkdir()
+    for name in ("lighting_fit.png", "wave_fit.png", "forecast_strip.png", "reconstruct_vs_truth.png"):
+        (out / name).write_bytes(b"old")
+    (out / "mine.png").write_bytes(b"user's")
+    assert cli.main(["demo", "--out", str(out), "--stages", "render", "--frames", "1", "--res", "8",
+                     "--waves", "2"]) == 0
+    assert sorted(p.name for p in out.glob("*.png")) == ["contact_sheet.png", "mine.png"]
+    assert "removed 4 figure(s) of a previous demo" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("command", ["fit-lighting", "fit-waves"])
+def test_fit_help_says_exit_1_means_no_success(command, capsys):
+    # the help said "exit code 1 when the fit does not converge"; a converged fit that leaves a
+    # field undetermined (no glitter: the sun) exits 1 too
+    with pytest.raises(SystemExit):
+        cli.main([command, "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "Exit code 1 when the fit does not succeed".lower() in out.lower() and "not converge" not in out
+
+
+def test_demo_contact_sheet_rows_name_their_times(tmp_path, monkeypatch):
+    # with --dt 0.01 every row read "t = 0.0 s"
+    from jaxocean import plots
+
+    seen = {}
+    real = plots.contact_sheet
+    monkeypatch.setattr(plots, "contact_sheet", lambda path, rows, **kw: seen.update(kw) or real(path, rows, **kw))
+    assert cli.main(["demo", "--out", str(tmp_path / "demo"), "--stages", "render", "--frames", "3", "--dt", "0.01",
+                     "--res", "8", "--waves", "2"]) == 0
+    assert seen["row_titles"] == ["t = 0 s", "t = 0.01 s", "t = 0.02 s"]
+
+
+def test_fit_lighting_names_a_fit_result_given_as_its_scene(tiny_scene, tmp_path, capsys):
+    # --scene fit.json (a fit-lighting result) said only "scene is missing key(s) ['version']"
+    (tmp_path / "fit.json").write_text(json.dumps({"lighting": {}, "rms_residual": 0.0, "success": True}))
+    assert cli.main(["fit-lighting", str(tiny_scene / "frame_00000.exr"), "--scene", str(tmp_path / "fit.json"),
+                     "--out", str(tmp_path / "again.json")]) == 2
+    err = capsys.readouterr().err
+    assert "this is a lighting fit result (jaxocean fit-lighting)" in err and "--scene takes" in err
+    assert not (tmp_path / "again.json").exists()
+
+
+def test_demo_help_claims_only_what_reconstruct_vs_truth_shows(capsys):
+    # the help promised the reconstruction "forecast and re-edited beside the truth"; the figure
+    # holds the forecast rows only (the re-edited views are in the reconstruct report)
+    with pytest.raises(SystemExit):
+        cli.main(["demo", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "re-edited beside the truth" not in out and "re-edited views in reconstruct/report.html" in out

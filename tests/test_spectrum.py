@@ -322,6 +322,19 @@ def test_float64(x64, key):
     np.testing.assert_allclose(m.m0, 0.25 * np.exp(-1.25 / MOMENT_BAND[1] ** 4), rtol=1e-9)
 
 
+
+def test_spectra_keep_float32_omega_with_python_parameters_under_x64(x64):
+    # a function returns the dtype of its inputs; Python floats are weak (jonswap's
+    # normalisation used to promote the result to float64)
+    omega = jnp.array([0.5, 1.0, 2.0], jnp.float32)
+    for gamma in (1.0, 3.3):
+        s = jonswap(omega, hs=1.5, tp=6.0, gamma=gamma)
+        assert s.dtype == jnp.float32
+        np.testing.assert_allclose(s, jonswap(omega.astype(jnp.float64), hs=1.5, tp=6.0, gamma=gamma), rtol=1e-5)
+    assert pierson_moskowitz(omega, hs=1.5, tp=6.0).dtype == jnp.float32
+    assert jonswap(omega.astype(jnp.float64), hs=1.5, tp=6.0).dtype == jnp.float64
+
+
 # ---------------------------------------------------------------------------------------
 # gradients
 

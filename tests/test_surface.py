@@ -188,6 +188,22 @@ def test_structural_errors_name_the_problem():
         surface.normal(waves._replace(omega=-waves.omega), jnp.zeros((1, 2)), 0.0)
 
 
+def test_an_array_time_or_wrong_weights_are_refused_not_broadcast_against_the_waves():
+    # four waves, four points, four times: omega * t used to pair each time with a wave and
+    # return a (4, 3) array of meaningless values
+    waves = random_waves(0, 4)
+    xy = jnp.zeros((4, 2))
+    for fn in (surface.normal, surface.displacement, surface.surface_point):
+        with pytest.raises(ValueError, match="t must be one time"):
+            fn(waves, xy, jnp.arange(4.0))
+    with pytest.raises(ValueError, match="t must be one time"):
+        surface.on_rows(waves, jnp.zeros((2, 2)), jnp.ones((2, 2)), 3, jnp.zeros(4))
+    with pytest.raises(ValueError, match="normal weights must be per wave"):
+        surface.normal(waves, xy, 0.0, jnp.ones(3))
+    with pytest.raises(ValueError, match="n_cols must be a positive int"):
+        surface.on_rows(waves, jnp.zeros((2, 2)), jnp.ones((2, 2)), 0, 0.0)
+
+
 # ---------------------------------------------------------------- gradients (x64)
 
 def _grad_case():

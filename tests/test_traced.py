@@ -264,3 +264,15 @@ def test_compacting_the_loop_changes_the_cost_not_the_hits(x64, monkeypatch):
     assert (~ok[np.asarray(hit.mask)]).sum() > 0  # grazing pixels: the stragglers compaction is for
     np.testing.assert_allclose(np.asarray(compacted.xy)[ok], np.asarray(plain.xy)[ok], rtol=0, atol=1e-9)
     assert int(compacted.iterations) == int(plain.iterations)
+
+
+@pytest.mark.parametrize("name", ["close", "far"])
+def test_jit_over_the_time_alone_with_concrete_waves_and_camera_equals_eager(x64, name):
+    # waves and camera closed over (concrete), only the time traced: the host plan must not
+    # be staged into the caller's jit (it read a tracer into NumPy and crashed)
+    waves, c, light = _sea(n=3), _view(name), _light()
+    eager = render.render(waves, c, light, 0.7)
+    traced = jax.jit(lambda t: render.render(waves, c, light, t))(0.7)
+    np.testing.assert_allclose(traced, eager, rtol=1e-12, atol=1e-13)
+    geo = jax.jit(lambda t: render.geometry(waves, c, t).normal)(0.7)
+    np.testing.assert_allclose(geo, render.geometry(waves, c, 0.7).normal, rtol=1e-12, atol=1e-13)

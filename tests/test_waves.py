@@ -58,3 +58,11 @@ def test_structural_errors():
         validate(Waves(jnp.ones(2, int), jnp.ones(2), jnp.ones(2), jnp.ones(2)))
     with pytest.raises(ValueError, match="expected a jaxocean.Waves"):
         validate((1.0, 2.0))
+
+
+def test_make_waves_accepts_integer_array_likes_as_the_default_float():
+    waves = make_waves([1], [2], [0], [3])
+    assert all(jnp.issubdtype(leaf.dtype, jnp.floating) for leaf in waves)
+    np.testing.assert_array_equal(waves.omega, [2.0])
+    with pytest.raises(ValueError, match="floating point"):  # an explicit integer dtype is still refused
+        make_waves([1], [2], [0], dtype=jnp.int32)

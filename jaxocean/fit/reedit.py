@@ -97,7 +97,8 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
                  lighting: Lighting | None = None, frames=None, exposure=1.0, half: bool = True,
                  progress: bool = True) -> Path:
     """Re-render a scene directory with edits; write ``out_dir/frame_XXXXX.exr`` (+ ``.png``) and
-    ``out_dir/scene.json``.
+    ``out_dir/scene.json``. Each frame's EXR ``frame`` metadata and the scene's
+    ``extra.reedited_frames`` give the index of the scene frame it re-renders.
 
     Args:
         scene_dir: a directory with ``scene.json`` (or the json path) holding waves, camera,
@@ -121,8 +122,8 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
         raise ValueError(f"{scene_dir}: scene.json needs waves, camera and lighting to re-render")
     light = scene.lighting if lighting is None else lighting
     times = np.zeros(1) if scene.times is None else np.atleast_1d(np.asarray(scene.times))
-    if frames is not None:
-        times = times[np.asarray(frames, dtype=int)]
+    frame_ids = list(range(times.size)) if frames is None else [int(f) for f in frames]
+    times = times[np.asarray(frame_ids, dtype=int)]
 
     def rad(deg):
         return None if deg is None else math.radians(deg)
@@ -140,8 +141,8 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
     edited = scene._replace(camera=camera, lighting=light, times=times)
     out = Path(out_dir)
     io.write_sequence(out, edited, np.stack([np.asarray(i) for i in images]), geometry, half=half,
-                      seed=scene.seed, progress=progress, exposure=exposure,
-                      extra={"reedited_from": str(scene_dir)})
+                      seed=scene.seed, progress=progress, exposure=exposure, frame_ids=frame_ids,
+                      extra={"reedited_from": str(scene_dir), "reedited_frames": frame_ids})
     return out
 
 
