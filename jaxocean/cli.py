@@ -677,28 +677,31 @@ def cmd_fit_waves(args):
     normals, roughness = _read_geometry_frames(scene_dir, frames, scene.camera.resolution)
     print(f"fitting waves to {len(frames)} frame(s) of {normals.shape[1]}x{normals.shape[2]} "
           f"({'n = ' + str(args.n_waves) if args.n_waves else 'count chosen by BIC'}; compilation included)")
+    inputs_report = {"source": str(scene_dir), "frames": frames, "noise": args.noise,
+                     "noise_correlation_px": float(args.noise_correlation)}
+
+    def write_result(waves, report):
+        write_json(args.out, scene_to_dict(waves=waves, camera=scene.camera, lighting=scene.lighting,
+                                            times=all_times, extra={"wave_fit": report}))
+        print(f"-> {args.out}")
+
     try:
         result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
                            noise=args.noise, noise_correlation=args.noise_correlation, throw=False,
                            verbose=args.verbose,
                            init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
     except NoWaveFound as error:  # a fit that found nothing, not bad input: exit 1 with its JSON
-        report = {"source": str(scene_dir), "frames": frames, "n_waves": 0, "success": False,
-                  "noise": args.noise, "noise_correlation_px": float(args.noise_correlation), "message": str(error)}
-        write_json(args.out, scene_to_dict(camera=scene.camera, lighting=scene.lighting, times=all_times,
-                                            extra={"wave_fit": report}))
-        print(f"-> {args.out}")
+        write_result(None, {**inputs_report, "n_waves": 0, "success": False, "message": str(error)})
         print(f"jaxocean: the wave fit failed: {error}; see extra.wave_fit in the JSON", file=sys.stderr)
         return EXIT_PROBLEMS
     w = result.waves
     finite = all(bool(np.all(np.isfinite(np.asarray(leaf)))) for leaf in w)
     success = bool(result.success) and finite
-    report = {"source": str(scene_dir), "frames": frames, "n_waves": int(result.n_waves),
+    report = {**inputs_report, "n_waves": int(result.n_waves),
               "loss": json_safe(float(result.loss)),
               "normal_error_deg": json_safe(math.degrees(float(result.normal_error))),
               "roughness_error": json_safe(float(result.roughness_error)), "steps": int(result.steps),
               "success": success, "converged": bool(result.converged), "time_s": json_safe(float(result.time_s)),
-              "noise": args.noise, "noise_correlation_px": float(args.noise_correlation),
               "uncertainty": {name: json_safe(np.ravel(leaf)) for name, leaf in zip(w._fields, result.uncertainty)}}
     if finite and result.determined is not None:
         from jaxocean.fit.waves import forecast_model
@@ -725,9 +728,7 @@ def cmd_fit_waves(args):
               f"{len(m['spurious'])} spurious" + (f"; largest errors |dh| {worst['amplitude']:.3g} m, |domega| "
                                                    f"{worst['omega']:.3g} rad/s, |dtheta| {worst['theta_deg']:.3g} "
                                                    f"deg, |dphi| {worst['phase_deg']:.3g} deg" if worst else ""))
-    write_json(args.out, scene_to_dict(waves=w if finite else None, camera=scene.camera, lighting=scene.lighting,
-                                        times=all_times, extra={"wave_fit": report}))
-    print(f"-> {args.out}")
+    write_result(w if finite else None, report)
     if not success:
         from jaxocean.fit.waves import normal_error_bound
         from jaxocean.waves import too_steep

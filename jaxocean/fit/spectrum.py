@@ -61,10 +61,12 @@ alone (each other bin holds the alternative's own energy), from the measured bin
 and the peak must lie between those edges. Fewer than :data:`MIN_WAVES` measured bins show
 no peak. On Table 2's fits the determined waves sit in the tail, so their peaks are bounds
 (``experiments/WAVES.md``). ``success`` says that one spectrum explains the waves, not
-that the waves hold the sea's energy. Where a peak beyond the band explains the energies as well as the one inside, the
-answer keeps the inside one, the shortest Tp and least Hs that explain them (beyond the
-long-wave edge, longer periods and more energy below the band do too): both are lower
-bounds (upper ones for the short-wave edge). When the fitted peak lies outside the band,
+that the waves hold the sea's energy. Where a peak beyond the band explains the energies
+as well as the one inside, the answer keeps the inside one, the shortest Tp and least Hs
+that explain them (beyond the long-wave edge, longer periods and more energy below the
+band do too): lower estimates (upper ones for the short-wave edge), not strict bounds --
+where the stand-ins placed the peak right, the energies they carry can put Hs above the
+sea's (Table 2 scene 7: 11%). When the fitted peak lies outside the band,
 the fit drifts along
 the ``alpha`` valley (measured on a dataset scene: Tp 137 s, Hs 510 m for a 5 s, 0.7 m
 sea), so Hs and gamma are refitted with the peak pinned to the band's nearer edge: for a
@@ -350,14 +352,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     n = waves.omega.shape[0]
     if reliable is None:
         reliable = resolvable(waves, camera) if camera is not None else np.ones(n, bool)
-    reliable = np.asarray(reliable, bool)
-    if reliable.shape != (n,):
-        raise ValueError(f"reliable must be a bool mask (N,) = ({n},); got {reliable.shape}")
-    if determined is None:
-        determined = np.ones(n, bool)
-    determined = np.asarray(determined, bool)
-    if determined.shape != (n,):
-        raise ValueError(f"determined must be a bool mask (N,) = ({n},); got {determined.shape}")
+    reliable = _wave_mask(reliable, "reliable", n)
+    determined = _wave_mask(np.ones(n, bool) if determined is None else determined, "determined", n)
     if reliable.sum() < MIN_WAVES:
         raise InvalidValueError(f"fit.spectrum needs at least {MIN_WAVES} reliable waves; got {int(reliable.sum())}")
     if gamma is not None:
@@ -551,6 +547,14 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
                        hs_std=float(hs_std), tp_std=float(tp_std), gamma_std=float(gamma_std),
                        theta_std=theta_std, s_max_std=s_max_std, direction_misfit=dir_misfit,
                        edge_peak_misfit=edge_misfit)
+
+
+def _wave_mask(mask, name: str, n: int) -> np.ndarray:
+    """``mask`` as a bool array ``(n,)``, one entry per wave (a clear error otherwise)."""
+    mask = np.asarray(mask, bool)
+    if mask.shape != (n,):
+        raise ValueError(f"{name} must be a bool mask (N,) = ({n},); got {mask.shape}")
+    return mask
 
 
 def _edge_covariance(edges, density, total) -> np.ndarray:

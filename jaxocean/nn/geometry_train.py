@@ -460,10 +460,16 @@ def _frame_scores(pred_normal, pred_sv, true_normal, true_sv, image, camera, lig
     return sums
 
 
-def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timing: dict | None = None):
+def _frames_by_scene(windows) -> dict:
+    """``{scene: [frame, ...]}`` of ``(scene, frame)`` windows, in their order."""
     by_scene: dict = {}
     for s, f in windows:
         by_scene.setdefault(s, []).append(f)
+    return by_scene
+
+
+def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timing: dict | None = None):
+    by_scene = _frames_by_scene(windows)
     total: dict = {}
     scenes = {}
     for s, frames in by_scene.items():
@@ -516,9 +522,7 @@ def evaluate(method, dataset, split: str = "test", *, max_frames: int | None = N
         raise ValueError(f"{data.root}: the {split!r} split holds no frame to score (scenes per split: {sizes}); "
                          "choose another split (--split), or simulate more scenes (the test split holds 10% of them)")
     if warmup:  # compile for every frame count a scene is scored with (max_frames can cut the last one short)
-        by_scene: dict = {}
-        for s, f in windows:
-            by_scene.setdefault(s, []).append(f)
+        by_scene = _frames_by_scene(windows)
         for s in {len(frames): s for s, frames in reversed(by_scene.items())}.values():
             images = np.stack([data.frame(s, f).image for f in by_scene[s]])
             jax.block_until_ready(method(images, data.scene(s)).normal)

@@ -65,9 +65,10 @@ class WaveFit(NamedTuple):
       off (``converged`` False); nor the coupling with the long-wave band: on a noise-free
       2-wave 24 x 24, 4-frame scene a determined wave's phase came out 158 deg off with a
       0.008 rad sigma, the band's stand-ins compensating (the waves alone then miss the data
-      by 5 deg mean normal error; with the band, 0.01 deg). For an undetermined wave (a stand-in for waves the window
-      does not separate) the fitted values can lie many of these sigmas from any true wave,
-      and the width is no error bar (:func:`forecast_model` widens it).
+      by 5 deg mean normal error; with the band, 0.01 deg). For an undetermined wave (a
+      stand-in for waves the window does not separate) the fitted values can lie many of
+      these sigmas from any true wave, and the width is no error bar (:func:`forecast_model`
+      widens it).
     * ``loss``         the paper's loss (:mod:`jaxocean.fit.waves`) at the fit.
     * ``normal_error`` mean angle [rad] between fitted and observed normals.
     * ``roughness_error`` mean absolute roughness difference.
