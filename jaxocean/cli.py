@@ -386,6 +386,9 @@ def cmd_simulate(args):
     if args.scenes < 7:  # the splits keep a tenth for test and a tenth of the rest for validation
         print(f"jaxocean: note: {args.scenes} scene(s) leave the validation split empty: train-geometry and "
               f"train-waves need at least 7", file=sys.stderr)
+    elif args.scenes < 10:
+        print(f"jaxocean: note: {args.scenes} scenes leave fewer than 8 in the train split: train-waves (its "
+              f"configs' batches hold 8 or more scenes) needs at least 10", file=sys.stderr)
     return EXIT_OK
 
 

@@ -36,7 +36,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean._stages import timed
-from jaxocean.errors import InvalidValueError
+from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.io.exr import require_file
 from jaxocean.io.images import is_video_file
 
@@ -92,22 +92,25 @@ def sea_view(camera_file, *, width: int = DEFAULT_WIDTH, horizon_margin: float =
              bottom_margin: float = BOTTOM_MARGIN) -> cam.Camera:
     """The ideal camera a camera file's frames are resampled into: the frames' mean height,
     heading and ground position, no roll, and a pitch and vertical field of view that span
-    from ``horizon_margin`` below the horizon down to ``bottom_margin`` inside the lowest
-    view any frame has (so every pixel is seen in every frame, barring roll at the corners);
-    ``width`` pixels across, the height from the source's aspect (a multiple of 16)."""
+    from ``horizon_margin`` below the horizon (or ``bottom_margin`` inside the highest view
+    any frame has, where that is lower: a camera looking down steeply sees no horizon) down
+    to ``bottom_margin`` inside the lowest view any frame has (so every pixel is seen in
+    every frame, barring roll at the corners); ``width`` pixels across, the height from the
+    source's aspect (a multiple of 16)."""
     from jaxocean import lens
 
     poses = camera_file.poses
     W_src, H_src = camera_file.image_size
-    # the depression angle of the bottom-centre pixel in each frame
-    uv = jnp.asarray([[(W_src - 1) / 2.0, H_src - 1.0]])
-    lows = []
+    # the depression angles of the bottom-centre and top-centre pixels in each frame
+    uv = jnp.asarray([[(W_src - 1) / 2.0, H_src - 1.0], [(W_src - 1) / 2.0, 0.0]])
+    lows, highs = [], []
     for i in range(len(camera_file.times)):
         pose = lens.Pose(*(np.asarray(f)[i] for f in poses))
-        ray = np.asarray(lens.pixel_rays(uv, pose, camera_file.intrinsics, camera_file.distortion))[0]
-        lows.append(-math.asin(float(np.clip(ray[2], -1, 1))))
+        rays = np.asarray(lens.pixel_rays(uv, pose, camera_file.intrinsics, camera_file.distortion))
+        low, high = (-math.asin(float(np.clip(ray[2], -1, 1))) for ray in rays)
+        lows.append(low), highs.append(high)
     bottom = min(lows) - bottom_margin
-    top = horizon_margin
+    top = max(horizon_margin, max(highs) + bottom_margin)
     if bottom <= top + 0.1:
         raise InvalidValueError(f"the frames see too little sea below the horizon (lowest view "
                                 f"{math.degrees(min(lows)):.1f} deg below it) for a sea view")
@@ -186,8 +189,11 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
 
     camera_path = Path(camera_path)
     frames = [Path(f) for f in (frames or [])]
-    if step < 1:
-        raise ValueError(f"step must be >= 1; got {step}")
+    if not is_integer(step, 1):
+        raise ValueError(f"step must be an int >= 1; got {step!r}")
+    # a negative count would slice frames off the end: max_frames=-1 dropped the last one
+    if max_frames is not None and not is_integer(max_frames, 1):
+        raise ValueError(f"max_frames must be an int >= 1 (or None: every frame); got {max_frames!r}")
 
     video = len(frames) == 1 and is_video_file(frames[0])
     for f in frames:  # a missing file is named as such, before any count of frames
@@ -255,7 +261,11 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
             loaded = load(list(camera_file.files))
         if loaded.display is None:  # OpenEXR: radiance; shown through the library's tone map
             resp = radiometry.Response("bruneton")
-            loaded = loaded._replace(display=np.asarray(radiometry.to_display(loaded.linear, resp), np.float32))
+            # its unusable pixels (NaN, inf, negative: masked) hold 0, as rectify's invalid ones
+            # do, so that the display and the horizon see finite values
+            linear = np.where(loaded.usable[..., None], loaded.linear, 0).astype(np.float32)
+            loaded = loaded._replace(linear=linear,
+                                     display=np.asarray(radiometry.to_display(linear, resp), np.float32))
         W_src, H_src = camera_file.image_size
         if loaded.linear.shape[1:3] != (H_src, W_src):
             raise InvalidValueError(f"the frames are {loaded.linear.shape[2]}x{loaded.linear.shape[1]} pixels; the "
@@ -279,9 +289,12 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
         if full_view:
             camera = rectify.virtual_camera(camera_file, resolution=(H, int(width)))
         elif scene_camera is not None:
-            # the scene's own view, at the working width
+            # the scene's own view, at the working width; where the working aspect is wider
+            # than the scene's, the field of view narrows so that the view stays inside its frames
+            H_scene, W_scene = scene_camera.resolution
+            fov = 2 * jnp.arctan(jnp.tan(scene_camera.fov / 2) * min(1.0, W_scene * H / (H_scene * width)))
             camera = scene_camera if scene_camera.resolution == (H, width) else dataclasses.replace(
-                scene_camera, resolution=(H, int(width)))
+                scene_camera, resolution=(H, int(width)), fov=fov.astype(jnp.asarray(scene_camera.fov).dtype))
         else:
             camera = sea_view(camera_file, width=width)
         linear = loaded.linear if loaded.linear.ndim == 4 else loaded.linear[..., None]

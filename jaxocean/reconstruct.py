@@ -46,7 +46,7 @@ from jaxocean import radiometry
 from jaxocean import shading
 from jaxocean._math import slope_from_normal
 from jaxocean._stages import StageReport, timed
-from jaxocean.errors import is_integer
+from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.files import json_safe
 from jaxocean.footage import DEFAULT_WIDTH, Sequence, load_sequence, sea_view
 from jaxocean.waves import Waves, wavenumber
@@ -187,6 +187,25 @@ def space_time_evidence(seq: Sequence):
         return None
     images, usable, camera = seq.fine or (seq.images.mean(-1), seq.usable, seq.camera)
     return spacetime.dispersion_check(images, camera, seq.times, mask=usable)
+
+
+def _check_evidence_times(seq: Sequence) -> None:
+    """The space-time evidence (:func:`space_time_evidence`, stages 4-6) needs uniformly spaced
+    frames once there are ``spacetime.MIN_FRAMES`` of them, which a camera file need not give
+    (a dropped frame): refused after stage 1, not minutes later."""
+    from jaxocean import spacetime
+
+    times = np.asarray(seq.times, np.float64)
+    if len(times) < spacetime.MIN_FRAMES or spacetime.uniformly_spaced(times):
+        return
+    steps = np.diff(times)
+    typical = float(np.median(steps))
+    n = int(np.argmax(np.abs(steps - typical)))  # the step farthest from the usual one
+    raise InvalidValueError(
+        f"the space-time evidence of stages 4-6 needs uniformly spaced frames, and the step from frame {n} "
+        f"(t = {times[n]:.6g} s, {Path(seq.files[n]).name}) to frame {n + 1} (t = {times[n + 1]:.6g} s) is "
+        f"{steps[n]:.6g} s against {typical:.6g} s elsewhere (a dropped frame?): give a uniformly spaced run of "
+        f"frames (FRAMES, step, max_frames)")
 
 
 def _evidence_of(seq: Sequence, evidence):
@@ -604,6 +623,7 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
     seq, rep = load_sequence(frames, camera_path, width=width, response=response, gamma=gamma, step=step,
                              max_frames=max_frames, height=height)
     say(rep)
+    _check_evidence_times(seq)
     geometry, rep = geometry_stage(seq, model=geometry_model)
     say(rep)
     light, rep = lighting_stage(seq, geometry, overcast=overcast)

@@ -328,11 +328,20 @@ def _check_poses(poses: Pose, T: int, what: str) -> Pose:
 def _check_intrinsics(intrinsics: Intrinsics, shape_hw, what):
     h, w = shape_hw
     fx, fy, cx, cy = (float(v) for v in intrinsics)
+    if not all(math.isfinite(v) for v in (fx, fy, cx, cy)):
+        raise ValueError(f"{what}: intrinsics must be finite; got fx={fx}, fy={fy}, cx={cx}, cy={cy}")
     if not (fx > 0 and fy > 0):
         raise ValueError(f"{what}: focal lengths must be > 0; got fx={fx}, fy={fy}")
     if not (-0.5 <= cx <= w - 0.5 and -0.5 <= cy <= h - 0.5):
         raise ValueError(f"{what}: the principal point ({cx}, {cy}) lies outside the {w}x{h} images: "
                          "intrinsics and images do not belong together")
+
+
+def _check_distortion(distortion: Distortion, what):
+    # a non-finite coefficient maps every pixel to NaN: all invalid, silently
+    values = [float(v) for v in distortion]
+    if not all(math.isfinite(v) for v in values):
+        raise ValueError(f"{what}: distortion coefficients must be finite; got {dict(zip(Distortion._fields, values))}")
 
 
 def _check_camera(camera: Camera, what):
@@ -408,7 +417,8 @@ def rectify(images, poses: Pose, intrinsics: Intrinsics, distortion: Distortion,
 
     Raises:
         ValueError: wrong ndim, images that do not match ``image_size`` or the intrinsics
-            (principal point outside them), poses not of ``T`` frames, a batched or
+            (principal point outside them), non-finite intrinsics, distortion or poses,
+            poses not of ``T`` frames, a batched or
             orthographic camera, ``supersample < 1``.
     """
     return _warp(images, poses, intrinsics, distortion, camera, supersample=supersample, image_size=image_size,
@@ -450,6 +460,7 @@ def _warp(images, poses, intrinsics, distortion, camera, *, supersample, image_s
         H_real, W_real = images.shape[1:3]
         resolution = tuple(camera.resolution)
     _check_intrinsics(intrinsics, (H_real, W_real), what)
+    _check_distortion(distortion, what)
     T = images.shape[0]
     poses = _check_poses(poses, T, what)
     if supersample is None:

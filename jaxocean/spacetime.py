@@ -112,10 +112,10 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean._ground_grid import hann, resample
-from jaxocean.errors import check_number
+from jaxocean.errors import check_number, is_integer
 from jaxocean.waves import GRAVITY
 
-__all__ = ["MIN_FRAMES", "GRID_SIZES", "DispersionCheck", "dispersion_check", "SeaSpectrum", "sea_spectrum",
+__all__ = ["MIN_FRAMES", "uniformly_spaced", "GRID_SIZES", "DispersionCheck", "dispersion_check", "SeaSpectrum", "sea_spectrum",
            "plot_dispersion"]
 
 MIN_FRAMES = 8
@@ -185,7 +185,7 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
 
     Raises:
         ValueError: bad shapes, fewer than :data:`MIN_FRAMES` frames, non-uniform or
-            non-increasing times, an orthographic camera, a bad ``current``, ``mask``,
+            non-increasing times, an orthographic camera, a bad ``grid``, ``current``, ``mask``,
             ``tolerance``, ``max_footprint``, ``clip_percentile``, ``max_current`` or
             ``min_ratio`` (below 1: noise scores about 1).
     """
@@ -204,7 +204,7 @@ def dispersion_check(images, camera, times, *, grid: int | None = None, spacing:
         raise ValueError("dispersion_check needs a perspective camera (a rectified sequence)")
     times = _checked_times(times, images.shape[0], "dispersion_check")
     _check_current(current, fit_allowed=True)
-    _check_options(images.shape[0], H, W, mask, tolerance, max_footprint, clip_percentile)
+    _check_options(images.shape[0], H, W, mask, tolerance, max_footprint, clip_percentile, grid=grid)
     check_number(max_current, "max_current must be a finite speed >= 0 [m/s]")
     # a sequence without dispersion puts its energy on the shell in proportion to the shell's
     # share of the bins: ratio ~1, so a threshold below 1 passes noise
@@ -330,7 +330,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
 
     Raises:
         ValueError: bad shapes, fewer than :data:`MIN_FRAMES` frames, non-uniform times, an
-            orthographic camera, a bad ``current``, ``mask``, ``tolerance``, ``max_footprint``
+            orthographic camera, a bad ``grid``, ``current``, ``mask``, ``tolerance``, ``max_footprint``
             or ``max_noise_fraction``.
     """
     normals = np.asarray(normals, np.float64)
@@ -342,7 +342,7 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     T = normals.shape[0]
     times = _checked_times(times, T, "sea_spectrum")
     _check_current(current, fit_allowed=False)
-    _check_options(T, H, W, mask, tolerance, max_footprint)
+    _check_options(T, H, W, mask, tolerance, max_footprint, grid=grid)
     check_number(max_noise_fraction, "max_noise_fraction must be in (0, 1]", 0.0, 1.0, low_open=True)
     U = np.asarray(current, np.float64)
     usable = np.all(np.isfinite(normals), -1) & (np.nan_to_num(normals[..., 2]) > 1e-3)
@@ -457,6 +457,14 @@ def _no_sea(current, grid_info, reason, noise_fraction=math.nan, band_m=(math.na
                        "no sea spectrum: " + reason)
 
 
+def uniformly_spaced(times) -> bool:
+    """Whether frame ``times (T,)`` [s] increase in steps equal to 0.1 %, as the space-time
+    functions need."""
+    steps = np.diff(np.asarray(times, np.float64))
+    dt = float(np.mean(steps)) if steps.size else 0.0
+    return bool(dt > 0 and np.all(np.abs(steps - dt) <= 1e-3 * dt))
+
+
 def _checked_times(times, T, who):
     """``times`` as float64 ``(T,)``, checked: ``T >= MIN_FRAMES``, increasing, uniform."""
     times = np.asarray(times, np.float64)
@@ -465,8 +473,7 @@ def _checked_times(times, T, who):
     if T < MIN_FRAMES:
         raise ValueError(f"{who} needs at least {MIN_FRAMES} frames; got {T}")
     steps = np.diff(times)
-    dt = float(np.mean(steps))
-    if not (dt > 0 and np.all(np.abs(steps - dt) <= 1e-3 * dt)):
+    if not uniformly_spaced(times):
         raise ValueError(f"times must be increasing and uniformly spaced (steps equal to 0.1%); got steps "
                          f"from {steps.min():.6g} to {steps.max():.6g} s")
     return times
@@ -484,10 +491,12 @@ def _check_current(current, fit_allowed: bool):
         raise ValueError(f"current must be {allowed} with finite components; got {tuple(current)}")
 
 
-def _check_options(T, H, W, mask, tolerance, max_footprint, clip_percentile=None):
+def _check_options(T, H, W, mask, tolerance, max_footprint, clip_percentile=None, *, grid=None):
     """The options :func:`dispersion_check` and :func:`sea_spectrum` share, checked before
-    any work: a mask of the frames' shape, a shell half-width and footprint limit > 0, a
-    clip percentile in (0, 100]."""
+    any work: a grid of a whole number of points >= 1, a mask of the frames' shape, a shell
+    half-width and footprint limit > 0, a clip percentile in (0, 100]."""
+    if grid is not None and not is_integer(grid, 1):
+        raise ValueError(f"grid must be a whole number of points >= 1 (or None: chosen); got {grid!r}")
     if mask is not None and np.shape(mask) not in ((H, W), (T, H, W)):
         raise ValueError(f"mask must be ({H}, {W}) or ({T}, {H}, {W}) for these frames; got {np.shape(mask)}")
     for name, value in (("tolerance", tolerance), ("max_footprint", max_footprint)):

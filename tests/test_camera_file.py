@@ -137,6 +137,13 @@ def _error_cases():
         ("fy < 0", edit(lambda d: d["intrinsics"].__setitem__("fy", -3.0)), r"intrinsics\.fy: focal length must be > 0"),
         ("normalised fx", edit(lambda d: d["intrinsics"].__setitem__("fx", 0.9)),
          r"intrinsics\.fx: 0\.9 px gives a field of view of 17\d\.\d deg .* not normalised"),
+        ("principal point outside", edit(lambda d: d["intrinsics"].__setitem__("cy", 480.0)),
+         r"intrinsics\.cy: the principal point must lie inside the image, in \[-0\.5, 47\.5\] px .*got 480\.0"),
+        # the radial terms fold back at r = 0.577 (r_d = 0.385), short of the corners at 0.996:
+        # the outer pixels have no ray, and the horizon and the view's lowest ray came out wrong
+        ("lens not one-to-one", edit(lambda d: d["distortion"].update(k1=-1.0, k2=0.0)),
+         r"distortion: k1 = -1, k2 = 0 is not one-to-one over the image: .* folds back at the undistorted radius "
+         r"0\.57[67], where it reaches 0\.385, and the image's farthest corner lies at 0\.996"),
         ("roll in degrees", edit(set_frame(2, "roll_rad", 3.0)), r"frames\[2\]\.roll_rad: must lie in \(-pi/2, pi/2\) rad; got 3\.0"),
         ("unknown model", edit(lambda d: d["distortion"].__setitem__("model", "fisheye")),
          r"distortion\.model: unknown distortion model 'fisheye'"),
@@ -192,6 +199,20 @@ def test_non_finite_values(tmp_path):
     data["intrinsics"]["cy"] = float("inf")
     with pytest.raises(CameraFileError, match=r"intrinsics\.cy: must be finite"):
         read_camera_file(_write(tmp_path / "b", data))
+
+
+def test_integers_beyond_the_float_range(tmp_path):
+    # JSON integers are unbounded: one too large for a float is refused like inf, naming the
+    # field (it raised OverflowError), and one too long for Python to parse names the file
+    data = _camera_dict()
+    data["frames"][1]["camera_height_m"] = 10**400
+    with pytest.raises(CameraFileError, match=r"frames\[1\]\.camera_height_m: must be finite; got an integer"):
+        read_camera_file(_write(tmp_path / "a", data))
+    path = _write(tmp_path / "b", _camera_dict())
+    path.write_text(path.read_text().replace('"fx": 40.0', '"fx": ' + "9" * 5000))
+    with pytest.raises(CameraFileError, match="malformed JSON") as info:
+        read_camera_file(path)
+    assert str(info.value).startswith(str(path) + ": ")
 
 
 def test_frames_absent_on_disk(tmp_path):

@@ -122,6 +122,17 @@ def test_bad_inputs_are_named(key, tmp_path):
             TINY._replace(**{field: value}).validate()
 
 
+def test_a_run_directory_given_as_the_model_is_named_as_such(tmp_path):
+    # it was "not a readable jaxocean checkpoint (corrupt or truncated?): [Errno 21] Is a directory"
+    (tmp_path / "run").mkdir()
+    with pytest.raises(CheckpointError, match="run: is a directory, not a model or checkpoint file$"):
+        geo.load(tmp_path / "run")
+    (tmp_path / "run" / "model.npz").write_bytes(b"PK\x03\x04")
+    with pytest.raises(CheckpointError, match=r"is a directory, not a model or checkpoint file; its model is "
+                                              r".*run/model\.npz"):
+        geo.load(tmp_path / "run")
+
+
 def test_model_file_round_trip(key, tmp_path):
     model = geo.init(key, TINY._replace(normal_head="sphere", color="gray"))
     geo.save(tmp_path / "m.npz", model, {"note": "x"})
@@ -318,6 +329,16 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
     assert _cli("predict-geometry", tmp_path / "nan.exr", "--scene", scene, "--model", model_path,
                 "--out", tmp_path / "p4") == 2
     assert "nan.exr: holds non-finite pixel values" in capsys.readouterr().err
+
+
+def test_the_steps_per_epoch_help_says_what_a_batch_holds(capsys):
+    from jaxocean.cli import main
+
+    # a geometry batch holds frames (8 train scenes of 6 frames are 6 steps), a wave batch scenes
+    for command, holds in (("train-geometry", "a batch holds frames"), ("train-waves", "a batch holds train scenes")):
+        with pytest.raises(SystemExit):
+            main([command, "--help"])
+        assert holds in " ".join(capsys.readouterr().out.split()), command
 
 
 def test_cli_predict_names_a_camera_file_and_an_image_of_another_size(tmp_path, capsys):

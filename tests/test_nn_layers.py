@@ -109,6 +109,25 @@ def test_bad_shapes_are_named(key):
         nl.fan_in_sum().init(key, ((1, 4), (1, 5)))
 
 
+def test_odd_sizes_are_refused_at_init_and_apply(key):
+    # the ResNet's stride-2 conv and transposed conv turned 7 x 9 into 8 x 10 without a word
+    # traced only (jax.eval_shape): nothing compiled
+    with pytest.raises(ValueError, match=r"ResNet\(downsample=1\) needs H and W divisible by 2; got \(7, 9\)"):
+        jax.eval_shape(lambda k: backbones.ResNet(4, 1).init(k, (1, 7, 9, 3))[1], key)
+    for net in (backbones.ResNet(4, 1), backbones.UNet((4, 8))):
+        params = jax.eval_shape(lambda k: net.init(k, (-1, 8, 8, 3))[1], key)
+        # the params do not fix the size: an odd input after an even init (a reshape error before)
+        with pytest.raises(ValueError, match="divisible by 2"):
+            jax.eval_shape(net.apply, params, jax.ShapeDtypeStruct((1, 7, 8, 3), jnp.float32))
+        assert jax.eval_shape(net.apply, params, jax.ShapeDtypeStruct((1, 6, 10, 3), jnp.float32)).shape == \
+            (1, 6, 10, 4)
+    # a parallel layer given more inputs than it has layers dropped the rest
+    par = nl.parallel(nl.Identity, nl.Identity)
+    _, params = par.init(key, ((1, 2), (1, 2)))
+    with pytest.raises(ValueError, match="parallel of 2 layers got 3 inputs"):
+        par.apply(params, (jnp.ones((1, 2)),) * 3)
+
+
 @pytest.mark.parametrize("name", ["dense", "conv_stride2_odd", "conv_transpose", "groupnorm", "residual"])
 def test_gradients_match_finite_differences(name, x64, key):
     layer, shape = LAYERS[name]

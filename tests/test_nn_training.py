@@ -65,6 +65,15 @@ def test_running_a_stopped_run_again_changes_nothing(tmp_path, stop):
     assert (tmp_path / "checkpoint.npz").read_bytes() == before
 
 
+def test_a_resume_with_other_settings_names_what_changed(tmp_path):
+    from jaxocean.nn import CheckpointError
+
+    _toy(tmp_path, signature={"config": {"epochs": 2, "lr": 0.1}, "dataset": "a"}, checkpoint_every=1,
+         stop_after_steps=1)
+    with pytest.raises(CheckpointError, match=r"other settings \(config\.epochs: 2 -> 3; dataset: \"a\" -> \"b\"\)"):
+        _toy(tmp_path, signature={"config": {"epochs": 3, "lr": 0.1}, "dataset": "b"})
+
+
 def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path):
     full = _toy(tmp_path / "full")
 
@@ -105,6 +114,20 @@ def test_datasets_too_small_to_train_on_say_what_they_lack(tmp_path):
     dataset.simulate(tmp_path / "ds3", 3, 2, (8, 8), seed=0, progress=False)
     with pytest.raises(ValueError, match="has 3 and 0 \\(simulate at least 7 scenes\\)"):
         gt.train(tmp_path / "ds3", tmp_path / "run", config._replace(losses="supervised"), progress=False)
+
+
+def test_a_wave_train_split_too_small_for_a_batch_names_the_scenes_needed(tmp_path):
+    from jaxocean.nn import waves as wn
+    from jaxocean.nn import waves_train as wt
+
+    # seven scenes leave five to train on; a wave batch item is a scene, so more frames do not help
+    dataset.simulate(tmp_path / "ds7", 7, 2, (8, 8), seed=0, progress=False)
+    config = wt.TrainConfig(model=wn.WaveNetConfig(frames=2, slots=2, widths=(4, 8), hidden=8), epochs=1,
+                            steps_per_epoch=1, batch_size=8, time_budget_minutes=None)
+    with pytest.raises(ValueError, match=r"the train split \(5 scenes\) must hold a batch \(8\); simulate at least "
+                                         r"10 scenes, or"):
+        wt.train(tmp_path / "ds7", tmp_path / "run", config, progress=False)
+    assert len(dataset.split_scenes(10, 0)["train"]) == 8 and len(dataset.split_scenes(9, 0)["train"]) == 7
 
 
 @pytest.mark.parametrize("command, option", [("train-geometry", "--epochs=0"), ("train-geometry", "--steps-per-epoch=-1"),

@@ -250,3 +250,21 @@ def test_jitted_apply_equals_eager(tiny_model):
     jitted = wn._predict_jit(TINY, tiny_model.params, b["normal"], b["roughness"], b["camera"], b["times"])
     for a, c in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(c), rtol=1e-4, atol=1e-6)
+
+
+def test_apply_jits_with_the_model_as_an_argument(tiny_model):
+    # the config is static (as GeometryConfig): jit traces the params alone, not config.frames
+    normals, rough = _scene()
+    b = _batch(normals, rough)
+    eager = wn.apply(tiny_model, b["normal"], b["roughness"], b["camera"], b["times"])
+    jitted = jax.jit(wn.apply)(tiny_model, b["normal"], b["roughness"], b["camera"], b["times"])
+    for a, c in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(c), rtol=1e-4, atol=1e-6)
+    assert jax.tree.leaves(TINY) == []
+
+
+def test_predict_refuses_a_negative_roughness(tiny_model):
+    # fit.waves refuses it; the network clamped it to its floor without a word
+    normals, rough = _scene()
+    with pytest.raises(ValueError, match=r"roughness \(slope variance\) must be >= 0"):
+        wn.predict(tiny_model, normals, -rough, CAMERA, TIMES)

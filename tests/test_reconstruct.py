@@ -59,6 +59,20 @@ def test_scene_sequence_keeps_the_scene_camera(tmp_path):
     assert np.median(rel) < 0.02  # 8-bit quantisation of the tone-mapped value
 
 
+def test_scene_view_at_a_wider_working_aspect_stays_inside_the_frames(tmp_path):
+    # a 32 x 48 scene at the working width 32 is worked on at 16 x 32: with the scene's
+    # vertical field of view kept, a quarter of the view's columns lay outside every frame
+    camera = cam.make_camera(height=8.0, pitch=0.5, fov=0.6, resolution=(32, 48))
+    times = np.arange(2) * 0.25
+    files = [save_png(tmp_path / f"frame_{i:05d}.png", np.full((32, 48, 3), 0.2, np.float32)) for i in range(2)]
+    scene_json = write_scene(tmp_path, scene_to_dict(camera=camera, times=times))
+    seq, rep = rc.load_sequence(files, scene_json, width=32, response="bruneton", evidence_width=None)
+    assert seq.camera.resolution == (16, 32) and float(seq.camera.pitch) == pytest.approx(0.5)
+    # the horizontal field of view is the scene's, the vertical one narrower
+    assert math.tan(float(seq.camera.fov) / 2) * 2 == pytest.approx(math.tan(0.3) * 48 / 32, rel=1e-5)
+    assert rep.success and seq.usable.all()
+
+
 def test_frames_must_match_the_camera_file(tmp_path):
     files, scene_json, _, _ = _scene(tmp_path)
     with pytest.raises(InvalidValueError, match="2 times"):
@@ -74,6 +88,12 @@ def test_frames_must_match_the_camera_file(tmp_path):
         rc.reconstruct(files, scene_json, out=tmp_path / "a_file")
     with pytest.raises(ValueError, match="step"):
         rc.load_sequence(files, scene_json, step=0)
+    # not an index error from the camera file's select, and not the last frame sliced off
+    with pytest.raises(ValueError, match=r"step must be an int >= 1; got 1\.5"):
+        rc.load_sequence(files, scene_json, step=1.5)
+    for count in (-1, 0, 2.0):
+        with pytest.raises(ValueError, match=r"max_frames must be an int >= 1 .*got " + repr(count)):
+            rc.load_sequence(files, scene_json, max_frames=count)
 
 
 def _camera_file(tmp_path, files, camera, times, *, pose: bool):
@@ -118,6 +138,27 @@ def test_sea_view_of_real_footage_lies_inside_every_frame():
     assert seq.usable[:, sea].mean() > 0.9
 
 
+def test_sea_view_of_a_camera_that_sees_no_horizon_lies_inside_every_frame():
+    # looking 1 rad down with a 0.9 rad field of view, the frames' top edge lies 0.55 rad
+    # below the horizon: the view starts there, not 0.05 rad below the horizon (its top 40 %
+    # was seen by no frame, and 54 % of the sea still passed for usable)
+    fy, H, W = 40.0, 38, 48
+    pitch = np.array([1.0, 1.02, 0.98])
+    poses = lens.Pose(np.full(3, 10.0), pitch, np.zeros(3), np.full(3, 0.3), np.zeros(3), np.zeros(3))
+    camera_file = cf.CameraFile(Path("camera.json"), (W, H), lens.Intrinsics(fy, fy, (W - 1) / 2, (H - 1) / 2),
+                                lens.Distortion(), ("a.png",) * 3, np.arange(3.0), poses)
+    view = rc.sea_view(camera_file, width=32)
+    highest = float(np.max(pitch)) - math.atan((H - 1) / 2 / fy)  # the lowest top edge of the frames
+    lowest = float(np.min(pitch)) + math.atan((H - 1) / 2 / fy)
+    top, bottom = float(view.pitch) - float(view.fov) / 2, float(view.pitch) + float(view.fov) / 2
+    assert top == pytest.approx(highest + footage.BOTTOM_MARGIN, abs=1e-5)
+    assert bottom == pytest.approx(lowest - footage.BOTTOM_MARGIN, abs=1e-5)
+    # a frame that sees the horizon keeps the view's top just below it
+    level = camera_file._replace(poses=poses._replace(pitch=pitch - 0.6))
+    view = rc.sea_view(level, width=32)
+    assert float(view.pitch) - float(view.fov) / 2 == pytest.approx(footage.HORIZON_MARGIN, abs=1e-6)
+
+
 @pytest.mark.skipif(not CLIP.exists(), reason="the real clip is not in this checkout")
 def test_unlisted_frame_is_refused(tmp_path):
     stray = tmp_path / "frame_9999.png"
@@ -144,6 +185,25 @@ def test_frames_matched_by_name_are_the_ones_read(tmp_path):
     iio.imwrite(video, np.stack([iio.imread(f) for f in files]), duration=100, loop=0)
     seq, _ = rc.load_sequence([video], posed, width=32)
     assert seq.files == (str(video.resolve()),) * len(times)
+
+
+def test_non_finite_exr_pixels_are_masked_not_fatal(tmp_path):
+    # OpenEXR pixels that are NaN or inf (a half float's overflow) are unusable, as
+    # radiometry.load_frames marks them; the display made for the reports raised on them
+    import OpenEXR
+
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
+    files, times = [tmp_path / f"frame_{i:05d}.exr" for i in range(2)], np.arange(2) * 0.25
+    for i, file in enumerate(files):
+        image = np.full((16, 16, 3), 0.2, np.float32)
+        image[8, 8 - 4 * i] = (math.nan, math.inf)[i]
+        OpenEXR.File({"type": OpenEXR.scanlineimage},
+                     {name: np.ascontiguousarray(image[..., c]) for c, name in enumerate("RGB")}).write(str(file))
+    posed = _camera_file(tmp_path, files, camera, times, pose=True)
+    seq, rep = rc.load_sequence(files, posed, width=16, evidence_width=None)
+    assert rep.success, rep.message
+    assert np.isfinite(seq.images).all() and np.isfinite(seq.display).all()
+    assert not seq.usable.all() and seq.usable.mean() > 0.5
 
 
 @pytest.mark.slow  # the whole pipeline compiles every stage (about 2 min)
@@ -451,3 +511,22 @@ def test_the_dispersion_check_reports_its_direction_in_degrees(tmp_path):
         assert "peak_direction" not in sea["dispersion"]
         assert sea["dispersion"]["peak_direction_deg"] == pytest.approx(rc.direction_deg(0.5, compass))
         assert sea["dispersion"]["peak_direction_deg"] == sea["dispersion_direction_deg"]
+
+
+
+def test_frames_not_uniformly_spaced_are_refused_before_the_stages_that_need_it(monkeypatch):
+    # a camera file may give any increasing times (a dropped frame), but the space-time
+    # evidence of stages 4-6 needs a uniform step: refused after stage 1 with the step named,
+    # not with spacetime's ValueError after the geometry and lighting stages
+    times = np.where(np.arange(8) >= 5, np.arange(8) * 0.25 + 0.25, np.arange(8) * 0.25)  # frame 5 is late
+    seq = SimpleNamespace(times=times, files=tuple(f"/x/frame_{i:05d}.png" for i in range(8)))
+    report = rc.StageReport("radiometry", True, 0.0, "", {})
+    monkeypatch.setattr(rc, "load_sequence", lambda *a, **k: (seq, report))
+    monkeypatch.setattr(rc, "geometry_stage", lambda *a, **k: pytest.fail("stage 2 ran"))
+    with pytest.raises(InvalidValueError, match=r"uniformly spaced .* frame 4 \(t = 1 s, frame_00004\.png\) to "
+                                                r"frame 5 \(t = 1\.5 s\) is 0\.5 s against 0\.25 s"):
+        rc.reconstruct([], "camera.json", progress=False)
+    # fewer frames than the evidence needs: no evidence, so no uniform step needed; and a
+    # uniform step passes
+    rc._check_evidence_times(SimpleNamespace(times=times[:7], files=seq.files[:7]))
+    rc._check_evidence_times(SimpleNamespace(times=np.arange(8) * 0.2, files=seq.files))

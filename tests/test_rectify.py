@@ -265,6 +265,15 @@ def test_errors():
         rectify.unrectify(np.zeros((3, 24, 32)), POSES, K_REAL, D_REAL, None, camera)
     with pytest.raises(ValueError, match="do not match"):
         rectify.unrectify(np.zeros((3, 20, 32)), POSES, K_REAL, D_REAL, (W_REAL, H_REAL), camera)
+    # non-finite lens parameters are refused as non-finite poses are (a NaN coefficient made
+    # every pixel invalid, silently; a NaN principal point was said to lie outside the images)
+    with pytest.raises(ValueError, match=r"distortion coefficients must be finite; got \{'k1': nan"):
+        rectify.rectify(frames, POSES, K_REAL, D_REAL._replace(k1=math.nan), camera)
+    with pytest.raises(ValueError, match="distortion coefficients must be finite"):
+        rectify.unrectify(np.zeros((3, 24, 32)), POSES, K_REAL, D_REAL._replace(p2=math.inf), (W_REAL, H_REAL),
+                          camera)
+    with pytest.raises(ValueError, match="intrinsics must be finite; got fx=94.12, fy=94.15, cx=nan"):
+        rectify.rectify(frames, POSES, K_REAL._replace(cx=math.nan), D_REAL, camera)
 
 
 @pytest.mark.slow

@@ -174,6 +174,17 @@ def test_sea_spectrum_removes_noise_that_is_white_in_time(normals_sequence):
     assert not shuffled.success and "dominated by its floor" in shuffled.message
 
 
+def test_grid_must_be_a_whole_number_of_points():
+    # grid=0 raised ZeroDivisionError from inside the band computation, and 3.5 was truncated
+    camera = cam.make_camera(**{**CAMERA, "resolution": (16, 24)})
+    images, normals = np.zeros((8, 16, 24)), np.tile(np.array([0.0, 0.0, 1.0]), (8, 16, 24, 1))
+    for grid in (0, -4, 3.5, True):
+        with pytest.raises(ValueError, match=r"grid must be a whole number of points >= 1 .*got " + repr(grid)):
+            spacetime.dispersion_check(images, camera, TIMES[:8], grid=grid)
+        with pytest.raises(ValueError, match="grid must be a whole number of points"):
+            spacetime.sea_spectrum(normals, camera, TIMES[:8], grid=grid)
+
+
 def test_sea_spectrum_refuses_bad_input(normals_sequence):
     camera = cam.make_camera(**CAMERA)
     with pytest.raises(ValueError, match=r"normals must be \(T, 64, 96, 3\)"):

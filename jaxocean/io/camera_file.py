@@ -23,7 +23,9 @@ A camera file is one JSON object beside (or above) the frames it describes::
   column, ``v`` the row). ``intrinsics`` and ``distortion`` are those of
   :mod:`jaxocean.lens` (``distortion`` may be left out: no distortion; missing coefficients
   are 0; the only model is ``"brown-conrady"``; a coefficient the model lacks, such as
-  ``k3`` or ``skew``, is refused unless it is 0).
+  ``k3`` or ``skew``, is refused unless it is 0). The principal point lies inside the image,
+  and the radial distortion must be one-to-one out to the image's corners (every pixel has a
+  ray; :func:`jaxocean.lens.max_radius`).
 * ``file``: path of the frame relative to the camera file's folder; it must exist.
 * ``t`` [s]: strictly increasing frame times. It may be left out of every frame when
   ``frame_rate_hz`` is given (then ``t = n / frame_rate_hz`` for the n-th frame listed);
@@ -52,6 +54,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import sys
 from pathlib import Path
 from typing import Any, NamedTuple
 
@@ -151,6 +154,8 @@ class _Fields:
         value = parent[key]
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(field, f"must be a number; got {_kind(value)}")
+        if isinstance(value, int) and abs(value) > sys.float_info.max:  # JSON's integers are unbounded
+            self.fail(field, "must be finite; got an integer beyond the floating-point range")
         if not math.isfinite(value):
             self.fail(field, f"must be finite; got {value}")
         return float(value)
@@ -201,6 +206,8 @@ def read_camera_json(path) -> tuple[Path, Any]:
         raise CameraFileError(path, f"not UTF-8 text ({error})") from error
     except json.JSONDecodeError as error:
         raise CameraFileError(path, f"malformed JSON: {error.msg} at line {error.lineno}, column {error.colno}") from error
+    except ValueError as error:  # e.g. an integer literal longer than Python converts
+        raise CameraFileError(path, f"malformed JSON: {error}") from error
 
 
 def camera_file_from_json(data, path, *, require_pose: bool = True, check_files: bool = True) -> CameraFile:
@@ -233,6 +240,12 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
                                          f"{extent} px (a pinhole lens with Brown-Conrady distortion covers at most "
                                          f"{MAX_FIELD_OF_VIEW_DEG:g}); focal lengths are in pixels, not normalised")
 
+    for name, extent in (("cx", image_size[0]), ("cy", image_size[1])):
+        centre = getattr(intrinsics, name)
+        if not -0.5 <= centre <= extent - 0.5:
+            f.fail(f"intrinsics.{name}", f"the principal point must lie inside the image, in [-0.5, {extent - 0.5}] "
+                                         f"px for its {extent} px; got {centre}")
+
     distortion = Distortion()
     if data.get("distortion") is not None:
         d = f.mapping(data["distortion"], "distortion")
@@ -242,6 +255,7 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
         _refuse_unmodelled(f, d, "distortion", ("model",) + Distortion._fields, zero_allowed=("k3",))
         distortion = Distortion(*(f.number(d, name, f"distortion.{name}", required=False, default=0.0)
                                   for name in Distortion._fields))
+        _check_one_to_one(f, distortion, intrinsics, image_size)
 
     if data.get("units") is not None:
         units = f.mapping(data["units"], "units")
@@ -295,6 +309,29 @@ def _refuse_unmodelled(f: _Fields, mapping: dict, field: str, known, zero_allowe
             f.fail(f"{field}.{key}", f"the lens model has no {key!r} term ({', '.join(known)}); only 0 can "
                                      f"be given; got {value} (recalibrate without it)")
         f.fail(f"{field}.{key}", f"unknown field; {field} holds {', '.join(known)}")
+
+
+def _check_one_to_one(f: _Fields, distortion: Distortion, intrinsics: Intrinsics, image_size) -> None:
+    """Every pixel must have a ray: the radial distortion ``r (1 + k1 r^2 + k2 r^4)`` must not
+    fold back (:func:`jaxocean.lens.max_radius`; tangential terms aside) before it reaches the
+    image's farthest corner, or the pixels beyond the fold (the view's lowest rays, the
+    horizon's ends) undistort to meaningless rays."""
+    from jaxocean.lens import max_radius
+
+    limit = 10.0
+    r = float(max_radius(Distortion(*(np.float64(v) for v in distortion)), limit=limit))
+    if r >= limit:
+        return
+    k1, k2 = distortion.k1, distortion.k2
+    reach = r * (1 + k1 * r * r + k2 * r ** 4)
+    (W, H), (fx, fy, cx, cy) = image_size, intrinsics
+    corner = max(math.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, W - 0.5) for v in (-0.5, H - 0.5))
+    if corner > reach:
+        f.fail("distortion", f"k1 = {k1:g}, k2 = {k2:g} is not one-to-one over the image: the distortion folds back "
+                             f"at the undistorted radius {r:.3g}, where it reaches {reach:.3g}, and the "
+                             f"image's farthest corner lies at {corner:.3g} (normalised, (u - cx) / fx): the pixels "
+                             f"beyond have no ray (check the coefficients' signs, and that they belong to these "
+                             f"intrinsics)")
 
 
 def _times(f: _Fields, frames: list[dict], frame_rate) -> np.ndarray:

@@ -37,13 +37,33 @@ def _residual_block(width: int, groups: int) -> nl.Layer:
     return nl.serial(nl.residual(body), nl.Relu)
 
 
+def _sized(layer: nl.Layer, multiple: int, name: str) -> nl.Layer:
+    """``layer`` with H and W of its input (at init and apply) checked to divide by ``multiple``."""
+
+    def check(shape):
+        if len(shape) == 4 and (shape[1] % multiple or shape[2] % multiple):
+            raise ValueError(f"{name} needs H and W divisible by {multiple}; got {tuple(shape[1:3])}")
+
+    def init(key, in_shape):
+        check(in_shape)
+        return layer.init(key, in_shape)
+
+    def apply(params, x, *, key=None, train=False):
+        check(x.shape)
+        return layer.apply(params, x, key=key, train=train)
+
+    return nl.Layer(init, apply)
+
+
 def ResNet(width: int = 32, blocks: int = 4, *, downsample: int = 1, groups: int = 8) -> nl.Layer:
     """Encoder-decoder ResNet: stem, ``downsample`` x (stride-2 conv), ``blocks`` residual
     blocks, ``downsample`` x (transposed conv + conv block). Output ``(B, H, W, width)``."""
     down = [conv_block(width, groups=groups, stride=2) for _ in range(downsample)]
     up = [nl.serial(nl.ConvTranspose(width, 2), conv_block(width, groups=groups)) for _ in range(downsample)]
-    return nl.serial(conv_block(width, groups=groups), *down,
-                     *[_residual_block(width, groups) for _ in range(blocks)], *up)
+    # a stride-2 convolution rounds an odd size up and the transposed one doubles it: (H + 1)
+    return _sized(nl.serial(conv_block(width, groups=groups), *down,
+                            *[_residual_block(width, groups) for _ in range(blocks)], *up),
+                  2 ** downsample, f"ResNet(downsample={downsample})")
 
 
 def UNet(widths=(16, 32, 64), *, groups: int = 8) -> nl.Layer:

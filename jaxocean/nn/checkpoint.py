@@ -68,6 +68,9 @@ def _read(path: Path, meta_only: bool):
     """``(meta, arrays)`` of a checkpoint, every array read (the file is closed on return)."""
     if not path.exists():
         raise CheckpointError(path, "no such file")
+    if path.is_dir():  # a run directory given for its model, say
+        hint = f"; its model is {path / 'model.npz'}" if (path / "model.npz").is_file() else ""
+        raise CheckpointError(path, f"is a directory, not a model or checkpoint file{hint}")
     if path.is_file():
         with open(path, "rb") as f:
             if f.read(4) != b"PK\x03\x04":  # np.load would try it as a pickle and say so

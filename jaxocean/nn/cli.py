@@ -31,8 +31,9 @@ _SCORE_COLUMNS = (("within_5deg", "5deg", "{:.1%}"), ("normal_mae", "MAE rad", "
                   ("frames_per_s", "frames/s", "{:.1f}"))
 
 
-def _add_training_options(p, configs, loss_terms) -> None:
-    """The options every train-* command shares: dataset, config, run directory, overrides."""
+def _add_training_options(p, configs, loss_terms, items: str) -> None:
+    """The options every train-* command shares: dataset, config, run directory, overrides.
+    ``items`` says what a batch holds, for the help of --steps-per-epoch."""
     p.add_argument("dataset", help="dataset directory (jaxocean simulate)")
     meaning = {"cpu": "under an hour on two CPU cores (default)",
                "gpu": "the recipe of the shipped gpu model, for one GPU",
@@ -42,8 +43,8 @@ def _add_training_options(p, configs, loss_terms) -> None:
     p.add_argument("--out", required=True, help="run directory (checkpoint, curves, model.npz)")
     p.add_argument("--epochs", type=positive_int, help="override the config's number of epochs")
     p.add_argument("--steps-per-epoch", type=positive_int, help="override the config's steps per epoch (at most: an epoch "
-                   "also ends when the train split's batches run out, e.g. after one step for 8 train scenes "
-                   "and a batch of 8)")
+                   f"also ends when the train split's batches run out: a batch holds {items}, e.g. one step an "
+                   "epoch for 8 of them and a batch of 8)")
     p.add_argument("--losses", help=f"override the losses: '+'-joined terms of {', '.join(loss_terms)}")
 
 
@@ -57,7 +58,8 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                        description="Train a geometry network on a `jaxocean simulate` dataset. Killing it and "
                                    "running the same command again resumes where it stopped. RUN/model.npz is "
                                    "the model with the best validation score.")
-    _add_training_options(p, CONFIGS, LOSS_TERMS)
+    _add_training_options(p, CONFIGS, LOSS_TERMS, "frames (of every train scene; pairs of consecutive frames "
+                          "with the gan loss)")
     p.add_argument("--backbone", choices=("unet", "resnet"), help="override the backbone")
     p.add_argument("--normal-head", choices=("vec", "sphere", "slope"), help="override the normal head")
     p.add_argument("--time-budget-min", type=positive_float, help="stop after this many minutes of training")
@@ -99,7 +101,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "through the differentiable geometry). Killing it and running the same command "
                                    "again resumes where it stopped. RUN/model.npz is the model with the best "
                                    "validation loss; fit-waves --init net --net-model RUN/model.npz uses it.")
-    _add_training_options(p, WAVE_CONFIGS, WAVE_LOSS_TERMS)
+    _add_training_options(p, WAVE_CONFIGS, WAVE_LOSS_TERMS, "train scenes")
     p.add_argument("--time-budget-min", type=positive_float, help="stop after this many minutes of training")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 

@@ -360,7 +360,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     val_windows = data.windows("val")[: config.val_frames]
     if not val_windows or not data.windows("train"):
         raise ValueError(f"{data.root}: the dataset's train or validation split is empty "
-                         f"({len(data.splits['train'])} / {len(data.splits['val'])} scenes); simulate at least 12 scenes")
+                         f"({len(data.splits['train'])} / {len(data.splits['val'])} scenes); simulate at least 7 scenes")
     check_split_holds_batch(data.root, "train", len(data.windows("train", sequence)),
                             "frames" if sequence == 1 else f"runs of {sequence} frames", config.batch_size)
 

@@ -169,15 +169,19 @@ def Upsample(factor: int = 2) -> Layer:
 def AvgPool(factor: int = 2) -> Layer:
     """Average over non-overlapping ``factor x factor`` blocks; H and W must divide."""
 
+    def check(H, W):
+        if H % factor or W % factor:
+            raise ValueError(f"AvgPool({factor}) needs H and W divisible by {factor}; got {(H, W)}")
+
     def init(key, in_shape):
         _check_rank(in_shape, 4, "AvgPool")
         B, H, W, C = in_shape
-        if H % factor or W % factor:
-            raise ValueError(f"AvgPool({factor}) needs H and W divisible by {factor}; got {(H, W)}")
+        check(H, W)
         return (B, H // factor, W // factor, C), ()
 
     def apply(params, x, *, key=None, train=False):
         B, H, W, C = x.shape
+        check(H, W)  # the params do not fix the size: an input of another size than init's
         return x.reshape(B, H // factor, factor, W // factor, factor, C).mean((2, 4))
 
     return Layer(init, apply)
@@ -306,6 +310,8 @@ def parallel(*layers: Layer) -> Layer:
         return tuple(o[0] for o in out), tuple(o[1] for o in out)
 
     def apply(params, xs, *, key=None, train=False):
+        if len(xs) != len(layers):
+            raise ValueError(f"parallel of {len(layers)} layers got {len(xs)} inputs")
         return tuple(layer.apply(p, x, key=k, train=train)
                      for layer, p, x, k in zip(layers, params, xs, _split(key, len(layers))))
 

@@ -158,8 +158,10 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
     if ckpt.exists():
         meta = load_tree(ckpt, None, meta_only=True)
         if meta.get("signature") != signature:
-            raise CheckpointError(ckpt, "was written by a run with other settings; use a new --out directory "
-                                  "or the same settings to resume")
+            changed = _differences(meta.get("signature"), signature)
+            raise CheckpointError(ckpt, f"was written by a run with other settings ({'; '.join(changed[:4])}"
+                                  f"{'; ...' if len(changed) > 4 else ''}); use a new --out directory or the same "
+                                  "settings to resume")
         state, _ = load_tree(ckpt, state)
         pos = meta["position"]
     parallel = parallel or data_parallel()
@@ -243,12 +245,41 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
             "steps": pos["step"]}
 
 
+def _differences(old, new, where: str = "") -> list:
+    """``"key: old -> new"`` for each setting (dotted key) that differs between two JSON trees."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        return [d for k in sorted(set(old) | set(new), key=str)
+                for d in _differences(old.get(k, "(none)"), new.get(k, "(none)"), f"{where}.{k}" if where else str(k))]
+
+    def short(value):
+        text = json.dumps(value)
+        return text if len(text) <= 60 else text[:57] + "..."
+
+    return [] if old == new else [f"{where or 'settings'}: {short(old)} -> {short(new)}"]
+
+
 def check_split_holds_batch(root, split: str, count: int, unit: str, batch_size: int) -> None:
     """A ``ValueError`` naming the dataset unless ``split`` (``count`` of ``unit``) fills a batch:
-    an epoch drops the last, incomplete batch, so a smaller split would train no step."""
+    an epoch drops the last, incomplete batch, so a smaller split would train no step. With
+    ``unit == "scenes"`` (a batch item is a scene) only more scenes help: the message says how many."""
     if count < batch_size:
+        more = (f"at least {scenes_for_train_split(batch_size)} scenes"
+                if unit == "scenes" else "more scenes or frames")
         raise ValueError(f"{root}: the {split} split ({count} {unit}) must hold a batch ({batch_size}); simulate "
-                         f"more scenes or frames, or train with a smaller batch")
+                         f"{more}, or train with a smaller batch")
+
+
+def scenes_for_train_split(train_scenes: int) -> int:
+    """The fewest scenes a `jaxocean simulate` dataset needs for ``train_scenes`` scenes in its
+    train split and one in its validation split (:func:`jaxocean.io.dataset.split_scenes`)."""
+    from jaxocean.io.dataset import split_scenes
+
+    n = 1
+    while True:
+        splits = split_scenes(n, 0)  # the split sizes depend on the number of scenes alone
+        if len(splits["train"]) >= train_scenes and splits["val"]:
+            return n
+        n += 1
 
 
 class _Interrupt(contextlib.AbstractContextManager):

@@ -68,7 +68,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean._records import record_from_json, record_to_json
-from jaxocean.errors import is_concrete
+from jaxocean.errors import check_values, is_concrete
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import load_model, load_tree, model_path, save_model
@@ -136,7 +136,14 @@ class WaveNetConfig(NamedTuple):
         return record_from_json(cls, d, "wave network config").validate()
 
 
+# a pytree node without leaves (the config is its static aux data), as GeometryConfig:
+# jax.jit(apply)(model, ...) traces the params alone
+jax.tree_util.register_pytree_node(WaveNetConfig, lambda config: ((), config), lambda config, _: config)
+
+
 class WaveNetModel(NamedTuple):
+    """A wave network: its ``config`` (static under ``jax.jit``) and ``params``."""
+
     config: WaveNetConfig
     params: dict
 
@@ -333,8 +340,9 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
             return_slots: bool = False):
     """The waves of one scene (``Waves`` with ``(n,)`` leaves: the slots with presence above
     ``threshold``), or ``(Waves, WaveSlots)`` with ``return_slots=True``. Inputs as in the
-    module docstring; ``ValueError`` names a wrong shape, frame count or resolution, and
-    frame times that are not finite and strictly increasing (in float32, the model's precision)."""
+    module docstring; ``ValueError`` names a wrong shape, frame count or resolution, frame
+    times that are not finite and strictly increasing (in float32, the model's precision) and
+    a negative roughness (NaN: no data, as an invalid normal)."""
     normals = jnp.asarray(normals, jnp.float32)
     times_np = np.asarray(times, np.float64)
     rough = None if roughness is None else jnp.asarray(roughness, jnp.float32)
@@ -347,6 +355,9 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
     if not 0.0 <= threshold < 1.0:
         raise ValueError(f"threshold must be in [0, 1); got {threshold}")
     _check_normals(normals, camera)
+    if rough is not None:  # as fit.waves: a slope variance below 0 is no geometry, not one to clamp
+        r = np.asarray(rough)
+        check_values(~np.isfinite(r) | (r >= 0), "roughness (slope variance) must be >= 0 (NaN: no data)", r)
     slots = _predict_jit(model.config, model.params, normals[None], None if rough is None else rough[None],
                          jax.tree.map(lambda x: jnp.asarray(x)[None], camera), jnp.asarray(times_np, jnp.float32)[None])
     slots = jax.tree.map(lambda x: x[0], slots)
