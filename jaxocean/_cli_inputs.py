@@ -237,12 +237,12 @@ def check_out_file(path) -> Path:
 
 def json_kind(data: dict) -> str | None:
     """What a JSON object that is not a scene file is, when it is one jaxocean writes."""
+    if {"scenes", "frames", "ranges"} <= data.keys():  # dataset.json carries a version too
+        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
     if "version" in data:
         return None
     if "lighting" in data and ("rms_residual" in data or "loss" in data):
         return "a lighting fit result (jaxocean fit-lighting)"
-    if {"scenes", "frames", "ranges"} <= data.keys():
-        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
     if "files" in data:
         return "a dataset manifest (manifest.json)"
     if {"train", "val", "test"} <= data.keys():
@@ -255,8 +255,9 @@ def json_kind(data: dict) -> str | None:
     return None
 
 
-def refuse_other_json(path, needs: str) -> None:
-    """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene."""
+def refuse_other_json(path, needs: str, *, camera_file_ok: bool = False) -> None:
+    """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene
+    (or than a camera file, with ``camera_file_ok``)."""
     path = Path(path)
     if not path.is_file():
         return
@@ -264,6 +265,8 @@ def refuse_other_json(path, needs: str) -> None:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return  # read_scene reports it
+    if camera_file_ok and isinstance(data, dict) and {"image_size", "intrinsics"} <= data.keys():
+        return
     kind = json_kind(data) if isinstance(data, dict) else None
     if kind is not None:
         raise ValueError(f"{path}: this is {kind}; {needs}")
@@ -321,8 +324,14 @@ def lighting_from_file(path, allow_failed: bool = False):
     undetermined sun can be anywhere) is refused unless ``allow_failed``, then used with a
     warning."""
     from jaxocean.fit.lighting import lighting_from_dict
+    from jaxocean.io.scene import SCENE_FILENAME
 
+    if Path(path).is_dir():  # a scene directory, as every scene argument takes: its scene.json
+        path = Path(path) / SCENE_FILENAME
     data = read_json(path, "lighting file")
+    if "lighting" in data and not isinstance(data["lighting"], dict):
+        raise ValueError(f"{path}: holds no lighting (lighting: {json.dumps(data['lighting'])}); give a "
+                         f"`jaxocean fit-lighting` JSON or a scene.json with a lighting")
     if isinstance(data, dict) and data.get("success") is False:
         determined = data.get("determined") if isinstance(data.get("determined"), dict) else {}
         undetermined = [name.replace("_", " ") for name, ok in determined.items() if ok is False]

@@ -16,7 +16,7 @@ Subcommands (each has ``--help``):
 Compiled programs are kept between runs in XLA's persistent cache (``~/.cache/jaxocean/xla``;
 ``JAXOCEAN_COMPILE_CACHE`` names another folder, ``0`` turns it off).
 
-Exit codes: 0 success, 1 a check found problems or a fit did not converge (its JSON is
+Exit codes: 0 success, 1 a check found problems or a fit did not succeed (its JSON is
 still written, with ``success: false``), 2 bad input (the message names it), 130
 interrupted (the message says what was kept; only ``simulate`` resumes). Errors print
 ``jaxocean: error: ...`` on stderr, not a traceback. Every file is written atomically
@@ -354,10 +354,18 @@ def cmd_render(args):
     write_sequence(out, scene, images, geo, half=not args.float32, seed=seed)
     print(f"rendered {images.shape[0]} frame(s) of {images.shape[1]}x{images.shape[2]} in {render_s:.2f} s "
           f"(compile included) -> {args.out}")
-    if not np.any(geo.mask):
-        print("jaxocean: warning: no pixel sees the sea (the view is above the horizon): the frames show sky "
-              "only, and nothing can be fitted from them", file=sys.stderr)
+    _warn_if_sky_only(geo.mask)
     return EXIT_OK
+
+
+def _warn_if_sky_only(mask) -> None:
+    """The warning of a render whose frames' sea ``mask`` holds no sea pixel."""
+    from jaxocean.camera import DEFAULT_MAX_DISTANCE
+
+    if not np.any(mask):
+        print(f"jaxocean: warning: no pixel sees the sea (the view is above the horizon, or the sea lies more than "
+              f"{DEFAULT_MAX_DISTANCE / 1e3:g} km away): the frames show sky only, and nothing can be fitted from "
+              f"them", file=sys.stderr)
 
 
 def cmd_simulate(args):
@@ -602,6 +610,9 @@ def cmd_reedit(args):
           f"{math.degrees(float(edited.camera.pitch)):.3g} deg, {edited.camera.resolution[0]}x"
           f"{edited.camera.resolution[1]}; sun azimuth {math.degrees(float(edited.lighting.sun_azimuth)):.3g} deg, "
           f"elevation {math.degrees(float(edited.lighting.sun_elevation)):.3g} deg -> {out}")
+    from jaxocean.camera import intersect_sea
+
+    _warn_if_sky_only(intersect_sea(edited.camera).mask)  # the renderer's sea pixels
     return EXIT_OK
 
 
@@ -787,7 +798,11 @@ def cmd_forecast(args):
             t0 = 0.0 if known is None else float(known[0])
             times = t0 + np.asarray(frame_ids, np.float64) / args.fps
         elif known is not None and known.size >= 2:
-            times = frame_times(known, frame_ids)
+            try:
+                times = frame_times(known, frame_ids)
+            except ValueError as error:
+                raise ValueError(f"{args.waves}: {error}; its times are no frame clock: give --fps or --times") \
+                    from None
         else:
             raise ValueError(f"{args.waves} holds no frame clock (two or more times); give --fps or --times")
     camera = inputs.camera_from_args(args, scene.camera, None, where=f"{args.waves}")
@@ -835,6 +850,7 @@ def cmd_forecast(args):
     for i, (f, t) in enumerate(zip(frame_ids, times)):
         label = f"frame {f}, " if args.times is None else ""
         print(f"  frame_{i:05d}.exr/png: {label}t = {t:.4g} s")
+    _warn_if_sky_only(result.geometry.mask)
     return EXIT_OK
 
 
@@ -843,6 +859,8 @@ def cmd_reconstruct(args) -> int:
     from jaxocean import reconstruct
 
     out = inputs.check_out_dir(args.out)
+    inputs.refuse_other_json(args.camera, "--camera takes a camera file (camera.json: intrinsics and a pose per "
+                                          "frame) or a synthetic scene.json", camera_file_ok=True)
     for name in ("step", "wave_frames", "max_waves", "width"):
         if getattr(args, name) is not None and getattr(args, name) < 1:
             raise ValueError(f"--{name.replace('_', '-')} must be >= 1; got {getattr(args, name)}")

@@ -1,6 +1,6 @@
 """XLA's persistent compilation cache for jaxocean's programs.
 
-A default ``fit.waves`` of a 128² x 10-frame scene spends about a third of its first run in
+A default ``fit.waves`` of a 128² x 10-frame scene spends about a quarter of its first run in
 XLA compilation (``experiments/bench_fit_cost.py``); the renderer, the lighting fit and the
 networks compile for tens of seconds too. With the persistent cache on, compiled programs are
 written to disk and a later process (a new notebook kernel, the next command) loads them

@@ -28,6 +28,10 @@ phases it does not know: inside the window every wave is kept, far outside it on
 waves whose frequencies are measured remain. :func:`damping` gives the factors;
 ``jaxocean.fit.waves.forecast_model`` the fit's model and its ``sigma``.
 
+Precision: the phases ``omega t`` are computed in the waves' dtype; concrete times so far from
+``t = 0`` that they are rounded by more than :data:`MAX_PHASE_ERROR` (float32: ``|omega t|``
+beyond ~8e5 rad) are refused (:func:`check_phase_precision`), except for waves damped to nothing.
+
 Frames: :func:`frame_times` turns frame indices (``0, 100, 500``) into times on the
 observed sequence's clock (``t0 + f dt`` with ``dt`` the median frame interval).
 Errors: :func:`geometry_error` gives the per-frame mean normal angle and mean absolute
@@ -45,10 +49,11 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
 from jaxocean._math import angle_between
-from jaxocean.errors import check_values, is_concrete
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.waves import Waves, validate
 
-__all__ = ["Forecast", "GeometryError", "advance", "damping", "forecast", "frame_times", "geometry_error"]
+__all__ = ["Forecast", "GeometryError", "MAX_PHASE_ERROR", "advance", "check_phase_precision", "damping", "forecast",
+           "frame_times", "geometry_error"]
 
 
 class Forecast(NamedTuple):
@@ -76,10 +81,42 @@ def advance(waves: Waves, dt) -> Waves:
     ``(..., 1)`` (so ``dt (T, 1)`` gives leaves ``(T, N)``)."""
     validate(waves, max_steepness=None)
     dt = jnp.asarray(dt, waves.omega.dtype)
+    if is_concrete(dt):
+        check_values(np.isfinite(np.asarray(dt)), "dt must be finite [s]", dt)
+    check_phase_precision(waves, dt)
+    return _advance(waves, dt)
+
+
+def _advance(waves: Waves, dt) -> Waves:
     phase = jnp.mod(waves.phase + waves.omega * dt, 2 * jnp.pi)
     shape = jnp.broadcast_shapes(phase.shape, waves.omega.shape)
     return Waves(*(jnp.broadcast_to(x, shape) for x in (waves.amplitude, waves.omega, waves.theta)),
                  jnp.broadcast_to(phase, shape))
+
+
+#: the largest rounding error [rad] of the phases ``omega t`` a forecast accepts
+MAX_PHASE_ERROR = 0.1
+
+
+def check_phase_precision(waves: Waves, dt) -> None:
+    """InvalidValueError when concrete times ``dt`` [s] (broadcast against the wave axis as in
+    :func:`advance`) are so far from ``t = 0`` that the phases ``omega dt`` of the waves with
+    an amplitude, in their dtype, are rounded by more than :data:`MAX_PHASE_ERROR` (about
+    ``|omega dt| eps``; float32 beyond ``|omega dt|`` ~ 8e5 rad, e.g. ``dt`` = 1.6e5 s at 5
+    rad/s): the frames would show the waves at wrong phases."""
+    if not is_concrete(waves, dt):
+        return
+    dtype = np.dtype(jnp.result_type(waves.omega))
+    omega_t = np.abs(np.asarray(waves.omega, np.float64) * np.asarray(dt, np.float64))
+    omega_t = np.where(np.asarray(waves.amplitude) != 0, omega_t, 0.0)
+    if omega_t.size == 0 or not np.all(np.isfinite(omega_t)):
+        return
+    error = float(np.max(omega_t) * np.finfo(dtype).eps)
+    if error > MAX_PHASE_ERROR:
+        raise InvalidValueError(
+            f"times up to |t| = {np.max(np.abs(np.asarray(dt))):.4g} s are too far from t = 0 for {dtype.name} "
+            f"phases: omega t (up to {np.max(omega_t):.4g} rad) is rounded by up to {error:.2g} rad there, so the "
+            f"waves would be drawn at wrong phases; forecast nearer times, or enable jax_enable_x64")
 
 
 def damping(frequency_sigma, times, window):
@@ -113,7 +150,8 @@ def frame_times(times, frames):
     t = np.asarray(times, np.float64)
     if t.ndim != 1 or t.size < 2:
         raise ValueError(f"need the observed frame times (T,), T >= 2; got shape {t.shape}")
-    check_values(np.diff(t) > 0, "frame times must be strictly increasing", np.diff(t))
+    # the times themselves in the message (each one not after the time before it), not their steps
+    check_values(np.concatenate([[True], np.diff(t) > 0]), "frame times must be strictly increasing", t)
     f = np.asarray(frames, np.float64)
     check_values(np.isfinite(f), "frame indices must be finite", f)
     return t[0] + f * float(np.median(np.diff(t)))
@@ -137,13 +175,17 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
         check_values(np.isfinite(np.asarray(times)), "forecast times must be finite", times)
     if (window is None) != (frequency_sigma is None):
         raise ValueError("window and frequency_sigma go together: give both (a damped forecast) or neither")
-    advanced = advance(waves, times[:, None])
     scale = None
     if frequency_sigma is not None:
         if jnp.shape(frequency_sigma) != waves.omega.shape:
             raise ValueError(f"frequency_sigma must have one entry per wave {waves.omega.shape}; "
                              f"got {jnp.shape(frequency_sigma)}")
         scale = damping(jnp.asarray(frequency_sigma, waves.omega.dtype), times, window)
+    # the phases of the waves each frame draws (a wave damped to nothing draws none)
+    check_phase_precision(waves if scale is None else waves._replace(amplitude=waves.amplitude * scale),
+                          times[:, None])
+    advanced = _advance(waves, times[:, None])
+    if scale is not None:
         advanced = advanced._replace(amplitude=advanced.amplitude * scale)
     if camera is None:
         if lighting is not None:

@@ -187,6 +187,16 @@ def _check_gamma(gamma, *, minimum: float) -> None:
                      f"{minimum:g}", gamma)
 
 
+def _check_peak_widths(sigma_a, sigma_b) -> None:
+    _check_positive(sigma_a, "sigma_a (JONSWAP peak width below the peak)", "")
+    _check_positive(sigma_b, "sigma_b (JONSWAP peak width above the peak)", "")
+
+
+def _check_wind_constants(alpha, beta) -> None:
+    _check_positive(alpha, "alpha (Phillips constant)", "")
+    _check_positive(beta, "beta (wind-sea shape constant)", "")
+
+
 def validate_spectrum(spectrum: Spectrum) -> Spectrum:
     """Check a :class:`Spectrum`'s structure (always) and values (when concrete).
 
@@ -377,6 +387,7 @@ def jonswap(omega, *, hs, tp, gamma=3.3, sigma_a=0.07, sigma_b=0.09):
     _check_positive(hs, "hs (significant wave height)", "m")
     _check_positive(tp, "tp (peak period)", "s")
     _check_gamma(gamma, minimum=0.0)
+    _check_peak_widths(sigma_a, sigma_b)
     _check_omega(omega)
     return _jonswap_kernel(omega, hs, tp, gamma, sigma_a, sigma_b)
 
@@ -391,7 +402,9 @@ def wind_spectrum(omega, *, wind_speed, alpha=8.1e-3, beta=0.74, gamma=1.0, sigm
     Not renormalised: for gamma > 1 the energy grows with the peak (as in the paper).
     """
     _check_positive(wind_speed, "wind_speed (U19.5)", "m/s")
+    _check_wind_constants(alpha, beta)
     _check_gamma(gamma, minimum=0.0)
+    _check_peak_widths(sigma_a, sigma_b)
     _check_omega(omega)
     return _wind_kernel(omega, wind_speed, alpha, beta, gamma, sigma_a, sigma_b)
 
@@ -403,6 +416,7 @@ def wind_sea_state(wind_speed, alpha=8.1e-3, beta=0.74):
     Tp = 2 pi / wp with wp = (4 beta / 5)^(1/4) g / U (= 0.877 g/U).
     """
     _check_positive(wind_speed, "wind_speed (U19.5)", "m/s")
+    _check_wind_constants(alpha, beta)
     wind_speed = jnp.asarray(wind_speed)
     hs = 4.0 * jnp.sqrt(alpha / (4.0 * beta)) * wind_speed**2 / GRAVITY
     tp = 2.0 * jnp.pi * wind_speed / ((0.8 * beta) ** 0.25 * GRAVITY)

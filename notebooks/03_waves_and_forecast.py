@@ -75,7 +75,10 @@ print({name: np.asarray(u).round(6).tolist() for name, u in zip(result.waves._fi
 # %%
 f_times = jnp.asarray(forecast.frame_times(times, [0, 50, 100]), normals.dtype)
 true_geo = forecast.forecast(truth, f_times, cam).geometry
-fit_geo = forecast.forecast(result.waves, f_times, cam).geometry
+# the least-squares forecast: the fit's waves and long-wave band, each damped outside the
+# fitted window by its frequency uncertainty (the stand-ins for what the window cannot separate fade)
+model, sigma, window = fit.waves_fit.forecast_model(result, cam, times)
+fit_geo = forecast.forecast(model, f_times, cam, window=window, frequency_sigma=sigma).geometry
 err = np.degrees(np.asarray(forecast.geometry_error(fit_geo, true_geo).normal))
 print("mean normal error per frame [deg]:", err.round(4).tolist())
 

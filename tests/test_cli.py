@@ -256,6 +256,45 @@ def test_reedit_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert not out.exists()
 
 
+def test_reedit_and_forecast_warn_of_a_sky_only_view(tiny_scene, tmp_path, capsys):
+    # as render does: a camera that sees only sky renders frames nothing can be fitted from
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "0", "--camera-pitch-deg=-40",
+                     "--out", str(tmp_path / "r")]) == 0
+    assert "warning: no pixel sees the sea" in capsys.readouterr().err
+    assert cli.main(["forecast", str(tiny_scene), "--times", "0", "--camera-pitch-deg=-40",
+                     "--out", str(tmp_path / "f")]) == 0
+    assert "warning: no pixel sees the sea" in capsys.readouterr().err
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "0", "--out", str(tmp_path / "sea")]) == 0
+    assert "no pixel sees the sea" not in capsys.readouterr().err
+    # a camera so high that every sea hit lies beyond the renderer's 100 km: not "above the horizon" alone
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "0", "--camera-height", "2e5",
+                     "--out", str(tmp_path / "high")]) == 0
+    assert "or the sea lies more than 100 km away" in capsys.readouterr().err
+
+
+def test_lighting_of_a_scene_directory_and_of_a_scene_without_one(tiny_scene, tmp_path, capsys):
+    # --lighting takes "a fit-lighting JSON (or a scene.json)": its directory too, as every scene argument
+    out = tmp_path / "r"
+    assert cli.main(["reedit", str(tiny_scene), "--frames", "0", "--lighting", str(tiny_scene), "--out", str(out)]) == 0
+    scene = json.loads((tiny_scene / "scene.json").read_text())
+    edited = json.loads((out / "scene.json").read_text())["lighting"]
+    for name, value in scene["lighting"].items():
+        assert edited[name] == pytest.approx(value)
+    scene["lighting"] = None
+    (tmp_path / "dark.json").write_text(json.dumps(scene))
+    assert cli.main(["reedit", str(tiny_scene), "--lighting", str(tmp_path / "dark.json"),
+                     "--out", str(tmp_path / "x")]) == 2
+    assert "dark.json: holds no lighting (lighting: null)" in capsys.readouterr().err
+
+
+def test_scene_commands_given_a_frame_file_name_its_directory(tiny_scene, tmp_path, capsys):
+    frame = str(tiny_scene / "frame_00000.exr")
+    for argv in (["fit-waves", frame, "--out", str(tmp_path / "w.json")], ["reedit", frame, "--out", str(tmp_path)],
+                 ["forecast", frame, "--times", "1", "--out", str(tmp_path)]):
+        assert cli.main(argv) == 2
+        assert f"not a scene file or directory; give the scene's directory ({tiny_scene})" in capsys.readouterr().err
+
+
 def test_forecast_renders_requested_frames(tiny_scene, tmp_path, capsys):
     from jaxocean import io
 
@@ -291,6 +330,16 @@ def test_forecast_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
         cli.main(["forecast", str(tiny_scene / "scene.json"), "--frames", "0,-1", "--out", str(out)])
     assert exit_info.value.code == 2
     assert not out.exists()
+
+
+def test_forecast_frames_of_a_scene_without_a_frame_clock_name_the_scene(tiny_scene, tmp_path, capsys):
+    scene = json.loads((tiny_scene / "scene.json").read_text())
+    scene["times"] = [0.0, 0.5, 0.5]
+    (tmp_path / "repeated.json").write_text(json.dumps(scene))
+    assert cli.main(["forecast", str(tmp_path / "repeated.json"), "--frames", "0,1", "--out", str(tmp_path / "f")]) == 2
+    err = capsys.readouterr().err
+    assert "repeated.json: frame times must be strictly increasing; got [0.5] (first at index [2]" in err
+    assert "--fps or --times" in err
 
 
 def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
@@ -725,6 +774,26 @@ def test_fit_lighting_names_a_fit_result_given_as_its_scene(tiny_scene, tmp_path
     err = capsys.readouterr().err
     assert "this is a lighting fit result (jaxocean fit-lighting)" in err and "--scene takes" in err
     assert not (tmp_path / "again.json").exists()
+
+
+def test_reconstruct_names_a_fit_result_given_as_its_camera(tmp_path, capsys):
+    # --camera fit.json (a fit-lighting result) said only "scene is missing key(s) ['version']"
+    (tmp_path / "fit.json").write_text(json.dumps({"lighting": {}, "rms_residual": 0.0, "success": True,
+                                                   "camera": {"height": 10.0}}))
+    assert cli.main(["reconstruct", "--camera", str(tmp_path / "fit.json"), "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "this is a lighting fit result (jaxocean fit-lighting)" in err and "--camera takes a camera file" in err
+
+
+def test_a_dataset_json_is_named_as_such(tmp_path, capsys):
+    # dataset.json carries a version, as a scene does: it was read as a scene with unknown keys
+    settings = tmp_path / "dataset.json"
+    settings.write_text(json.dumps({"scenes": 2, "frames": 2, "resolution": [8, 8], "seed": 0, "half": True,
+                                    "ranges": {}, "version": "0.1.0"}))
+    assert cli.main(["render", str(settings), "--out", str(tmp_path / "out")]) == 2
+    assert "this is a dataset's settings (dataset.json" in capsys.readouterr().err
+    assert cli.main(["reconstruct", "--camera", str(settings), "--out", str(tmp_path / "run")]) == 2
+    assert "this is a dataset's settings (dataset.json" in capsys.readouterr().err
 
 
 def test_demo_help_claims_only_what_reconstruct_vs_truth_shows(capsys):

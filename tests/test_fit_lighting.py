@@ -386,6 +386,18 @@ def test_bad_inputs_give_clear_errors(scene, x64):
         fit.lighting(-image, geo, camera)
 
 
+def test_geometry_that_is_not_geometry_is_refused(scene, x64):
+    # bad normals or roughness on the fitted sea pixels are refused before any work, not fitted to a failure
+    geo, camera = _f64(scene["geo"]), _f64(scene["camera"])
+    image = jnp.asarray(scene["images"][0])
+    with pytest.raises(InvalidValueError, match=r"geometry.normal is not finite on 1 .*\[3, 4\].*mask="):
+        fit.lighting(image, geo._replace(normal=geo.normal.at[3, 4].set(jnp.nan)), camera)
+    with pytest.raises(InvalidValueError, match="geometry.normal must be unit vectors.*An image is not geometry"):
+        fit.lighting(image, geo._replace(normal=0.5 * geo.normal + 0.5), camera)
+    with pytest.raises(InvalidValueError, match=r"slope variance \(roughness\) must be finite and >= 0"):
+        fit.lighting(image, geo._replace(slope_variance=geo.slope_variance.at[5, 6, 0].set(-1e-3)), camera)
+
+
 def test_excluded_nan_pixels_are_allowed(scene, x64):
     geo, camera, truth = _f64(scene["geo"]), _f64(scene["camera"]), scene["truths"][1]
     image = jnp.asarray(scene["images"][1]).at[2, 3].set(jnp.nan)
@@ -612,6 +624,24 @@ def test_reedit_scene_writes_frames_and_scene(scene, singles, tmp_path, x64):
     np.testing.assert_allclose(np.asarray(edited.times), [0.25])
 
 
+def test_reedit_scene_refuses_frames_that_are_not_the_scene_frames_in_order(tmp_path):
+    from jaxocean import io
+    from jaxocean.waves import make_waves
+
+    src = tmp_path / "scene"
+    io.write_scene(src, io.scene_to_dict(waves=make_waves([0.02], [2.0], [0.3]),
+                                         camera=cam.make_camera(height=6.0, pitch=0.6, fov=0.8, resolution=(4, 4)),
+                                         lighting=shading.make_lighting(), times=[0.0, 0.1, 0.2]))
+    # -1 re-rendered the last frame labelled frame -1, 0.5 frame 0; 7 and [] were IndexErrors
+    for frames in ([-1], [7], [], [0.5]):
+        with pytest.raises(ValueError, match=r"frames must be indices 0\.\.2 of the scene's 3 frame\(s\)"):
+            fit.reedit_scene(src, tmp_path / "out", frames=frames, progress=False)
+    for frames in ([1, 0], [0, 0]):
+        with pytest.raises(ValueError, match="frames must increase strictly"):
+            fit.reedit_scene(src, tmp_path / "out", frames=frames, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
 def test_float32_fit_recovers_lighting(scene):
     """The float32 path end to end (the library's default precision): the first scene's image
     and geometry cast to float32, fitted from a float32 random start."""
@@ -766,3 +796,10 @@ def test_normal_noise_bad_values_are_clear_errors(scene, x64):
         fit.lighting(image, geo, camera, normal_correlation=3.0)
     with pytest.raises(ValueError, match="normal_correlation must be"):
         fit.lighting(image, geo, camera, normal_noise=0.1, normal_correlation=-1.0)
+
+
+def test_lighting_from_dict_without_a_lighting_is_a_value_error():
+    # a scene.json whose lighting is null was a TypeError ('NoneType' object is not subscriptable)
+    for d in ({"version": "0.1.0", "lighting": None}, {"lighting": [1, 2]}, None):
+        with pytest.raises(ValueError, match="expected a lighting dict"):
+            fit.lighting_from_dict(d)

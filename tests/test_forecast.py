@@ -200,3 +200,30 @@ def test_damped_forecast_bad_inputs():
         fc.forecast(w, 1.0, window=(0.0, 1.0), frequency_sigma=jnp.asarray([0.1, -0.1, 0.0]))
     with pytest.raises(InvalidValueError, match="t_first <= t_last"):
         fc.forecast(w, 1.0, window=(2.0, 1.0), frequency_sigma=jnp.zeros(3))
+
+
+def test_advance_refuses_non_finite_times():
+    w = sea()
+    for dt in (np.nan, np.inf, [[0.0], [np.nan]]):
+        with pytest.raises(InvalidValueError, match="finite"):
+            fc.advance(w, dt)
+    # traced times are not inspected; the jitted advance is the eager one
+    np.testing.assert_array_equal(jax.jit(fc.advance)(w, 2.5).phase, fc.advance(w, 2.5).phase)
+
+
+def test_forecast_refuses_times_whose_float32_phases_are_lost():
+    w = sea()  # omega up to 3.1 rad/s: omega t ~ 3e6 rad at t = 1e6 s, rounded by ~0.4 rad in float32
+    fc.forecast(w, [0.0, 1e4])  # near times are fine
+    with pytest.raises(InvalidValueError, match="too far from t = 0 for float32"):
+        fc.forecast(w, [0.0, 1e6])
+    with pytest.raises(InvalidValueError, match="too far from t = 0"):
+        fc.advance(w, 1e7)
+    # a damped forecast draws no wave of unknown frequency far outside the window: nothing to round
+    out = fc.forecast(w, [1e7], window=(0.0, 1.0), frequency_sigma=jnp.full(3, jnp.inf))
+    assert np.all(np.asarray(out.waves.amplitude) == 0)
+
+
+def test_frame_times_error_shows_the_times_not_their_steps():
+    # [0, 0.2, 0.1]: the time 0.1 at index 2 does not follow 0.2 (its step, -0.1, is no frame time)
+    with pytest.raises(InvalidValueError, match=r"strictly increasing; got \[0\.1\] \(first at index \[2\]"):
+        fc.frame_times([0.0, 0.2, 0.1], [0])

@@ -634,6 +634,15 @@ def test_scene_nan_is_refused_at_both_ends(tmp_path):
         read_scene(tmp_path / "elsewhere")
 
 
+def test_read_scene_of_a_frame_file_names_the_scene_directory(tmp_path):
+    # a frame given for its scene: not ".../frame_00000.exr/scene.json: no such scene file"
+    frame = tmp_path / "frame_00000.exr"
+    frame.write_bytes(b"not read")
+    with pytest.raises(SceneFileError, match=r"frame_00000\.exr: not a scene file or directory; give the scene's "
+                                             r"directory \(" + str(tmp_path) + r"\) or its scene\.json"):
+        read_scene(frame)
+
+
 # --------------------------------------------------------------------------- images and video
 
 

@@ -418,6 +418,25 @@ def test_bad_values_are_named(call, match):
         call()
 
 
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        # a zero width was NaN, a negative one a wrong normalisation (Hs 1.23 for 1)
+        (lambda: jonswap(1.0, hs=1.0, tp=5.0, sigma_a=0.0), r"sigma_a .*> 0.*0\.0"),
+        (lambda: jonswap(1.0, hs=1.0, tp=5.0, sigma_a=-0.07), r"sigma_a .*> 0.*-0\.07"),
+        (lambda: wind_spectrum(1.0, wind_speed=10.0, sigma_b=np.nan), r"sigma_b .*nan"),
+        # a negative alpha was a negative spectrum, a negative beta NaN, a zero beta a ZeroDivisionError
+        (lambda: wind_spectrum(1.0, wind_speed=10.0, alpha=-8.1e-3), r"alpha .*> 0.*-0\.0081"),
+        (lambda: wind_spectrum(1.0, wind_speed=10.0, beta=-0.74), r"beta .*> 0.*-0\.74"),
+        (lambda: wind_sea_state(10.0, beta=0.0), r"beta .*> 0.*0\.0"),
+        (lambda: wind_sea_state(10.0, alpha=-1.0), r"alpha .*> 0.*-1\.0"),
+    ],
+)
+def test_bad_spectrum_shape_constants_are_named(call, match):
+    with pytest.raises(InvalidValueError, match=match):
+        call()
+
+
 def test_structural_errors():
     with pytest.raises(ValueError, match="needs band"):
         moments(lambda w: w)

@@ -15,6 +15,8 @@
   image sequence through the renderer (robust IRLS loss, outlier mask)
 * :mod:`jaxocean.fit.spectrum` sea state (Hs, Tp, gamma, direction, spreading) behind fitted
   waves and the roughness; the spectrum correction of unresolved amplitudes
+* :mod:`jaxocean.fit.pixels`   each sea pixel's slope and roughness from its colour alone, with
+  the camera and lighting known (``fit.pixels.invert``; a baseline)
 
 The functions ``fit.waves``, ``fit.spectrum``, ``fit.camera``, ``fit.lighting``,
 ``fit.photometric`` and ``fit.heights`` shadow their modules' names on this package; the

@@ -141,7 +141,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import angle_between
-from jaxocean.errors import check_nonnegative_number, is_concrete
+from jaxocean.errors import InvalidValueError, check_nonnegative_number, is_concrete
 from jaxocean.files import json_safe
 from jaxocean.fit import _geometry_error as geometry_error
 from jaxocean.fit import _image_inputs as inp
@@ -583,6 +583,30 @@ def _geometry_fields(geometry, resolution, dtype):
     return normal, slope_var, mask
 
 
+def _validate_geometry(normal, slope_var, used, camera) -> None:
+    """``InvalidValueError`` when concrete geometry is not geometry on the sea pixels the fit
+    uses: normals that are not finite unit vectors, slope variances that are not finite and
+    >= 0."""
+    if not is_concrete(normal, slope_var, used, camera):
+        return
+    pixels = np.any(np.asarray(used) > 0, axis=-1) & np.asarray(cam.intersect_sea(camera).mask)
+    hint = (". An image is not geometry: pass normals from render.geometry, a geometry network or an EXR "
+            "frame's normal.X/Y/Z channels")
+    n = np.asarray(normal)
+    finite = np.isfinite(n).all(-1)
+    if (pixels & ~finite).any():
+        first = np.argwhere(pixels & ~finite)[0].tolist()
+        raise InvalidValueError(f"geometry.normal is not finite on {int((pixels & ~finite).sum())} fitted sea "
+                                f"pixel(s) (first at (row, col) = {first}); exclude pixels without geometry with mask=")
+    shading.check_unit_normals(n, "geometry.normal", where=pixels, counted=" fitted sea pixels", hint=hint)
+    sv = np.asarray(slope_var)
+    bad = pixels & ~(np.isfinite(sv) & (sv >= 0)).all(-1)
+    if bad.any():
+        first = np.argwhere(bad)[0].tolist()
+        raise InvalidValueError(f"geometry slope variance (roughness) must be finite and >= 0; it is not on "
+                                f"{int(bad.sum())} fitted sea pixel(s) (first at (row, col) = {first})")
+
+
 def _check_fit_names(fit) -> tuple:
     if isinstance(fit, str):
         fit = (fit,)
@@ -695,6 +719,7 @@ def lighting(image, geometry, camera, *, init: Lighting | None = None, fit=FIT_F
     traced = not is_concrete(image, normal, slope_var, weight, init, camera, normal_noise_map)
     inp.check_tracing("fit.lighting", traced, throw, spec, solver)
     inp.validate_values(image, weight, geo_mask, camera, fit, used)
+    _validate_geometry(normal, slope_var, used, camera)
     # NaN pixels that are excluded must not leak into the sums (0 * NaN = NaN), traced or not
     image = jnp.where(used > 0, image, 0.0)
 
@@ -849,7 +874,9 @@ def fit_to_dict(result) -> dict:
 
 def lighting_from_dict(d: dict, dtype=None) -> Lighting:
     """The :class:`Lighting` of a :func:`fit_to_dict` output (or of its ``"lighting"`` entry)."""
-    d = d.get("lighting", d)
+    d = d.get("lighting", d) if isinstance(d, dict) else d
+    if not isinstance(d, dict):  # a scene's "lighting": null, say
+        raise ValueError(f"expected a lighting dict (the output of fit_to_dict or its 'lighting' entry); got {d!r:.80}")
     try:
         return shading.make_lighting(d["sun_azimuth"], d["sun_elevation"], d["sun_color"], d["sky_color"],
                                      d["sea_color"], dtype=dtype)

@@ -34,7 +34,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import render, shading
-from jaxocean.errors import InvalidValueError, is_concrete
+from jaxocean.errors import InvalidValueError, is_concrete, is_integer
 from jaxocean.fit import lighting as lf
 from jaxocean.shading import Lighting
 
@@ -107,7 +107,7 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
         camera_height: metres; ``camera_pitch_deg``, ``camera_fov_deg``, ``camera_yaw_deg``,
             ``sun_azimuth_deg``, ``sun_elevation_deg``: degrees; ``resolution``: ``(H, W)``.
         lighting: a lighting to use instead of the scene's (e.g. a fit's), edits apply on top.
-        frames: indices of the scene's times to render (default all).
+        frames: indices of the scene's times to render, increasing (default all).
         exposure: of the PNG previews; ``half``: EXR pixel type (float32 where the radiance
             exceeds the half range); ``progress``: a progress bar while writing.
 
@@ -122,7 +122,14 @@ def reedit_scene(scene_dir, out_dir, *, camera_height=None, camera_pitch_deg=Non
         raise ValueError(f"{scene_dir}: scene.json needs waves, camera and lighting to re-render")
     light = scene.lighting if lighting is None else lighting
     times = np.zeros(1) if scene.times is None else np.atleast_1d(np.asarray(scene.times))
-    frame_ids = list(range(times.size)) if frames is None else [int(f) for f in frames]
+    frame_ids = list(range(times.size)) if frames is None else list(frames)
+    # indices into the scene's times, as a time sequence (the scene written from them is one)
+    if not frame_ids or not all(is_integer(f, 0) and f < times.size for f in frame_ids):
+        raise ValueError(f"{scene_dir}: frames must be indices 0..{times.size - 1} of the scene's {times.size} "
+                         f"frame(s); got {frame_ids}")
+    if any(b <= a for a, b in zip(frame_ids, frame_ids[1:])):
+        raise ValueError(f"frames must increase strictly (a time sequence); got {frame_ids}")
+    frame_ids = [int(f) for f in frame_ids]
     times = times[np.asarray(frame_ids, dtype=int)]
 
     def rad(deg):

@@ -342,9 +342,13 @@ def read_scene(path) -> Scene:
 
     Raises:
         MissingFileError: no such file.
-        SceneFileError: malformed JSON (with line and column) or a dict that
-            :func:`scene_from_dict` rejects; the message names the file.
+        SceneFileError: a file that is neither ``*.json`` nor a directory (a frame, say), malformed
+            JSON (with line and column) or a dict that :func:`scene_from_dict` rejects; the
+            message names the file.
     """
+    if Path(path).is_file() and Path(path).suffix.lower() != ".json":  # a frame, say: not a scene directory
+        raise SceneFileError(path, f"not a scene file or directory; give the scene's directory ({Path(path).parent}) "
+                                   f"or its {SCENE_FILENAME}")
     path = require_file(_scene_path(path), "scene file")
     try:
         d = json.loads(path.read_text(encoding="utf-8"))
