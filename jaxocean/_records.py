@@ -3,13 +3,17 @@
 * ``record_to_json(record) -> dict``: fields as JSON values, tuples as lists (nested).
 * ``record_from_json(cls, data, what) -> cls``: lists back to tuples (nested); an unknown
   key is a ``ValueError`` naming it, the known fields and ``what`` the record describes.
+* ``register_static(cls) -> cls``: the record class as a pytree node without leaves (the
+  record is its static aux data), so that ``jax.jit(f)(..., record)`` takes it as static.
 
 Used by :class:`jaxocean.io.dataset.SceneRanges` and :class:`jaxocean.nn.geometry.GeometryConfig`.
 """
 
 from __future__ import annotations
 
-__all__ = ["record_to_json", "record_from_json"]
+import jax
+
+__all__ = ["record_to_json", "record_from_json", "register_static"]
 
 
 def _to_json(value):
@@ -29,3 +33,8 @@ def record_from_json(cls, data: dict, what: str):
     if unknown:
         raise ValueError(f"unknown {what} field(s) {sorted(unknown)}; known: {list(cls._fields)}")
     return cls(**{k: _from_json(v) for k, v in data.items()})
+
+
+def register_static(cls):
+    jax.tree_util.register_pytree_node(cls, lambda record: ((), record), lambda record, _: record)
+    return cls

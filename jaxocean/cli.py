@@ -52,10 +52,12 @@ JSON written by the fits:
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import math
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -297,7 +299,7 @@ def build_parser():
     p.add_argument("frames", nargs="*", help="frame files (PNG / JPEG / 16-bit gray PNG / EXR) or one video; default: "
                                              "every frame the camera file lists")
     p.add_argument("--camera", required=True, help="camera file (intrinsics, distortion, a pose per frame) or a "
-                                                   "synthetic scene.json")
+                                                   "synthetic scene.json, or a directory holding one")
     p.add_argument("--out", required=True, help="output directory")
     p.add_argument("--width", type=int, default=128, help="width [px] of the rectified working view (default 128)")
     p.add_argument("--response", default="srgb", choices=("srgb", "gamma", "linear", "bruneton"),
@@ -902,6 +904,14 @@ COMMANDS = {"render": cmd_render, "simulate": cmd_simulate, "check": cmd_check, 
             "forecast": cmd_forecast, "reconstruct": cmd_reconstruct}
 
 
+def _format_warning(message, category, filename, lineno, line=None, *, default):
+    """jaxocean's own warnings (a steep wave draw, an incomplete EXR frame) as the CLI's other
+    warnings: one ``jaxocean: warning:`` line, not Python's file and source line."""
+    if category.__module__.split(".")[0] == "jaxocean":
+        return f"jaxocean: warning: {message}\n"
+    return default(message, category, filename, lineno, line)
+
+
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -912,7 +922,9 @@ def main(argv=None) -> int:
     compile_cache.enable()
 
     try:
-        return COMMANDS[args.command](args)
+        with warnings.catch_warnings():
+            warnings.formatwarning = functools.partial(_format_warning, default=warnings.formatwarning)
+            return COMMANDS[args.command](args)
     except KeyboardInterrupt:
         print(f"jaxocean: interrupted ({_INTERRUPTED[args.command]})", file=sys.stderr)
         return EXIT_INTERRUPTED

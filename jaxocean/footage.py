@@ -37,7 +37,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean._stages import timed
 from jaxocean.errors import InvalidValueError, is_integer
-from jaxocean.io.exr import require_file
+from jaxocean.io.exr import MissingFileError, require_file
 from jaxocean.io.images import is_video_file
 
 __all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
@@ -179,15 +179,22 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                   full_view: bool = False, evidence_width: int | None = EVIDENCE_WIDTH):
     """Stage 1 of ``reconstruct`` (module docstring). ``frames``: paths (or one video path, or empty to take
     the camera file's list); ``camera_path``: a camera file or a ``scene.json`` (then the
-    frames must be the scene's, one per time). ``step`` / ``max_frames`` thin the sequence.
+    frames must be the scene's, one per time), or a directory holding one. ``step`` /
+    ``max_frames`` thin the sequence.
     ``height``: the camera height [m] when the camera file gives no pose (pitch and roll
     then come from the horizon). ``full_view``: keep the camera's own view (sky and all)
     instead of :func:`sea_view`. ``evidence_width``: the width of ``Sequence.fine`` (None:
     no fine sequence). Returns ``(Sequence, StageReport)``."""
     from jaxocean import lens, radiometry, rectify
     from jaxocean.io import camera_file as cf_io
+    from jaxocean.io.scene import SCENE_FILENAME
 
     camera_path = Path(camera_path)
+    if camera_path.is_dir() and not (camera_path / cf_io.CAMERA_FILENAME).exists():
+        if not (camera_path / SCENE_FILENAME).is_file():
+            raise MissingFileError(camera_path, f"a directory with neither a camera file ({cf_io.CAMERA_FILENAME}) "
+                                                f"nor a scene ({SCENE_FILENAME})")
+        camera_path = camera_path / SCENE_FILENAME  # a scene directory, as render and reedit read one
     frames = [Path(f) for f in (frames or [])]
     if not is_integer(step, 1):
         raise ValueError(f"step must be an int >= 1; got {step!r}")

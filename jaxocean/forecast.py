@@ -49,8 +49,8 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
 from jaxocean._math import angle_between
-from jaxocean.errors import InvalidValueError, check_values, is_concrete
-from jaxocean.waves import Waves, validate
+from jaxocean.errors import check_values, is_concrete
+from jaxocean.waves import MAX_PHASE_ERROR, Waves, check_phase_precision, validate
 
 __all__ = ["Forecast", "GeometryError", "MAX_PHASE_ERROR", "advance", "check_phase_precision", "damping", "forecast",
            "frame_times", "geometry_error"]
@@ -92,31 +92,6 @@ def _advance(waves: Waves, dt) -> Waves:
     shape = jnp.broadcast_shapes(phase.shape, waves.omega.shape)
     return Waves(*(jnp.broadcast_to(x, shape) for x in (waves.amplitude, waves.omega, waves.theta)),
                  jnp.broadcast_to(phase, shape))
-
-
-#: the largest rounding error [rad] of the phases ``omega t`` a forecast accepts
-MAX_PHASE_ERROR = 0.1
-
-
-def check_phase_precision(waves: Waves, dt) -> None:
-    """InvalidValueError when concrete times ``dt`` [s] (broadcast against the wave axis as in
-    :func:`advance`) are so far from ``t = 0`` that the phases ``omega dt`` of the waves with
-    an amplitude, in their dtype, are rounded by more than :data:`MAX_PHASE_ERROR` (about
-    ``|omega dt| eps``; float32 beyond ``|omega dt|`` ~ 8e5 rad, e.g. ``dt`` = 1.6e5 s at 5
-    rad/s): the frames would show the waves at wrong phases."""
-    if not is_concrete(waves, dt):
-        return
-    dtype = np.dtype(jnp.result_type(waves.omega))
-    omega_t = np.abs(np.asarray(waves.omega, np.float64) * np.asarray(dt, np.float64))
-    omega_t = np.where(np.asarray(waves.amplitude) != 0, omega_t, 0.0)
-    if omega_t.size == 0 or not np.all(np.isfinite(omega_t)):
-        return
-    error = float(np.max(omega_t) * np.finfo(dtype).eps)
-    if error > MAX_PHASE_ERROR:
-        raise InvalidValueError(
-            f"times up to |t| = {np.max(np.abs(np.asarray(dt))):.4g} s are too far from t = 0 for {dtype.name} "
-            f"phases: omega t (up to {np.max(omega_t):.4g} rad) is rounded by up to {error:.2g} rad there, so the "
-            f"waves would be drawn at wrong phases; forecast nearer times, or enable jax_enable_x64")
 
 
 def damping(frequency_sigma, times, window):

@@ -100,11 +100,15 @@ def horizon_points(image, *, stride: int | None = None, step: int | None = None,
     clear bright-above / dark-below step (step 1 of the module docstring)."""
     gray = _gray(image)
     H, W = gray.shape
+    given = "" if step is None else f" (2 step + 2 with step={step})"
     stride = max(1, W // 160) if stride is None else int(stride)
     step = max(2, H // 120) if step is None else int(step)
-    if stride < 1 or step < 1 or 2 * step + 2 > H:
-        raise ValueError(f"stride and step must be >= 1 and 2 step + 2 <= H; got stride={stride}, step={step}, "
-                         f"H={H}")
+    if stride < 1 or step < 1:
+        raise ValueError(f"stride and step must be >= 1; got stride={stride}, step={step}")
+    if 2 * step + 2 > H:
+        # the default step is the user's too: name the image size the scan needs
+        raise ValueError(f"the image is too small to find a horizon in: {H} rows (of {W} columns); the edge scan "
+                         f"needs at least {2 * step + 2} rows{given}")
     lo, hi = np.percentile(gray, [1.0, 99.0])
     contrast = hi - lo
     if not contrast > 0:

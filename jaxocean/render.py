@@ -55,9 +55,9 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import hierarchy, raycast, shading, surface
 from jaxocean._math import components, materialize_cotangent
-from jaxocean.errors import check_finite, check_values, is_concrete
+from jaxocean.errors import check_finite, check_values, is_concrete, is_integer
 from jaxocean.raycast import hit_residual, refine_hits
-from jaxocean.waves import Waves, validate
+from jaxocean.waves import Waves, check_phase_precision, validate
 
 __all__ = ["Geometry", "RenderPlan", "full_plan", "plan", "needs_refinement", "geometry", "shade", "render",
            "refine_hits", "hit_residual", "MAX_REFINE_ITERATIONS"]
@@ -97,6 +97,9 @@ def full_plan(n_waves: int, refine: int = 0) -> RenderPlan:
     """Every one of ``n_waves`` waves evaluated (no skipping) with ``refine`` hit-refinement
     iterations: one static plan for every scene of that size, so the kernels compile once
     (datasets, fits, forecasts, benchmarks)."""
+    if not is_integer(n_waves, 1) or not is_integer(refine, 0):
+        raise ValueError(f"full_plan needs n_waves >= 1 and refine >= 0, integers; got n_waves={n_waves!r}, "
+                         f"refine={refine!r}")
     return RenderPlan(active=tuple(range(int(n_waves))), refine=int(refine))
 
 
@@ -122,11 +125,11 @@ def plan(waves: Waves, camera, t=0.0, *, n_min=hierarchy.DEFAULT_N_MIN, n_max=hi
       others contribute zero; skipping them changes nothing but the time).
     * ``refine``: 0 (rows path) where :func:`needs_refinement` is False, else
       ``MAX_REFINE_ITERATIONS`` -- the same choice ``plan="auto"`` makes under tracing. An int
-      ``refine`` is used as given. ``t`` is accepted for symmetry with :func:`geometry`: the
-      choice does not depend on the time.
+      ``refine`` is used as given. ``t`` is accepted (and checked) for symmetry with
+      :func:`geometry`: the choice does not depend on the time.
     """
-    del t
     _check_inputs(waves, camera)
+    _check_time(waves, t)
     if not is_concrete(waves, camera):
         raise ValueError("render.plan needs concrete inputs; inside jit pass plan=RenderPlan(...), plan=None "
                          "or plan='auto' (chosen inside the compiled function)")
@@ -253,13 +256,21 @@ def _assemble(hit, xy, disp, normal, slope_var, converged):
                     position=position, footprint=hit.footprint, converged=converged)
 
 
-def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
-    """``(active, refine)`` static arguments from a ``plan`` argument (see :func:`geometry`),
-    after checking the time ``t`` (a finite scalar)."""
+def _check_time(waves, t):
+    """Raise unless ``t`` is one time [s]: a scalar, and where concrete finite and near
+    enough ``t = 0`` for the phases ``omega t`` in the waves' dtype
+    (:func:`jaxocean.waves.check_phase_precision`)."""
     if jnp.ndim(t) != 0:
         raise ValueError(f"t must be one time [s] (a scalar); got shape {jnp.shape(t)}: vmap over times to render "
                          "several frames")
     check_finite(t, "t")
+    check_phase_precision(waves, t)
+
+
+def _static_plan(waves, camera, t, plan, n_min, n_max, grid_cell, max_distance):
+    """``(active, refine)`` static arguments from a ``plan`` argument (see :func:`geometry`),
+    after checking the time ``t`` (:func:`_check_time`)."""
+    _check_time(waves, t)
     if grid_cell is not None:
         check_values(jnp.asarray(grid_cell) > 0, "grid_cell must be > 0 m (the geometry grid's cell size)", grid_cell)
     if isinstance(plan, str):

@@ -461,17 +461,22 @@ def check_unit_normals(normals, what: str, where=None, counted: str = "", hint: 
     """``InvalidValueError`` when concrete ``normals (..., 3)`` (on the pixels ``where``,
     default all) are not unit vectors within :data:`UNIT_NORMAL_TOLERANCE`: "``what`` must
     be unit vectors ..." with how many (``counted``: of what) are not and ``hint``. The one
-    check of every public function that takes normals."""
+    check of every public function that takes normals. NaN/inf normals are no unit vectors:
+    callers that read NaN as "no data" leave those pixels out of ``where``."""
     if not is_concrete(normals, where):
         return
     length = np.linalg.norm(np.asarray(normals, np.float64), axis=-1)
     if where is not None:
         length = length[np.asarray(where, bool)]
-    off = np.abs(length - 1.0) > UNIT_NORMAL_TOLERANCE
+    off = ~(np.abs(length - 1.0) <= UNIT_NORMAL_TOLERANCE)  # NaN counts
     if off.any():
+        finite = length[np.isfinite(length)]
+        span = f"|n| from {finite.min():.4g} to {finite.max():.4g}" if finite.size else "|n| all NaN/inf"
+        nonfinite = int(length.size - finite.size)
+        span += f", {nonfinite} NaN/inf" if nonfinite and finite.size else ""
         raise InvalidValueError(
             f"{what} must be unit vectors (| |n| - 1 | <= {UNIT_NORMAL_TOLERANCE:g}); {int(off.sum())} of {off.size}"
-            f"{counted} are not (|n| from {length.min():.4g} to {length.max():.4g}){hint}")
+            f"{counted} are not ({span}){hint}")
 
 
 def check_horizon_gradient(horizon_gradient) -> None:

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean.errors import check_values, is_concrete
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
 
 __all__ = [
     "GRAVITY",
@@ -36,6 +36,8 @@ __all__ = [
     "total_steepness",
     "too_steep",
     "MAX_STEEPNESS",
+    "MAX_PHASE_ERROR",
+    "check_phase_precision",
     "validate",
     "n_waves",
 ]
@@ -148,3 +150,29 @@ def steepness(waves: Waves):
 def total_steepness(waves: Waves):
     """Sum of k h over the wave axis: a trochoid sea can fold where this exceeds 1."""
     return jnp.sum(steepness(waves), axis=-1)
+
+
+#: the largest rounding error [rad] of the phases ``omega t`` that rendering and forecasts accept
+MAX_PHASE_ERROR = 0.1
+
+
+def check_phase_precision(waves: Waves, dt) -> None:
+    """InvalidValueError when concrete times ``dt`` [s] (broadcast against the wave axis, as
+    in :func:`jaxocean.forecast.advance`) are so far from ``t = 0`` that the phases
+    ``omega dt`` of the waves with an amplitude, in their dtype, are rounded by more than
+    :data:`MAX_PHASE_ERROR` (about ``|omega dt| eps``; float32 beyond ``|omega dt|`` ~ 8e5
+    rad, e.g. ``dt`` = 1.6e5 s at 5 rad/s): the frames would show the waves at wrong phases.
+    Rendering, re-editing and forecasting call it where their times are concrete."""
+    if not is_concrete(waves, dt):
+        return
+    dtype = np.dtype(jnp.result_type(waves.omega))
+    omega_t = np.abs(np.asarray(waves.omega, np.float64) * np.asarray(dt, np.float64))
+    omega_t = np.where(np.asarray(waves.amplitude) != 0, omega_t, 0.0)
+    if omega_t.size == 0 or not np.all(np.isfinite(omega_t)):
+        return
+    error = float(np.max(omega_t) * np.finfo(dtype).eps)
+    if error > MAX_PHASE_ERROR:
+        raise InvalidValueError(
+            f"times up to |t| = {np.max(np.abs(np.asarray(dt))):.4g} s are too far from t = 0 for {dtype.name} "
+            f"phases: omega t (up to {np.max(omega_t):.4g} rad) is rounded by up to {error:.2g} rad there, so the "
+            f"waves would be drawn at wrong phases; use times nearer t = 0, or enable jax_enable_x64")

@@ -803,3 +803,32 @@ def test_demo_help_claims_only_what_reconstruct_vs_truth_shows(capsys):
         cli.main(["demo", "--help"])
     out = " ".join(capsys.readouterr().out.split())
     assert "re-edited beside the truth" not in out and "re-edited views in reconstruct/report.html" in out
+
+
+def test_render_and_reedit_refuse_far_future_times(tiny_scene, tmp_path, capsys):
+    # each frame renders under jit, where render's own check cannot see the time: a scene at
+    # t = 1e7 s (float32 phases rounded by radians) rendered wrong phases without a word
+    spec = json.loads((tiny_scene / "scene.json").read_text())
+    spec["times"] = [1e7]
+    (tmp_path / "far").mkdir()
+    (tmp_path / "far" / "scene.json").write_text(json.dumps(spec))
+    for command in ("render", "reedit"):
+        assert cli.main([command, str(tmp_path / "far"), "--out", str(tmp_path / command)]) == 2
+        assert "too far from t = 0 for float32" in capsys.readouterr().err
+        assert not (tmp_path / command).exists()
+
+
+@pytest.mark.filterwarnings("default::UserWarning")  # shown, as outside the test suite, not raised
+def test_render_prints_a_steep_draw_as_a_cli_warning(tmp_path, capsys, monkeypatch):
+    # a library warning was printed by Python with its file and source line. The suite records
+    # warnings instead of showing them: shown here as Python shows them, through formatwarning
+    # (the camera under the sea stops the command after the draw, before any rendering)
+    import warnings
+
+    monkeypatch.setattr(warnings, "showwarning", lambda message, category, filename, lineno, file=None, line=None:
+                        sys.stderr.write(warnings.formatwarning(message, category, filename, lineno, line)))
+    assert cli.main(["render", "--out", str(tmp_path / "a"), "--res", "8x8", "--frames", "1", "--waves", "2",
+                     "--tp", "0.001", "--camera-height=-1"]) == 2
+    err = capsys.readouterr().err
+    assert "jaxocean: warning: 2 of 2 sampled waves have k*h above max_steepness" in err
+    assert "SteepnessWarning" not in err and ".py:" not in err, err

@@ -803,3 +803,12 @@ def test_lighting_from_dict_without_a_lighting_is_a_value_error():
     for d in ({"version": "0.1.0", "lighting": None}, {"lighting": [1, 2]}, None):
         with pytest.raises(ValueError, match="expected a lighting dict"):
             fit.lighting_from_dict(d)
+
+
+def test_reedit_refuses_far_future_times():
+    # the frames render under vmap, where render's own check cannot see the times: t = 1e7 s
+    # (float32 phases rounded by radians) rendered wrong phases without a word
+    waves = make_waves([0.03, 0.02], [2.8, 3.6], [0.4, 2.1], [0.5, 4.0])
+    camera = cam.make_camera(height=6.0, pitch=0.9, fov=0.8, yaw=0.4, resolution=(16, 16))
+    with pytest.raises(InvalidValueError, match="too far from t = 0 for float32"):
+        fit.reedit(waves, camera, shading.make_lighting(), [0.0, 1e7])

@@ -761,6 +761,26 @@ def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
     assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound(2e-3)
 
 
+@pytest.mark.parametrize("path", ["hits", "rows"])
+def test_the_data_choose_the_forward_path_where_its_two_paths_differ(path):
+    # a 2-wave sea 7-10 m long, 4-8 cm high, seen from above at 0.5 m pixels: no hit moves by
+    # half a footprint (render's rule for the rows path), yet the two paths' normals differ by
+    # about 2e-3 rad, twice the success bound. On the rows path the hits' normals took 6
+    # waves, 4 of them spurious and marked determined; data rendered on the rows path stay on it
+    c = ortho()
+    truth = make_waves([0.0382, 0.0813], [2.463, 2.9455], [-1.1823, -0.4818], [5.2006, 2.5711])
+    assert not bool(render.needs_refinement(truth, c))
+    normals, rough = fw.predict(truth, c, TIMES, surface=path)
+    fit = fw.waves(normals, rough, c, TIMES)
+    assert fit.surface == path
+    assert bool(fit.success) and int(fit.n_waves) == 2 and fit.determined.all()
+    m = fw.match(fit.waves, truth)
+    assert m.missed.size == 0
+    for name in ("amplitude", "omega", "theta", "phase"):
+        sigma = np.asarray(getattr(fit.uncertainty, name))[m.fit_index]
+        assert np.all(np.asarray(getattr(m.abs_error, name)) <= 3 * sigma), name
+
+
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):
     c, truth, normals, rough = ortho_scene
     with_band, _ = ortho_fit
@@ -1052,3 +1072,11 @@ def test_a_spectrum_of_too_few_effective_waves_has_no_determined_direction():
     assert not r.success and np.isnan(r.theta_std) and np.isnan(r.s_max_std)
     with pytest.raises(InvalidValueError, match="sea_state needs at least one wave"):
         fit_spectrum.sea_state(make_waves([], [], []))
+
+
+def test_frame_times_error_shows_the_times_not_their_steps():
+    # [0, 0.2, 0.1]: the time 0.1 at index 2 does not follow 0.2 (its step, -0.1, is no frame time)
+    c = persp()
+    normals = jnp.zeros((3,) + c.resolution + (3,)).at[..., 2].set(1.0)
+    with pytest.raises(InvalidValueError, match=r"strictly increasing; got \[0\.1\d*\] \(first at index \[2\]"):
+        _inputs.check_inputs(normals, None, c, [0.0, 0.2, 0.1])

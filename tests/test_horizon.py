@@ -71,3 +71,15 @@ def test_no_horizon_is_reported_as_failure():
     assert not flat.success and "no horizon" in flat.message and math.isnan(flat.pitch)
     with pytest.raises(ValueError, match="gray"):
         horizon.estimate_horizon(np.zeros((4, 5, 2)), INTRINSICS, DISTORTION, 12.0)
+
+
+def test_too_small_an_image_is_named_as_such():
+    # "stride and step must be >= 1 and 2 step + 2 <= H" named options the caller never gave
+    intr, dist = lens.Intrinsics(4.0, 4.0, 2.0, 2.0), lens.Distortion()
+    with pytest.raises(ValueError, match=r"^the image is too small to find a horizon in: 4 rows \(of 4 columns\); "
+                                         r"the edge scan needs at least 6 rows$"):
+        horizon.estimate_horizon(np.ones((4, 4)), intr, dist, 10.0)
+    with pytest.raises(ValueError, match=r"needs at least 8 rows \(2 step \+ 2 with step=3\)$"):
+        horizon.horizon_points(np.ones((4, 4)), step=3)
+    with pytest.raises(ValueError, match=r"stride and step must be >= 1; got stride=0"):
+        horizon.horizon_points(np.ones((8, 8)), stride=0)

@@ -443,3 +443,12 @@ def test_evaluate_names_frames_without_slope_variance(tiny_dataset, tmp_path, ca
     with pytest.warns(IncompleteFrameWarning):
         assert _cli("eval-geometry", root) == 2
     assert "lack slope_variance channels" in capsys.readouterr().err
+
+
+def test_load_of_an_unknown_name_names_the_shipped_models(tmp_path, monkeypatch):
+    # "tpu: no such file" did not say that "cpu" and "gpu" are the names load takes
+    monkeypatch.chdir(tmp_path)
+    for call in (geo.load, geo.model_info):
+        with pytest.raises(CheckpointError,
+                           match=r"^tpu: no such file, nor the name of a shipped model \('cpu', 'gpu'\)"):
+            call("tpu")

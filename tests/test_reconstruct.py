@@ -530,3 +530,17 @@ def test_frames_not_uniformly_spaced_are_refused_before_the_stages_that_need_it(
     # uniform step passes
     rc._check_evidence_times(SimpleNamespace(times=times[:7], files=seq.files[:7]))
     rc._check_evidence_times(SimpleNamespace(times=np.arange(8) * 0.2, files=seq.files))
+
+
+def test_scene_directory_reads_as_its_scene_json(tmp_path):
+    # a scene directory (as render and reedit take one) said "camera.json: no such camera file";
+    # now its scene.json is read (three frames for its two times: refused before any work)
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
+    files = [save_png(tmp_path / f"frame_{i:05d}.png", np.full((16, 16, 3), 0.3)) for i in range(3)]
+    write_scene(tmp_path, scene_to_dict(camera=camera, times=[0.0, 0.25]))
+    with pytest.raises(InvalidValueError, match=r"3 frames given for the 2 times of .*scene\.json"):
+        rc.load_sequence(files, tmp_path)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(FileNotFoundError, match=r"empty: a directory with neither a camera file \(camera\.json\) "
+                                                r"nor a scene \(scene\.json\)"):
+        rc.load_sequence(files, tmp_path / "empty")

@@ -294,3 +294,28 @@ def test_waves_finer_than_the_camera_are_refused(x64):
         render.render(waves, c32, lighting(), 0.0)
     image = render.render(sea(), cam.make_camera(**CAM, dtype=jnp.float64), lighting(), 0.0)
     assert np.all(np.isfinite(np.asarray(image)))
+
+
+def test_far_future_times_are_refused_where_concrete():
+    # float32 phases omega t at t = 1e7 s are rounded by radians: refused as forecast refuses
+    # them (render, geometry, plan), while a traced time is not checked: jit(f)(t) == f(t)
+    waves, c, light = sea(2), cam.make_camera(**CAM), lighting()
+    for call in (lambda t: render.render(waves, c, light, t), lambda t: render.geometry(waves, c, t),
+                 lambda t: render.plan(waves, c, t)):
+        with pytest.raises(InvalidValueError, match="too far from t = 0 for float32"):
+            call(1e7)
+    eager = render.geometry(waves, c, 10.0, plan=None)
+    traced = jax.jit(lambda t: render.geometry(waves, c, t, plan=None))(10.0)
+    np.testing.assert_array_equal(np.asarray(eager.normal), np.asarray(traced.normal))
+
+
+def test_plan_checks_its_time_and_full_plan_its_sizes():
+    waves, c = sea(2), cam.make_camera(**CAM)
+    with pytest.raises(InvalidValueError, match="t contains 1 NaN"):
+        render.plan(waves, c, float("nan"))
+    with pytest.raises(ValueError, match=r"t must be one time \[s\] \(a scalar\)"):
+        render.plan(waves, c, jnp.array([0.0, 1.0]))
+    for n, refine in ((-1, 0), (0, 0), (2.5, 0), (2, -1)):
+        with pytest.raises(ValueError, match="full_plan needs n_waves >= 1 and refine >= 0"):
+            render.full_plan(n, refine)
+    assert render.full_plan(np.int64(2), np.int64(3)) == render.RenderPlan(active=(0, 1), refine=3)

@@ -560,3 +560,14 @@ def test_public_names():
     assert MIN_SLOPE_VARIANCE == 2 * MIN_SLOPE_VARIANCE_AXIS
     for name in shading.__all__:
         assert hasattr(shading, name), name
+
+
+def test_check_unit_normals_rejects_nan_outside_where():
+    n = np.zeros((2, 2, 3))
+    n[..., 2] = 1.0
+    n[0, 1] = np.nan
+    with pytest.raises(InvalidValueError, match=r"1 of 4 are not \(\|n\| from 1 to 1, 1 NaN/inf\)"):
+        shading.check_unit_normals(n, "normals")
+    with pytest.raises(InvalidValueError, match=r"all NaN/inf"):
+        shading.check_unit_normals(np.full((2, 3), np.nan), "normals")
+    shading.check_unit_normals(n, "normals", where=np.isfinite(n).all(-1))  # NaN as "no data": left out

@@ -37,6 +37,7 @@ from jaxocean import render, shading
 from jaxocean.errors import InvalidValueError, is_concrete, is_integer
 from jaxocean.fit import lighting as lf
 from jaxocean.shading import Lighting
+from jaxocean.waves import check_phase_precision
 
 __all__ = ["StyleTransfer", "edit_camera", "edit_lighting", "reedit", "reedit_scene", "style_transfer"]
 
@@ -86,6 +87,7 @@ def reedit(waves, camera: cam.Camera, lighting: Lighting, times, *, camera_heigh
         raise InvalidValueError(f"times must be finite; got {np.asarray(times).tolist()}")
     scalar = times.ndim == 0
     times = jnp.atleast_1d(times)
+    check_phase_precision(waves, times[:, None])  # nor their phases' precision
     plan = render.plan(waves, camera, times[0])
     frames = jax.vmap(lambda t: render.render(waves, camera, lighting, t, plan=plan,
                                               horizon_gradient=horizon_gradient))(times)

@@ -75,6 +75,7 @@ from jaxocean.files import read_json, write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
 from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
 from jaxocean.io.sequence import fits_half, frame_name
+from jaxocean.waves import check_phase_precision
 
 __all__ = [
     "SceneRanges",
@@ -233,6 +234,8 @@ def render_scene(scene: SceneSample, plan="auto"):
     :class:`jaxocean.render.RenderPlan`.
     """
     n = scene.waves.omega.shape[-1]
+    # the frames are rendered under jit, where render's own check cannot see the times
+    check_phase_precision(scene.waves, jnp.reshape(jnp.asarray(scene.times), (-1, 1)))
     if isinstance(plan, str):
         if plan != "auto":
             raise ValueError(f"plan must be 'auto', None or a RenderPlan; got {plan!r}")

@@ -42,6 +42,7 @@ import jax
 import jax.numpy as jnp
 
 from jaxocean import radiometry
+from jaxocean._records import register_static
 
 __all__ = ["DisplayAugment", "DisplayParams", "display_roundtrip", "draw", "augment"]
 
@@ -74,6 +75,10 @@ class DisplayAugment(NamedTuple):
     def responses_of(self) -> tuple:
         """The :class:`jaxocean.radiometry.Response` of each kind in ``responses``."""
         return tuple(radiometry.Response(kind, self.gamma) for kind in self.responses)
+
+
+# static, as GeometryConfig: jax.jit(augment)(key, linear, config) traces the key and images alone
+register_static(DisplayAugment)
 
 
 class DisplayParams(NamedTuple):

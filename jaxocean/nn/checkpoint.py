@@ -134,7 +134,13 @@ def load_model(path, *, fmt: str, what: str, config_from_json, init_params):
 
 def model_path(path, shipped: dict, default: Path) -> Path:
     """Where a network's model is: ``None`` -> ``default`` (the shipped model), a name of
-    ``shipped`` -> that shipped model, else the file ``path``."""
+    ``shipped`` -> that shipped model, else the file ``path`` (``CheckpointError`` naming the
+    shipped models when there is no such file: a misspelt name, say)."""
     if path is None:
         return default
-    return shipped[path] if isinstance(path, str) and path in shipped else Path(path)
+    if isinstance(path, str) and path in shipped:
+        return shipped[path]
+    if not Path(path).exists():
+        names = ", ".join(repr(name) for name in shipped)
+        raise CheckpointError(path, f"no such file, nor the name of a shipped model ({names})")
+    return Path(path)

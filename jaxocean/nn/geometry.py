@@ -51,7 +51,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import normal_from_slope, safe_normalize
-from jaxocean._records import record_from_json, record_to_json
+from jaxocean._records import record_from_json, record_to_json, register_static
 from jaxocean._sea_scale import compress, sea_median
 from jaxocean.errors import is_integer
 from jaxocean.nn import backbones
@@ -136,7 +136,7 @@ class GeometryConfig(NamedTuple):
 
 # a pytree node without leaves (the config is its static aux data): jax.jit(apply)(model, ...)
 # traces the params alone, and jax.tree.map over a model maps its params
-jax.tree_util.register_pytree_node(GeometryConfig, lambda config: ((), config), lambda config, _: config)
+register_static(GeometryConfig)
 
 
 class GeometryModel(NamedTuple):

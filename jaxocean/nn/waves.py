@@ -67,7 +67,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
-from jaxocean._records import record_from_json, record_to_json
+from jaxocean._records import record_from_json, record_to_json, register_static
 from jaxocean.errors import check_values, is_concrete
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
@@ -138,7 +138,7 @@ class WaveNetConfig(NamedTuple):
 
 # a pytree node without leaves (the config is its static aux data), as GeometryConfig:
 # jax.jit(apply)(model, ...) traces the params alone
-jax.tree_util.register_pytree_node(WaveNetConfig, lambda config: ((), config), lambda config, _: config)
+register_static(WaveNetConfig)
 
 
 class WaveNetModel(NamedTuple):

@@ -285,7 +285,9 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
 
     result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
                         steps_per_epoch=config.steps_per_epoch, key=key,
-                        signature={"config": config.to_json(), "dataset": data.settings},
+                        # as train-geometry: the sharded step's rounding depends on the device count, so a
+                        # resume on another count would not end where the uninterrupted run ends
+                        signature={"config": config.to_json(), "dataset": data.settings, "devices": parallel.size},
                         patience=config.patience,
                         time_budget_s=None if config.time_budget_minutes is None else 60 * config.time_budget_minutes,
                         on_best=on_best, parallel=parallel, progress=progress, stop_after_steps=stop_after_steps)

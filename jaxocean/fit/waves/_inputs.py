@@ -67,7 +67,8 @@ def check_inputs(normals, roughness, camera, times):
     if is_concrete(times):
         t = np.asarray(times)
         check_values(np.isfinite(t), "frame times must be finite", t)
-        check_values(np.diff(t) > 0, "frame times must be strictly increasing", np.diff(t))
+        # the times themselves in the message (each one not after the time before it), not their steps
+        check_values(np.concatenate([[True], np.diff(t) > 0]), "frame times must be strictly increasing", t)
     if is_concrete(normals, camera):
         valid = np.asarray(valid_weights(normals, camera)) > 0
         if not bool(np.any(valid)):

@@ -30,7 +30,7 @@ from jaxocean.fit.waves._lm import (HEIGHT_WEIGHT, NOISE_FACTOR, NORMAL_ERROR_FL
                                     fit_result, maybe_throw, normal_error_bound, refine_kernel, registry_refine)
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
 from jaxocean.fit.waves._model import (HITS, ROWS, SURFACES, bucket_size, pack, pad_waves, predict_jit,
-                                       surface_refine, to_waves)
+                                       to_waves)
 from jaxocean.fit.waves._band import band_waves, summary as band_summary, view_diameter
 from jaxocean.fit.waves._match import noise_cells, rayleigh_separation, resolvable, separable
 from jaxocean.fit.waves._spectral import grid_frames, spectral_pyramid
@@ -43,6 +43,12 @@ _CRITERIA = ("bic", "aic", "holdout")
 #: ``surface="auto"`` fits on the hits path once the model's rows-path and hits-path normals
 #: differ by more than this fraction of the success bound (:func:`normal_error_bound`)
 SURFACE_TOLERANCE = 0.5
+#: once the data chose the rows path over the hits path (the rows path's residual no larger),
+#: the hits path is tried again only when the rows path's residual has fallen this many times,
+#: and at most SURFACE_TRIES times in all (each try refits on the hits path, about 10x the
+#: cost per step)
+SURFACE_RETRY = 4.0
+SURFACE_TRIES = 3
 #: ``waves`` (heights on: the default) uses the integrated heights where a pixel's footprint is at most
 #: this [m] (``experiments/WAVES.md``, heights from normals: farther out they drift)
 HEIGHT_FOOTPRINT = 1.0
@@ -200,12 +206,13 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       hit (``render``'s rows path). ``"hits"``: at the pixel's converged hit on the displaced
       surface (its hits path: what ``render``, ``jaxocean simulate`` and a camera see when
       the waves move the hits; about 10x the cost per step; ``solver="structured"`` only).
-      ``"auto"`` (default): the rows path until the fitted model (waves and band) moves some
-      pixel's hit by half a footprint (``render.needs_refinement``) while the rows path
-      leaves the data unexplained at their noise, and its normals on the two paths differ
-      by more than ``SURFACE_TOLERANCE`` (0.5) of the success bound --
-      a difference the data can see at their noise -- the hits path from then on; with a
-      registry solver ``"auto"`` stays on the rows path.
+      ``"auto"`` (default): the rows path until it leaves the data unexplained at their
+      noise while the fitted model's (waves and band) normals on the two paths differ by
+      more than ``SURFACE_TOLERANCE`` (0.5) of the success bound -- a difference the data
+      can see at their noise -- and the model refitted on the hits path explains the data
+      better: the hits path from then on (data rendered on the rows path, as ``render``
+      does where no wave moves a hit by half a footprint, stay on it); with a registry
+      solver ``"auto"`` stays on the rows path.
     * ``heights``: also hold the model to the normals' own integrated heights
       (:func:`jaxocean.fit.heights`, where a pixel's footprint is at most
       ``HEIGHT_FOOTPRINT`` = 1 m): the model's height at each pixel's hit against them,
@@ -300,33 +307,61 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     n_band = 0 if band is None else band.omega.shape[0]
 
     # the forward model's path: fixed by `surface`, or (auto) switched to the hits path for
-    # good once the model moves the hits (the waves that do are the strongest, found first)
-    state = dict(refine=HITS if surface == "hits" else ROWS)
+    # good once the model's two paths differ and the data prefer the hits path (the waves
+    # that move the hits are the strongest, found first)
+    # rows_kept_at: the rows path's residual when the data last chose it over the hits path
+    state = dict(refine=HITS if surface == "hits" else ROWS, rows_kept_at=math.inf, tries=0)
 
     def update_surface(w: Waves, band_: Waves | None, rss: float | None) -> bool:
-        """Switch to the hits path when the model moves the hits and the two paths' normals
-        differ by more than ``SURFACE_TOLERANCE`` of the success bound (below that the
-        data cannot tell them apart), unless the rows path already explains the data to
-        their noise (``rss``: the model's residual sum of squares on it, None: unknown);
-        True when it switched."""
+        """Switch to the hits path when the model's rows-path and hits-path normals differ
+        by more than ``SURFACE_TOLERANCE`` of the success bound (below that the data cannot
+        tell them apart), unless the data chose the rows path at no more than
+        ``SURFACE_RETRY`` times ``rss`` (the model's residual sum of squares on it, None:
+        unknown) or ``SURFACE_TRIES`` times already; True when it switched (the caller
+        refits there and switches back if the data prefer the rows path). A rows path that
+        explains the data to their noise is tried too: a model error within the noise of
+        each pixel still biases the parameters by many of their sigmas, which shrink with
+        the pixel count (a 2-wave sea seen from above, fitted on the rows path to 0.2 of the
+        noise floor's variance: a determined wave's phase 19 sigma off). The gap decides, not whether the waves move a hit by half a footprint
+        (render's rule for images): a 2-wave sea 7-10 m long, 8 cm high, seen from above at
+        0.5 m pixels moves no hit that far, yet its two paths' normals differ by 1.8e-3 rad,
+        and fitted on the rows path its hits-path normals took 6 waves, 4 of them spurious
+        and marked determined."""
         if not (surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]):
             return False
-        if rss is not None and rss / m_obs <= sigma2:
-            # nothing left for the hits path to explain; and the band's heights, which its
-            # slopes barely fix, can move the hits on a sea the rows path explains (measured:
-            # 0.11 m on one short wave fitted to 3e-6 rad, 4 waves and a failure on the hits path)
+        if state["tries"] >= SURFACE_TRIES or (rss is not None and rss * SURFACE_RETRY > state["rows_kept_at"]):
             return False
         model = model_of(w, band_)
-        if surface_refine("auto", model, camera, n_min=n_min, n_max=n_max) == ROWS:
-            return False
         gap = _surface_gap(model, camera, fit_t, weight, n_min, n_max)
         if not gap > SURFACE_TOLERANCE * normal_error_bound(noise):
             return False
         state["refine"] = HITS
+        state["tries"] += 1
         if verbose:
             print(f"  the model moves the hits (rows and hits paths differ by {gap:.2e} rad): fitting on the "
                   "hits path from here on", flush=True)
         return True
+
+    def try_hits(w: Waves, band_: Waves | None, rss: float | None):
+        """Where :func:`update_surface` switches, refit ``w`` on the hits path and keep that
+        fit -- ``(waves, band, out)`` -- if it explains the data better than the rows path's
+        ``rss`` (None: unknown, kept); else back on the rows path (data rendered on it, as
+        ``render`` does where no wave moves a hit by half a footprint, are its own; and the
+        band's heights, which its slopes barely fix, can move the hits on a sea the rows
+        path explains: measured 0.11 m on one short wave fitted to 3e-6 rad, 4 waves and a
+        failure on the hits path) and None."""
+        nonlocal total_steps
+        if not update_surface(w, band_, rss):
+            return None
+        h_waves, h_band, h_out = run_lm(w, band_, 4 * inner_steps)
+        total_steps += int(h_out.steps)
+        if rss is None or rss_of(h_out) < rss:
+            return h_waves, h_band, h_out
+        state["refine"], state["rows_kept_at"] = ROWS, rss
+        if verbose:
+            print(f"  the hits path explains the data no better (rss/m {rss_of(h_out) / m_obs:.3e} against "
+                  f"{rss / m_obs:.3e}): staying on the rows path", flush=True)
+        return None
 
     def model_of(w: Waves, band_: Waves | None) -> Waves:
         # the model's waves padded to a bucket size with zero-amplitude waves: every
@@ -621,11 +656,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         if accepted:
             current, band, best_score = trial, trial_band, sc
             rss_now = rss_of(out)
-            if update_surface(current, band, rss_now):
-                # the accepted model refitted under the hits path: later trials are scored
-                # against it under the same model
-                current, band, out = run_lm(current, band, 4 * inner_steps)
-                total_steps += int(out.steps)
+            on_hits = try_hits(current, band, rss_now)
+            if on_hits is not None:
+                # later trials are scored against the hits path's fit, under the same model
+                current, band, out = on_hits
                 best_score = score_of(current, band, out)
                 rss_now = rss_of(out)
             if (n_waves is None and not holdout and floor2 < rss_now / m_obs <= POLISH_FACTOR * floor2
@@ -703,7 +737,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                                 w.omega.shape[0], noise, floor2,
                                 discount_of(w, fit_["y"], fit_["jtj"], fit_["n_pad"], m_all))
 
-    update_surface(current, band, rss_now if math.isfinite(rss_now) else None)
+    on_hits = try_hits(current, band, rss_now if math.isfinite(rss_now) else None)
+    if on_hits is not None:
+        current, band = on_hits[:2]
     best = final_fit(current, band)
     total_steps += int(best["steps"])
     if n_waves is None and prune:
