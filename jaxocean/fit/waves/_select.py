@@ -322,11 +322,11 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         explains the data to their noise is tried too: a model error within the noise of
         each pixel still biases the parameters by many of their sigmas, which shrink with
         the pixel count (a 2-wave sea seen from above, fitted on the rows path to 0.2 of the
-        noise floor's variance: a determined wave's phase 19 sigma off). The gap decides, not whether the waves move a hit by half a footprint
-        (render's rule for images): a 2-wave sea 7-10 m long, 8 cm high, seen from above at
-        0.5 m pixels moves no hit that far, yet its two paths' normals differ by 1.8e-3 rad,
-        and fitted on the rows path its hits-path normals took 6 waves, 4 of them spurious
-        and marked determined."""
+        noise floor's variance: a determined wave's phase 19 sigma off). The gap decides,
+        not whether the waves move a hit by half a footprint (render's rule for images): a
+        2-wave sea 7-10 m long, 8 cm high, seen from above at 0.5 m pixels moves no hit that
+        far, yet its two paths' normals differ by 1.8e-3 rad, and fitted on the rows path
+        its hits-path normals took 6 waves, 4 of them spurious and marked determined."""
         if not (surface == "auto" and solver == "structured" and state["refine"] == ROWS and w.omega.shape[0]):
             return False
         if state["tries"] >= SURFACE_TRIES or (rss is not None and rss * SURFACE_RETRY > state["rows_kept_at"]):
@@ -338,8 +338,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         state["refine"] = HITS
         state["tries"] += 1
         if verbose:
-            print(f"  the model moves the hits (rows and hits paths differ by {gap:.2e} rad): fitting on the "
-                  "hits path from here on", flush=True)
+            print(f"  the model moves the hits (rows and hits paths differ by {gap:.2e} rad): refitting on the "
+                  "hits path", flush=True)
         return True
 
     def try_hits(w: Waves, band_: Waves | None, rss: float | None):
