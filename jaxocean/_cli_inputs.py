@@ -7,7 +7,7 @@
   input: :func:`check_memory` (a render's estimated peak memory, :func:`render_bytes`,
   against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
-  :func:`json_kind`), :func:`check_frames`.
+  :func:`json_kind`, from :mod:`jaxocean.io.scene`), :func:`check_frames`.
 * Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``; the file's with its seed),
   :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxocean.files import read_json
+from jaxocean.io.scene import json_kind, refuse_other_kind
 
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
            "fov_degrees", "pitch_degrees", "sun_elevation_degrees",
@@ -235,29 +236,10 @@ def check_out_file(path) -> Path:
     return path
 
 
-def json_kind(data: dict) -> str | None:
-    """What a JSON object that is not a scene file is, when it is one jaxocean writes."""
-    if {"scenes", "frames", "ranges"} <= data.keys():  # dataset.json carries a version too
-        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
-    if "version" in data:
-        return None
-    if "lighting" in data and ("rms_residual" in data or "loss" in data):
-        return "a lighting fit result (jaxocean fit-lighting)"
-    if "files" in data:
-        return "a dataset manifest (manifest.json)"
-    if {"train", "val", "test"} <= data.keys():
-        return "a dataset's splits (splits.json)"
-    if "outputs" in data and "frames" in data:
-        return "a demo summary (summary.json; its scene is the render directory beside it)"
-    if {"image_size", "intrinsics"} <= data.keys():
-        return ("a camera file (camera.json of real footage: intrinsics and a pose per frame; "
-                "jaxocean reconstruct --camera takes it)")
-    return None
-
-
 def refuse_other_json(path, needs: str, *, camera_file_ok: bool = False) -> None:
     """ValueError naming what ``path`` is when it is a JSON file of another kind than a scene
-    (or than a camera file, with ``camera_file_ok``)."""
+    (or than a camera file, with ``camera_file_ok``): the file read by
+    :func:`jaxocean.io.scene.refuse_other_kind`, which ``reconstruct`` shares."""
     path = Path(path)
     if not path.is_file():
         return
@@ -265,11 +247,7 @@ def refuse_other_json(path, needs: str, *, camera_file_ok: bool = False) -> None
         data = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError):
         return  # read_scene reports it
-    if camera_file_ok and isinstance(data, dict) and {"image_size", "intrinsics"} <= data.keys():
-        return
-    kind = json_kind(data) if isinstance(data, dict) else None
-    if kind is not None:
-        raise ValueError(f"{path}: this is {kind}; {needs}")
+    refuse_other_kind(data, path, needs, camera_file_ok=camera_file_ok)
 
 
 # ----------------------------------------------------------------------------- scenes, cameras and lighting

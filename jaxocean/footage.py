@@ -18,6 +18,9 @@ Protocol
   :class:`~jaxocean.camera.Camera`: no lens distortion, no roll, one pose. By default it is
   :func:`sea_view`: the sea from just below the horizon to the lowest view every frame has,
   ``width`` pixels across and a height that is a multiple of 16.
+* The stage succeeds when at least :data:`MIN_USABLE` of the sea pixels are usable over all
+  frames and :data:`MIN_FRAME_USABLE` in every frame (:func:`usable_share`): an average
+  alone would let a frame that sees none of the view pass.
 
 The :class:`Sequence` holds the linear images ``(T, H, W, 3)``, the usable-pixel mask, the
 display values for reports, the camera, the times [s] and, for the space-time evidence, the
@@ -40,8 +43,8 @@ from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.io.exr import MissingFileError, require_file
 from jaxocean.io.images import is_video_file
 
-__all__ = ["Sequence", "load_sequence", "sea_view", "DEFAULT_WIDTH", "HORIZON_MARGIN", "BOTTOM_MARGIN",
-           "EVIDENCE_WIDTH", "BLACK_LEVEL"]
+__all__ = ["Sequence", "load_sequence", "sea_view", "usable_share", "DEFAULT_WIDTH", "HORIZON_MARGIN",
+           "BOTTOM_MARGIN", "EVIDENCE_WIDTH", "BLACK_LEVEL", "MIN_USABLE", "MIN_FRAME_USABLE"]
 
 #: default working width [px] of the rectified view; the height follows the view's aspect,
 #: rounded to a multiple of 16 (the geometry network halves the size four times)
@@ -55,6 +58,12 @@ BOTTOM_MARGIN = 0.03
 EVIDENCE_WIDTH = 320
 #: display values at or below this are black (the bottom code of an 8-bit file): masked
 BLACK_LEVEL = 0.5 / 255
+#: stage 1 fails when less than this share of the working view's sea pixels, over all frames,
+#: is usable
+MIN_USABLE = 0.5
+#: or when any one frame has less than this share usable: that frame sees (next to) none of
+#: the working view, whatever the average over the frames
+MIN_FRAME_USABLE = 0.05
 
 
 class Sequence(NamedTuple):
@@ -122,6 +131,26 @@ def sea_view(camera_file, *, width: int = DEFAULT_WIDTH, horizon_margin: float =
                            x=float(np.mean(poses.east)), y=float(np.mean(poses.north)))
 
 
+def usable_share(usable, sea, files) -> tuple[float, np.ndarray, str | None]:
+    """``(share, per_frame, problem)``: the share of the sea pixels (``sea (H, W)`` bool) that
+    ``usable (T, H, W)`` marks, over all frames and per frame ``(T,)``, and None when they
+    pass stage 1's check (:data:`MIN_USABLE` over all frames, :data:`MIN_FRAME_USABLE` in
+    each), else what fails, naming the frames (``files``, one per frame) that see too little."""
+    usable, sea = np.asarray(usable, bool), np.asarray(sea, bool)
+    per_frame = usable[:, sea].mean(axis=1) if sea.any() else np.zeros(len(usable))
+    share = float(per_frame.mean())  # every frame has the same sea pixels: the mean over all of them
+    if share < MIN_USABLE:
+        return share, per_frame, f"only {share:.0%} of the sea pixels are usable (saturated or outside the frames)"
+    blind = np.flatnonzero(per_frame < MIN_FRAME_USABLE)
+    if blind.size:
+        named = ", ".join(f"frame {int(i)} ({files[int(i)]}: {per_frame[i]:.0%})" for i in blind[:3])
+        more = f" and {blind.size - 3} more" if blind.size > 3 else ""
+        return share, per_frame, (f"{blind.size} of {len(per_frame)} frames see next to none of the working view "
+                                  f"(under {MIN_FRAME_USABLE:.0%} of its sea usable: saturated or outside the "
+                                  f"frame): {named}{more}; {share:.0%} usable over all frames")
+    return share, per_frame, None
+
+
 def _working_height(width: int, W_src: int, H_src: int) -> int:
     """The source's aspect at ``width`` pixels, rounded to a multiple of 16 (the geometry
     network halves the image four times)."""
@@ -187,7 +216,7 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
     no fine sequence). Returns ``(Sequence, StageReport)``."""
     from jaxocean import lens, radiometry, rectify
     from jaxocean.io import camera_file as cf_io
-    from jaxocean.io.scene import SCENE_FILENAME
+    from jaxocean.io.scene import SCENE_FILENAME, refuse_other_kind
 
     camera_path = Path(camera_path)
     if camera_path.is_dir() and not (camera_path / cf_io.CAMERA_FILENAME).exists():
@@ -217,6 +246,9 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
         loaded = load(frames) if video else None
         n_video = None if loaded is None else len(loaded.linear)
         json_path, data = cf_io.read_camera_json(camera_path)  # read once: a scene or a camera file
+        # another file jaxocean writes (a lighting fit has a "camera" too) is named as what it is
+        refuse_other_kind(data, json_path, "the camera takes a camera file (camera.json: intrinsics and a pose "
+                                           "per frame) or a synthetic scene.json", camera_file_ok=True)
         scene = _scene_of(data, json_path)
         if scene is not None:
             if scene.camera is None or scene.times is None:
@@ -327,15 +359,15 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                        camera, np.asarray(camera_file.times, np.float64), bool(loaded.gray),
                        bool(camera_file.headings), tuple(str(f) for f in camera_file.files), resp, fine)
         sea = np.asarray(cam.intersect_sea(camera).mask)
-        frac = float(usable[:, sea].mean()) if sea.any() else 0.0
+        frac, shares, problem = usable_share(usable, sea, seq.files)
         details.update(frames=len(idx), resolution=list(camera.resolution), source_size=[W_src, H_src],
                        response=response, gray=bool(loaded.gray), usable_sea_fraction=frac,
+                       usable_sea_fraction_min=float(shares.min()),
                        camera=cam.camera_to_dict(camera, degrees=True),
                        duration_s=float(seq.times[-1] - seq.times[0]))
-        ok = frac >= 0.5
-        msg = (f"{len(idx)} frames at {camera.resolution[1]}x{camera.resolution[0]}, {frac:.0%} of the sea usable"
-               if ok else f"only {frac:.0%} of the sea pixels are usable (saturated or outside the frames)")
-        return seq, ok, msg, details
+        msg = problem or (f"{len(idx)} frames at {camera.resolution[1]}x{camera.resolution[0]}, {frac:.0%} of the "
+                          f"sea usable")
+        return seq, problem is None, msg, details
 
     return timed("radiometry", run)
 

@@ -21,7 +21,10 @@ Protocol
    level; a brighter sky puts the true edge up to half a pixel higher.
    A column whose largest step is below ``min_contrast`` x the image's 1-99 % intensity range
    has no clear edge and is skipped (dark vignetted corners, sea-only columns).
-2. The edge points ``(u, v)`` are undistorted (:func:`jaxocean.lens.undistort`).
+2. The edge points ``(u, v)`` are undistorted (:func:`jaxocean.lens.undistort`). A lens
+   whose distortion folds back inside the image (:func:`jaxocean.lens.fold_problem`, the
+   check the camera-file reader makes) has pixels with no ray: refused with
+   :class:`jaxocean.errors.InvalidValueError`, before any work.
 3. A RANSAC line through them (the horizon of a zero dip, ``inlier_px`` tolerance) gives the
    start and discards edges of other things (whitecaps, the ship, dirt on the window).
 4. Gauss-Newton with Tukey weights then fits ``(pitch, roll)`` so that each point's ray lies
@@ -63,6 +66,7 @@ import jax
 import numpy as np
 
 from jaxocean import lens
+from jaxocean.errors import InvalidValueError
 
 __all__ = ["EARTH_RADIUS", "Horizon", "dip", "estimate_horizon", "horizon_points"]
 
@@ -154,6 +158,9 @@ def estimate_horizon(image, intrinsics: lens.Intrinsics, distortion: lens.Distor
     (see the module docstring for the method and the meaning of each option)."""
     gray = _gray(image)
     H, W = gray.shape
+    folds = lens.fold_problem(distortion, intrinsics, (W, H))
+    if folds is not None:  # the edge points beyond the fold would undistort to meaningless rays
+        raise InvalidValueError(f"estimate_horizon: the lens distortion {folds}")
     dip_angle = dip(height)
     points = horizon_points(gray, stride=stride, step=step, min_contrast=min_contrast)
     n_scanned = W // (max(1, W // 160) if stride is None else int(stride))

@@ -58,7 +58,9 @@ undistorted radius 1.3) 2 iterations leave 0.05 px, 4 reach 1.1e-13 px in float6
 exact to 6.1e-5 px, one rounding step of a coordinate near 640. Beyond the one-to-one range
 of a lens (e.g. ``k2 = 0``, ``k1 < 0`` at ``r^2 > 1 / (-3 k1)``) the Brown--Conrady polynomial
 folds back and points far outside the field of view project *into* the image; callers that
-project arbitrary points must limit the undistorted radius (:func:`max_radius`).
+project arbitrary points must limit the undistorted radius (:func:`max_radius`), and a lens
+that folds back inside its own image has pixels with no ray: :func:`fold_problem` (host
+side, on concrete values) says so, for the readers of lenses to refuse it.
 """
 
 from __future__ import annotations
@@ -69,6 +71,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 __all__ = [
     "Intrinsics",
@@ -78,6 +81,7 @@ __all__ = [
     "distort",
     "undistort",
     "max_radius",
+    "fold_problem",
     "normalize_pixels",
     "camera_coordinates",
     "denormalize",
@@ -254,6 +258,29 @@ def max_radius(distortion: Distortion, *, limit: float = 10.0, samples: int = 40
     first_bad = jnp.argmax(bad, axis=-1)
     # the last good radius before the first bad one
     return jnp.where(bad.any(axis=-1), r[jnp.maximum(first_bad - 1, 0)], jnp.asarray(limit, dtype))
+
+
+def fold_problem(distortion: Distortion, intrinsics: Intrinsics, image_size) -> str | None:
+    """None when every pixel of an image of ``image_size = (W, H)`` has a ray; else what is
+    wrong, in words that name the lens. The radial distortion ``r (1 + k1 r^2 + k2 r^4)``
+    must not fold back (:func:`max_radius`; tangential terms aside) before it reaches the
+    image's farthest corner, or the pixels beyond the fold (the view's lowest rays, the
+    horizon's ends) undistort to meaningless rays. Host side: concrete scalar leaves."""
+    limit = 10.0
+    r = float(max_radius(Distortion(*(np.float64(v) for v in distortion)), limit=limit))
+    if r >= limit:
+        return None
+    k1, k2 = float(distortion.k1), float(distortion.k2)
+    reach = r * (1 + k1 * r * r + k2 * r ** 4)
+    (W, H), (fx, fy, cx, cy) = image_size, (float(v) for v in intrinsics)
+    corner = max(math.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, W - 0.5) for v in (-0.5, H - 0.5))
+    if corner <= reach:
+        return None
+    return (f"k1 = {k1:g}, k2 = {k2:g} is not one-to-one over the image: the distortion folds back "
+            f"at the undistorted radius {r:.3g}, where it reaches {reach:.3g}, and the "
+            f"image's farthest corner lies at {corner:.3g} (normalised, (u - cx) / fx): the pixels "
+            f"beyond have no ray (check the coefficients' signs, and that they belong to these "
+            f"intrinsics)")
 
 
 # --------------------------------------------------------------------------- projection

@@ -27,7 +27,7 @@ Protocol
   where a pixel is usable, i.e. not clipped at the top (any channel of an RGB pixel) and,
   when ``low`` is given, not crushed to black (no channel at or below ``low``).
 * :func:`luminance(rgb)`: ``(..., 3) -> (...)`` with the Rec. 709 weights of
-  :data:`jaxocean.nn.geometry.LUMINANCE`, the weights by which the library models a gray
+  :data:`jaxocean.shading.LUMINANCE`, the weights by which the library models a gray
   image as the luminance of its RGB model.
 * :func:`load_frames(paths_or_video, response=...)` -> :class:`Frames`: PNG / JPEG / 16-bit
   gray PNG / OpenEXR files (one frame each) or one video file, all of one size.
@@ -47,8 +47,7 @@ import numpy as np
 from jaxocean.errors import check_values, is_concrete
 from jaxocean.io.exr import FileFormatError, read_frame, require_file
 from jaxocean.io.images import VIDEO_SUFFIXES, is_video_file, load_display, load_display_video
-from jaxocean.nn.geometry import LUMINANCE
-from jaxocean.shading import inverse_tonemap, tonemap
+from jaxocean.shading import LUMINANCE, inverse_tonemap, tonemap
 
 __all__ = [
     "RESPONSE_KINDS",
@@ -181,7 +180,7 @@ def saturation_mask(display, *, bits: int | None = 8, high=None, low=None, chann
 
 def luminance(rgb):
     """Luminance ``(...)`` of linear RGB ``(..., 3)`` with the weights the library models gray
-    images by (:data:`jaxocean.nn.geometry.LUMINANCE`, Rec. 709)."""
+    images by (:data:`jaxocean.shading.LUMINANCE`, Rec. 709)."""
     rgb = jnp.asarray(rgb)
     if rgb.shape[-1:] != (3,):
         raise ValueError(f"luminance expects (..., 3) RGB; got shape {rgb.shape}")

@@ -44,7 +44,8 @@ composed -- one implementation of the physics.
 
 Display: :func:`tonemap` maps linear radiance to display values in [0, 1]
 (Bruneton's curve, sRGB, or a plain clip) and :func:`inverse_tonemap` undoes it where the
-curve is invertible, to bring 8-bit images back to linear radiance.
+curve is invertible, to bring 8-bit images back to linear radiance. A gray image is the
+luminance of the RGB model, with the Rec. 709 weights :data:`LUMINANCE`.
 """
 
 from __future__ import annotations
@@ -70,6 +71,7 @@ __all__ = [
     "DEFAULT_SUN_COLOR",
     "DEFAULT_SKY_COLOR",
     "DEFAULT_SEA_COLOR",
+    "LUMINANCE",
     "TONEMAP_MODES",
     "Lighting",
     "ShadingTerms",
@@ -146,6 +148,11 @@ DEFAULT_SUN_ELEVATION = 0.6
 DEFAULT_SUN_COLOR = (20.0, 18.0, 15.0)
 DEFAULT_SKY_COLOR = (0.35, 0.55, 0.9)
 DEFAULT_SEA_COLOR = (0.01, 0.04, 0.06)
+
+LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 weights of linear RGB: the library models a gray image as the luminance
+``LUMINANCE . RGB`` of the RGB image model (:func:`jaxocean.radiometry.luminance`,
+:mod:`jaxocean.fit.photometric`, the gray geometry network of :mod:`jaxocean.nn.geometry`)."""
 
 
 # --------------------------------------------------------------------------- lighting

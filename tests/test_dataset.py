@@ -295,3 +295,24 @@ def test_loaded_converged_flags_are_the_rendered_ones(clean):
                                  SMALL["resolution"], SMALL["n_frames"])
     _, geo = dataset.render_scene(scene)
     np.testing.assert_array_equal(batch.converged[0], np.asarray(geo.converged))
+
+
+def test_a_clamped_draw_stores_the_hs_its_waves_carry(tmp_path):
+    # scene.json held the requested Hs (spectrum.hs) beside waves the steepness limit had
+    # clamped well below it, and nothing said so
+    from jaxocean import spectrum
+    from jaxocean.io.scene import read_scene
+
+    steep = dataset.SceneRanges(hs=(10.0, 10.0), tp=(3.0, 3.0), n_waves=8, camera_height=(30.0, 30.0))
+    with pytest.warns(spectrum.SteepnessWarning):
+        dataset.simulate(tmp_path, 1, 1, (8, 8), seed=0, ranges=steep, progress=False)
+    scene = read_scene(dataset.scene_dir(tmp_path, 0))
+    amplitude = np.asarray(scene.waves.amplitude, np.float64)
+    assert float(scene.spectrum.hs) == pytest.approx(10.0)  # the requested sea
+    assert scene.extra["clamped_waves"] > 0
+    assert scene.extra["waves_hs_m"] == pytest.approx(4 * np.sqrt(np.sum(amplitude ** 2) / 2), rel=1e-6)
+    assert scene.extra["waves_hs_m"] < 0.9 * 10.0  # 7.8 m
+    # an unclamped draw says so too
+    calm = dataset.sample_scene(jax.random.key(0), dataset.SceneRanges(hs=(0.3, 0.3), tp=(8.0, 8.0), n_waves=8),
+                                (8, 8), 1)
+    assert calm.clamped_waves == 0

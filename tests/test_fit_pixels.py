@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from jaxocean import render, shading
+from jaxocean.errors import InvalidValueError
 from jaxocean.fit import pixels
 from jaxocean.io import dataset
 
@@ -33,3 +34,12 @@ def test_bad_image_shape_is_named():
         pixels.invert(np.ones((20, 16, 3)), scene.camera, scene.lighting)
     with pytest.raises(ValueError, match="iterations"):
         pixels.invert(np.ones((16, 20, 3)), scene.camera, scene.lighting, iterations=0)
+
+
+def test_nan_sea_pixels_are_named_not_returned_as_nan_residuals():
+    scene = dataset.sample_scene(jax.random.key(7), dataset.SceneRanges(), (8, 10), 1)
+    image = np.full((8, 10, 3), 0.1)
+    sea = np.argwhere(np.asarray(render.geometry(scene.waves, scene.camera, 0.0).mask))[0]
+    image[sea[0], sea[1], 1] = np.nan
+    with pytest.raises(InvalidValueError, match="NaN/inf sea pixel"):
+        pixels.invert(image, scene.camera, scene.lighting, iterations=1)

@@ -7,6 +7,7 @@ import pytest
 from scipy.ndimage import gaussian_filter
 
 from jaxocean import horizon, lens
+from jaxocean.errors import InvalidValueError
 
 W, H = 320, 240
 INTRINSICS = lens.Intrinsics(188.2, 188.3, 161.6, 119.5)
@@ -83,3 +84,18 @@ def test_too_small_an_image_is_named_as_such():
         horizon.horizon_points(np.ones((4, 4)), step=3)
     with pytest.raises(ValueError, match=r"stride and step must be >= 1; got stride=0"):
         horizon.horizon_points(np.ones((8, 8)), stride=0)
+
+
+def test_a_lens_that_folds_back_inside_the_image_is_refused():
+    # the camera-file reader refused such a lens, but estimate_horizon reported success: the
+    # edge points beyond the fold undistort to meaningless rays
+    intr = lens.Intrinsics(1400.0, 1400.0, 959.5, 539.5)  # a 1920 x 1080 camera
+    image = np.full((1080, 1920), 0.15)
+    image[:540] = 0.95  # a clean, level horizon through the principal point: success without the check
+    with pytest.raises(InvalidValueError, match=r"^estimate_horizon: the lens distortion k1 = -1, k2 = 0 is not "
+                                                r"one-to-one over the image: the distortion folds back"):
+        horizon.estimate_horizon(image, intr, lens.Distortion(-1.0, 0.0), 12.0)
+    # the same lens over the middle 160 x 160 pixels has a ray for every pixel
+    small = horizon.estimate_horizon(image[460:620, 880:1040], intr._replace(cx=79.5, cy=79.5),
+                                     lens.Distortion(-1.0, 0.0), 12.0)
+    assert small.success, small.message

@@ -155,7 +155,7 @@ def test_a_frame_of_another_size_is_named(tmp_path):
 
 
 def test_luminance_uses_the_library_weights():
-    from jaxocean.nn.geometry import LUMINANCE
+    from jaxocean.shading import LUMINANCE
 
     rgb = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [0.5, 0.5, 0.5]])
     np.testing.assert_allclose(radiometry.luminance(rgb), list(LUMINANCE) + [0.5], rtol=1e-6)

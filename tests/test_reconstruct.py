@@ -544,3 +544,53 @@ def test_scene_directory_reads_as_its_scene_json(tmp_path):
     with pytest.raises(FileNotFoundError, match=r"empty: a directory with neither a camera file \(camera\.json\) "
                                                 r"nor a scene \(scene\.json\)"):
         rc.load_sequence(files, tmp_path / "empty")
+
+
+def test_reconstruct_from_python_names_a_fit_result_given_as_its_camera(tmp_path):
+    # only the CLI named it; reconstruct() said "scene is missing key(s) ['version']"
+    from jaxocean.fit import lighting_to_dict
+    from jaxocean.io.scene import SceneFileError
+
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
+    files = [save_png(tmp_path / f"frame_{i:05d}.png", np.full((16, 16, 3), 0.3)) for i in range(2)]
+    fit_json = tmp_path / "fit.json"  # the layout `jaxocean fit-lighting` writes
+    fit_json.write_text(json.dumps({"lighting": lighting_to_dict(jo.make_lighting()), "loss": 0.0, "rms_residual": 0.0,
+                                    "steps": 3, "success": True, "wall_time_s": 0.1, "frame": str(files[0]),
+                                    "camera": cam.camera_to_dict(camera, degrees=True)}))
+    with pytest.raises(SceneFileError, match=r"fit\.json: this is a lighting fit result \(jaxocean fit-lighting\); "
+                                             r"the camera takes a camera file"):
+        rc.reconstruct(files, fit_json, progress=False)
+    # and a dataset's settings, which carry a version as a scene does
+    settings = tmp_path / "dataset.json"
+    settings.write_text(json.dumps({"version": "0.1.0", "scenes": 2, "frames": 2, "ranges": {}}))
+    with pytest.raises(SceneFileError, match=r"this is a dataset's settings"):
+        rc.load_sequence(files, settings)
+
+
+def test_a_frame_that_sees_none_of_the_view_fails_stage_one():
+    # the share was averaged over the frames: nine clear frames and one that saw none of the
+    # working view (90 % on average) passed
+    sea = np.zeros((8, 8), bool)
+    sea[3:] = True
+    usable = np.ones((10, 8, 8), bool)
+    usable[6] = False
+    files = [f"frame_{i:05d}.png" for i in range(10)]
+    share, per_frame, problem = footage.usable_share(usable, sea, files)
+    assert share == pytest.approx(0.9) and per_frame[6] == 0.0
+    assert problem == ("1 of 10 frames see next to none of the working view (under 5% of its sea usable: saturated "
+                       "or outside the frame): frame 6 (frame_00006.png: 0%); 90% usable over all frames")
+    # a partial frame passes; a low share over all frames is named as before
+    usable[6, 5:] = True
+    assert footage.usable_share(usable, sea, files)[2] is None
+    usable[:8] = False
+    assert footage.usable_share(usable, sea, files)[2] == ("only 20% of the sea pixels are usable (saturated or "
+                                                           "outside the frames)")
+
+
+def test_stage_one_names_a_frame_outside_the_working_view(tmp_path):
+    # through load_sequence: the second of three frames is saturated all over (white)
+    files, scene_json, camera, times = _scene(tmp_path, frames=3)
+    save_png(files[1], np.full((32, 32, 3), 1e6))
+    seq, rep = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    assert not rep.success and "frame 1 (" in rep.message and "frame_00001.png: 0%)" in rep.message
+    assert rep.details["usable_sea_fraction"] > 0.5 and rep.details["usable_sea_fraction_min"] == 0.0

@@ -24,8 +24,7 @@ from jaxocean.fit._photometry import pq_to_sun
 from jaxocean.fit.waves._inputs import Samples
 from jaxocean.fit.waves._model import jacobian as wave_jacobian
 from jaxocean.fit.waves._model import to_waves
-from jaxocean.nn.geometry import LUMINANCE
-from jaxocean.shading import Lighting
+from jaxocean.shading import LUMINANCE, Lighting
 
 _BLOCK = 8  # forward-mode Jacobian columns per vmapped block (see solvers.value_and_jacobian)
 COLOR_NAMES = ("sun_color", "sky_color", "sea_color")

@@ -6,7 +6,7 @@ Protocol
 ...) -> PhotometricFit``
 
 * ``images``  ``(T, H, W, 3)`` linear RGB radiance, or ``(T, H, W)`` gray, taken as the
-  luminance ``LUMINANCE . RGB`` of the RGB model (:data:`jaxocean.nn.geometry.LUMINANCE`,
+  luminance ``LUMINANCE . RGB`` of the RGB model (:data:`jaxocean.shading.LUMINANCE`,
   Rec. 709), with an unknown overall exposure.
 * ``camera``  the :class:`jaxocean.camera.Camera` the frames are rectified to
   (``camera.resolution == (H, W)``); ``times`` ``(T,)`` frame times [s], strictly increasing.

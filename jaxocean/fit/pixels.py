@@ -28,11 +28,13 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import shading
 from jaxocean._math import normal_from_slope
 from jaxocean._sea_scale import compress, sea_median
+from jaxocean.errors import InvalidValueError, is_concrete
 
 __all__ = ["PixelFit", "invert"]
 
@@ -101,4 +103,11 @@ def invert(image, camera, lighting, *, tolerance: float = 1e-3, iterations: int 
                          f"got {image.shape}")
     if iterations < 1:
         raise ValueError(f"iterations must be >= 1; got {iterations}")
+    if is_concrete(image, camera):
+        # a NaN/inf sea pixel would come back as a NaN residual, silently (the sky is not used)
+        bad = ~np.isfinite(np.asarray(image)).all(-1) & np.asarray(cam.intersect_sea(camera).mask)
+        if bad.any():
+            first = np.argwhere(bad)[0].tolist()
+            raise InvalidValueError(f"image has {int(bad.sum())} NaN/inf sea pixel(s) (first at (row, col) = "
+                                    f"{first}); fit.pixels.invert needs finite linear radiance")
     return _invert(image, camera, lighting, jnp.asarray(tolerance, image.dtype), iterations)

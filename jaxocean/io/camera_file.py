@@ -312,26 +312,12 @@ def _refuse_unmodelled(f: _Fields, mapping: dict, field: str, known, zero_allowe
 
 
 def _check_one_to_one(f: _Fields, distortion: Distortion, intrinsics: Intrinsics, image_size) -> None:
-    """Every pixel must have a ray: the radial distortion ``r (1 + k1 r^2 + k2 r^4)`` must not
-    fold back (:func:`jaxocean.lens.max_radius`; tangential terms aside) before it reaches the
-    image's farthest corner, or the pixels beyond the fold (the view's lowest rays, the
-    horizon's ends) undistort to meaningless rays."""
-    from jaxocean.lens import max_radius
+    """Every pixel must have a ray (:func:`jaxocean.lens.fold_problem`)."""
+    from jaxocean.lens import fold_problem
 
-    limit = 10.0
-    r = float(max_radius(Distortion(*(np.float64(v) for v in distortion)), limit=limit))
-    if r >= limit:
-        return
-    k1, k2 = distortion.k1, distortion.k2
-    reach = r * (1 + k1 * r * r + k2 * r ** 4)
-    (W, H), (fx, fy, cx, cy) = image_size, intrinsics
-    corner = max(math.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, W - 0.5) for v in (-0.5, H - 0.5))
-    if corner > reach:
-        f.fail("distortion", f"k1 = {k1:g}, k2 = {k2:g} is not one-to-one over the image: the distortion folds back "
-                             f"at the undistorted radius {r:.3g}, where it reaches {reach:.3g}, and the "
-                             f"image's farthest corner lies at {corner:.3g} (normalised, (u - cx) / fx): the pixels "
-                             f"beyond have no ray (check the coefficients' signs, and that they belong to these "
-                             f"intrinsics)")
+    problem = fold_problem(distortion, intrinsics, image_size)
+    if problem is not None:
+        f.fail("distortion", problem)
 
 
 def _times(f: _Fields, frames: list[dict], frame_rate) -> np.ndarray:

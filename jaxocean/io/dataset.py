@@ -5,7 +5,10 @@ Protocol
 A dataset is a directory::
 
     dataset.json                 generation settings (seed, counts, resolution, ranges, version)
-    scene_00000/scene.json       waves, spectrum, camera, lighting, frame times, seed
+    scene_00000/scene.json       waves, spectrum, camera, lighting, frame times, seed; extra:
+                                 scene_index, and what the waves carry (waves_hs_m,
+                                 clamped_waves: the spectrum is the requested sea, and
+                                 a steep draw has its waves clamped below it)
     scene_00000/frame_00000.exr  R G B + normal.X/Y/Z, roughness, slope_variance.X/Y, mask,
                                  converged
                                  (see jaxocean.io.exr); R G B in half floats unless the
@@ -185,11 +188,17 @@ def _check_in_domain(name, value, low, high, integer=False):
 
 
 class SceneSample(NamedTuple):
+    """One scene: ``waves`` drawn from ``spectrum`` (the requested sea; None when the waves
+    come from elsewhere), ``camera``, ``lighting``, frame ``times`` [s], and
+    ``clamped_waves``: how many of the waves :func:`sample_scene`'s draw lowered to the
+    steepness limit (None when not drawn here), so the waves carry less than ``spectrum.hs``."""
+
     waves: object
     spectrum: spectrum.Spectrum
     camera: cam.Camera
     lighting: shading.Lighting
     times: jnp.ndarray
+    clamped_waves: int | None = None
 
 
 def _uniform(key, lo_hi, shape=()):
@@ -206,7 +215,7 @@ def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128)
         hs=_uniform(keys[1], ranges.hs), tp=_uniform(keys[2], ranges.tp),
         gamma=jnp.where(is_pm, 1.0, _uniform(keys[3], ranges.gamma)).astype(jnp.float32),
         theta_mean=_uniform(keys[4], ranges.theta_mean), s_max=_uniform(keys[5], ranges.s_max))
-    waves = spectrum.sample_waves(keys[6], spec, ranges.n_waves).waves
+    sea = spectrum.sample_waves(keys[6], spec, ranges.n_waves)  # clamps waves above the steepness limit
     camera = cam.make_camera(height=float(_uniform(keys[7], ranges.camera_height)),
                              pitch=float(_uniform(keys[8], ranges.pitch)), fov=float(_uniform(keys[9], ranges.fov)),
                              resolution=tuple(resolution))
@@ -217,7 +226,7 @@ def sample_scene(key, ranges: SceneRanges = SceneRanges(), resolution=(128, 128)
         sky_color=tuple(float(v) for v in _uniform(keys[13], ranges.sky_color)),
         sea_color=tuple(float(v) for v in _uniform(keys[14], ranges.sea_color)))
     times = jnp.arange(n_frames, dtype=jnp.float32) * _uniform(keys[15], ranges.frame_dt)
-    return SceneSample(waves, spec, camera, lighting, times)
+    return SceneSample(sea.waves, spec, camera, lighting, times, int(sea.n_clamped))
 
 
 #: EXR compression of half-float frames (module docstring, "Storage"); float32 frames use ZIP
@@ -445,8 +454,17 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
                     compression=HALF_FRAME_COMPRESSION if frame_half else "zip")
     write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
                                          spectrum=scene.spectrum, times=scene.times, seed=seed,
-                                         extra={"scene_index": index}))
+                                         extra={"scene_index": index, **_wave_summary(scene)}))
     return time.perf_counter() - t0
+
+
+def _wave_summary(scene: SceneSample) -> dict:
+    """What a scene's stored waves carry, for its ``scene.json`` ``extra`` beside the
+    requested ``spectrum``: ``waves_hs_m``, the significant wave height ``4 sqrt(sum h^2 / 2)``
+    [m] of the waves themselves (the sampled band, after the steepness clamp), and
+    ``clamped_waves``, how many of them the draw lowered to the steepness limit."""
+    amplitude = np.asarray(scene.waves.amplitude, np.float64)
+    return {"waves_hs_m": float(4.0 * np.sqrt(np.sum(amplitude ** 2) / 2.0)), "clamped_waves": scene.clamped_waves}
 
 
 def _write_manifest(out: Path, n_scenes: int, n_frames: int, known: dict | None = None) -> None:

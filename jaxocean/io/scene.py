@@ -30,7 +30,10 @@ restored exactly, float64 scenes exactly under x64. Non-finite numbers are refus
 JSON has none).
 
 Writes are atomic (:func:`jaxocean.files.write_json`); reading errors name the file
-(:class:`SceneError`, :class:`jaxocean.io.exr.MissingFileError`).
+(:class:`SceneError`, :class:`jaxocean.io.exr.MissingFileError`). :func:`json_kind` names
+the other JSON files jaxocean writes (a lighting fit, a dataset's settings, a camera file,
+...), and :func:`refuse_other_kind` refuses one where a scene is expected, by that name:
+the command line and the library read such files with the same words.
 """
 
 from __future__ import annotations
@@ -60,6 +63,8 @@ __all__ = [
     "scene_from_dict",
     "write_scene",
     "read_scene",
+    "json_kind",
+    "refuse_other_kind",
 ]
 
 SCENE_FILENAME = "scene.json"
@@ -186,6 +191,46 @@ def _extra(extra) -> dict:
 
 
 # --------------------------------------------------------------------------- from JSON
+
+
+def json_kind(data) -> str | None:
+    """What parsed JSON ``data`` that is not a scene file is, when it is one jaxocean writes;
+    None for anything else (a scene, a malformed scene, JSON of no known kind)."""
+    if not isinstance(data, dict):
+        return None
+    if {"scenes", "frames", "ranges"} <= data.keys():  # dataset.json carries a version too
+        return "a dataset's settings (dataset.json; its scenes are the scene_XXXXX directories beside it)"
+    if "version" in data:
+        return None
+    if "lighting" in data and ("rms_residual" in data or "loss" in data):
+        return "a lighting fit result (jaxocean fit-lighting)"
+    if "files" in data:
+        return "a dataset manifest (manifest.json)"
+    if {"train", "val", "test"} <= data.keys():
+        return "a dataset's splits (splits.json)"
+    if "outputs" in data and "frames" in data:
+        return "a demo summary (summary.json; its scene is the render directory beside it)"
+    if _is_camera_file(data):
+        return ("a camera file (camera.json of real footage: intrinsics and a pose per frame; "
+                "jaxocean reconstruct --camera takes it)")
+    return None
+
+
+def _is_camera_file(data) -> bool:
+    return isinstance(data, dict) and {"image_size", "intrinsics"} <= data.keys()
+
+
+def refuse_other_kind(data, path, needs: str, *, camera_file_ok: bool = False) -> None:
+    """:class:`SceneFileError` ``"<path>: this is <kind>; <needs>"`` when the parsed JSON
+    ``data`` of the file ``path`` is one of the other files :func:`json_kind` names, where
+    a scene (or, with ``camera_file_ok``, a camera file) is expected; ``needs`` says what
+    the caller takes instead. Anything else passes, for the scene's or camera file's own
+    reader to judge."""
+    if camera_file_ok and _is_camera_file(data):
+        return
+    kind = json_kind(data)
+    if kind is not None:
+        raise SceneFileError(path, f"this is {kind}; {needs}")
 
 
 def scene_from_dict(d: dict) -> Scene:

@@ -78,7 +78,7 @@ __all__ = [
 
 NORMAL_HEADS = ("vec", "sphere", "slope")
 COLOR_MODES = ("rgb", "gray")
-LUMINANCE = (0.2126, 0.7152, 0.0722)  # Rec. 709 weights: gray images as the luminance of the RGB model
+LUMINANCE = shading.LUMINANCE  # re-exported: Rec. 709 weights, gray images as the luminance of the RGB model
 _SLOPE_FLOOR = shading.MIN_SLOPE_VARIANCE_AXIS
 # package data (pyproject's package-data), found wherever the package is installed
 PRETRAINED_PATH = Path(str(importlib.resources.files("jaxocean.nn") / "pretrained" / "geometry_cpu.npz"))
