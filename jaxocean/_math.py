@@ -73,14 +73,16 @@ def safe_norm(x, axis: int = -1, keepdims: bool = False):
 
 def safe_normalize(x, fallback=None):
     """``x / |x|`` along the last axis; a zero vector maps to ``fallback`` (default: the last
-    basis vector, +z for 3-vectors). Gradients are finite everywhere, including at zero.
+    basis vector, +z for 3-vectors), a vector with a NaN component to NaN (a NaN is no zero
+    vector: traced, where no check sees it, it must not come out as a plausible unit vector).
+    Gradients are finite everywhere, including at zero.
     """
     sq = sum_last(x * x, keepdims=True)
     ok = sq > tiny(x)
-    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
+    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0 * sq)  # 0 * NaN: NaN
     if fallback is None:
         fallback = jnp.zeros(x.shape[-1], x.dtype).at[-1].set(1)
-    return jnp.where(ok, x * inv, fallback)
+    return jnp.where(ok | jnp.isnan(sq), x * inv, fallback)
 
 
 def normal_from_slope(slope):

@@ -268,11 +268,13 @@ def _vdot(a, b):
 
 
 def _vnormalize(v, fallback):
-    """:func:`jaxocean._math.safe_normalize` on component tuples (``fallback`` a tuple too)."""
+    """:func:`jaxocean._math.safe_normalize` on component tuples (``fallback`` a tuple too;
+    a NaN stays NaN)."""
     sq = _vdot(v, v)
     ok = sq > tiny(sq)
-    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0)
-    return tuple(jnp.where(ok, c * inv, f) for c, f in zip(v, fallback))
+    inv = jnp.where(ok, inv_sqrt(jnp.where(ok, sq, 1.0)), 0.0 * sq)  # 0 * NaN: NaN
+    keep = ok | jnp.isnan(sq)
+    return tuple(jnp.where(keep, c * inv, f) for c, f in zip(v, fallback))
 
 
 def _check_vectors(**vectors) -> None:

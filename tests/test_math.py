@@ -96,3 +96,29 @@ def test_materialize_is_the_identity_with_identity_derivatives(x64):
     for mode in (jax.grad, jax.jacfwd):
         np.testing.assert_allclose(mode(lambda v: jnp.sum(jnp.sin(materialize_cotangent(v))))(v), jnp.cos(v),
                                    rtol=1e-14)
+
+
+def test_safe_normalize_maps_zero_to_the_fallback_and_nan_to_nan_traced_as_eagerly():
+    from jaxocean._math import safe_normalize
+
+    x = jnp.asarray([[3.0, 0.0, 4.0], [0.0, 0.0, 0.0], [jnp.nan, 0.0, 1.0]])
+    for f in (safe_normalize, jax.jit(safe_normalize)):
+        y = np.asarray(f(x))
+        np.testing.assert_allclose(y[0], [0.6, 0.0, 0.8], rtol=1e-6)
+        np.testing.assert_array_equal(y[1], [0.0, 0.0, 1.0])  # a zero vector: the fallback
+        assert np.isnan(y[2]).all()  # a NaN is no zero vector: never a plausible +z
+    g = jax.grad(lambda v: safe_normalize(v)[..., 2].sum())(jnp.zeros(3))
+    assert np.isfinite(np.asarray(g)).all()
+
+
+def test_shade_under_jit_returns_nan_where_a_normal_is_nan():
+    # eagerly shade refuses NaN normals; traced it cannot look, and must not paint the pixel
+    # as a flat sea
+    from jaxocean import camera as cam
+    from jaxocean import render, shading
+
+    camera = cam.make_camera(height=10.0, pitch=0.8, fov=0.8, resolution=(8, 8))
+    normal = jnp.zeros((8, 8, 3)).at[..., 2].set(1.0).at[6, 4].set(jnp.nan)
+    image = np.asarray(jax.jit(render.shade)(normal, jnp.full((8, 8), 0.01), camera, shading.make_lighting()))
+    assert np.isnan(image[6, 4]).all()
+    assert np.isfinite(np.delete(image.reshape(64, 3), 6 * 8 + 4, axis=0)).all()
