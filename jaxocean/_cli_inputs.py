@@ -261,14 +261,15 @@ def scene_from_args(args):
 
     spec = spectrum.Spectrum(hs=args.hs, tp=args.tp, gamma=args.gamma, theta_mean=np.deg2rad(args.wave_direction),
                              s_max=args.spreading)
-    waves = spectrum.sample_waves(jax.random.key(args.seed), spec, args.waves).waves
+    sea = spectrum.sample_waves(jax.random.key(args.seed), spec, args.waves)  # clamps waves above the steepness limit
     cam = camera.make_camera(height=args.camera_height, pitch=np.deg2rad(args.camera_pitch_deg),
                              fov=np.deg2rad(args.camera_fov_deg), yaw=np.deg2rad(args.camera_yaw_deg),
                              resolution=args.res)
     light = shading.make_lighting(sun_azimuth=np.deg2rad(args.sun_azimuth),
                                   sun_elevation=np.deg2rad(args.sun_elevation))
     import jax.numpy as jnp
-    return SceneSample(waves, spec, cam, light, jnp.arange(args.frames, dtype=jnp.float32) * args.dt)
+    return SceneSample(sea.waves, spec, cam, light, jnp.arange(args.frames, dtype=jnp.float32) * args.dt,
+                       int(sea.n_clamped))
 
 
 def refuse_damped_forecast(scene, path, command: str) -> None:

@@ -832,3 +832,19 @@ def test_render_prints_a_steep_draw_as_a_cli_warning(tmp_path, capsys, monkeypat
     err = capsys.readouterr().err
     assert "jaxocean: warning: 2 of 2 sampled waves have k*h above max_steepness" in err
     assert "SteepnessWarning" not in err and ".py:" not in err, err
+
+
+def test_render_stores_the_hs_its_clamped_waves_carry(tmp_path):
+    # scene.json's spectrum is the requested sea; a steep draw's waves carry less, and say so
+    from jaxocean import spectrum
+    from jaxocean.io.scene import read_scene
+
+    with pytest.warns(spectrum.SteepnessWarning):
+        assert cli.main(["render", "--out", str(tmp_path / "a"), "--res", "8x8", "--frames", "1", "--waves", "8",
+                         "--hs", "10", "--tp", "3", "--camera-height", "30"]) == 0
+    scene = read_scene(tmp_path / "a")
+    amplitude = np.asarray(scene.waves.amplitude, np.float64)
+    assert float(scene.spectrum.hs) == pytest.approx(10.0)
+    assert scene.extra["clamped_waves"] > 0
+    assert scene.extra["waves_hs_m"] == pytest.approx(4 * np.sqrt(np.sum(amplitude ** 2) / 2), rel=1e-6)
+    assert scene.extra["waves_hs_m"] < 0.9 * 10.0

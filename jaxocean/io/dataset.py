@@ -76,7 +76,7 @@ from jaxocean._records import record_from_json, record_to_json
 from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.files import read_json, write_json
 from jaxocean.io.exr import FileFormatError, IncompleteFrameWarning, read_frame, write_frame
-from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, write_scene
+from jaxocean.io.scene import SCENE_FILENAME, read_scene, scene_to_dict, waves_summary, write_scene
 from jaxocean.io.sequence import fits_half, frame_name
 from jaxocean.waves import check_phase_precision
 
@@ -454,17 +454,9 @@ def _write_scene_files(out: Path, index: int, seed: int, scene: SceneSample, ima
                     compression=HALF_FRAME_COMPRESSION if frame_half else "zip")
     write_scene(directory, scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
                                          spectrum=scene.spectrum, times=scene.times, seed=seed,
-                                         extra={"scene_index": index, **_wave_summary(scene)}))
+                                         extra={"scene_index": index,
+                                                **waves_summary(scene.waves, scene.clamped_waves)}))
     return time.perf_counter() - t0
-
-
-def _wave_summary(scene: SceneSample) -> dict:
-    """What a scene's stored waves carry, for its ``scene.json`` ``extra`` beside the
-    requested ``spectrum``: ``waves_hs_m``, the significant wave height ``4 sqrt(sum h^2 / 2)``
-    [m] of the waves themselves (the sampled band, after the steepness clamp), and
-    ``clamped_waves``, how many of them the draw lowered to the steepness limit."""
-    amplitude = np.asarray(scene.waves.amplitude, np.float64)
-    return {"waves_hs_m": float(4.0 * np.sqrt(np.sum(amplitude ** 2) / 2.0)), "clamped_waves": scene.clamped_waves}
 
 
 def _write_manifest(out: Path, n_scenes: int, n_frames: int, known: dict | None = None) -> None:

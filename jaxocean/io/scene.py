@@ -65,6 +65,7 @@ __all__ = [
     "read_scene",
     "json_kind",
     "refuse_other_kind",
+    "waves_summary",
 ]
 
 SCENE_FILENAME = "scene.json"
@@ -178,6 +179,16 @@ def _seed(seed) -> int:
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise ValueError(f"scene seed must be an int; got {seed!r}")
     return seed
+
+
+def waves_summary(waves, clamped_waves: int | None = None) -> dict:
+    """What drawn waves carry, for a scene file's ``extra`` beside the requested ``spectrum``:
+    ``waves_hs_m``, the significant wave height ``4 sqrt(sum h^2 / 2)`` [m] of the waves
+    themselves (the sampled band, after the steepness clamp), and ``clamped_waves``, how many
+    of them the draw lowered to the steepness limit (None: not known)."""
+    amplitude = np.asarray(waves.amplitude, np.float64)
+    return {"waves_hs_m": float(4.0 * np.sqrt(np.sum(amplitude ** 2) / 2.0)),
+            "clamped_waves": None if clamped_waves is None else int(clamped_waves)}
 
 
 def _extra(extra) -> dict:

@@ -10,6 +10,9 @@ of the first frame and ``scene.json``. ``scene`` is anything with ``waves``, ``c
 (as a :class:`jaxocean.render.Geometry` does) ``slope_variance (T, H, W, 2)``, which is
 stored so that each frame's geometry reproduces its image (:mod:`jaxocean.io.exr`), and
 ``converged (T, H, W)`` (where the ray-surface hits are exact), stored when not None.
+When the scene has a spectrum, ``scene.json``'s ``extra`` also says what its waves carry
+(:func:`jaxocean.io.scene.waves_summary`: ``waves_hs_m``, and ``clamped_waves``, the waves a
+draw lowered to the steepness limit, when ``scene`` says).
 Every file is written atomically (:func:`jaxocean.files.atomic_write`). The CLI's
 ``render``, ``demo`` and ``forecast`` and :func:`jaxocean.fit.reedit_scene` all write
 through here.
@@ -35,7 +38,7 @@ from jaxocean.files import atomic_write
 from jaxocean.errors import check_number
 from jaxocean.io.exr import checked_frame, write_frame
 from jaxocean.io.images import save_png
-from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, write_scene
+from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, waves_summary, write_scene
 
 __all__ = ["HALF_MAX", "fits_half", "frame_name", "remove_stale_frames", "write_sequence"]
 
@@ -106,8 +109,11 @@ def write_sequence(out, scene, images, geometry, *, half: bool = True, seed=None
     # everything is checked before the previous sequence is touched: a failure leaves it whole
     for f, (g, meta) in enumerate(frames):
         checked_frame(images[f], g, meta, half=False)
+    spec = getattr(scene, "spectrum", None)
+    if spec is not None:  # drawn waves: what they carry beside the requested sea (io.scene.waves_summary)
+        extra = {**waves_summary(scene.waves, getattr(scene, "clamped_waves", None)), **(extra or {})}
     scene_dict = scene_to_dict(waves=scene.waves, camera=scene.camera, lighting=scene.lighting,
-                               spectrum=getattr(scene, "spectrum", None), times=times, seed=seed, extra=extra)
+                               spectrum=spec, times=times, seed=seed, extra=extra)
     scene_from_dict(scene_dict)
     if half and not fits_half(images):
         print("note: radiance beyond the half-float range; writing float32 EXR", file=sys.stderr)
