@@ -662,6 +662,27 @@ def test_determined_waves_are_the_separable_ones(ortho_fit):
     assert fw.refine(*ortho_fit_inputs(), w, max_steps=2).determined is None
 
 
+def test_a_wave_at_half_the_frame_rate_is_not_determined():
+    # at omega dt = pi the wave and its reverse twin (theta + pi, -phi) make the same trochoid
+    # in every frame: the frames cannot tell which way it travels (a fit of such a clean
+    # 1-wave sea marked its 0.027 rad/s-off wave determined, 165 sigma off)
+    c = ortho()
+    om = float(np.sqrt(GRAVITY * 2 * np.pi / 4.0))  # a 4 m wave in the 12 m view
+    wave = make_waves([0.03], [om], [0.4], [0.5])
+    at_alias = np.arange(5) * (np.pi / om)
+    assert fw.alias_separation(wave, at_alias)[0] == pytest.approx(0.0, abs=1e-5)  # float32 omega
+    assert fw.separable(wave, c, at_alias).tolist() == [False]
+    # the twins are one image in every frame
+    twin = make_waves([0.03], [om], [0.4 + np.pi], [-0.5])
+    n1, _ = fw.predict(wave, c, at_alias)
+    n2, _ = fw.predict(twin, c, at_alias)
+    np.testing.assert_allclose(n1, n2, atol=2e-6)
+    # a window's Rayleigh limit away, and for irregular frames, it is
+    off = np.arange(5) * (np.pi / om) * 0.7
+    assert fw.alias_separation(wave, off)[0] > 1.0 and fw.separable(wave, c, off).tolist() == [True]
+    assert fw.alias_separation(wave, at_alias * np.array([1, 1, 1, 1, 1.1]))[0] == np.inf
+
+
 def long_wave_sea():
     # the three resolvable waves plus a swell three views long (36 m in the 12 m view) and
     # one twice as long, each steeper than the short waves: over the window a smooth,
@@ -1001,6 +1022,17 @@ def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
     crossed = fit_spectrum.spectrum(jax.tree.map(lambda x, y: jnp.concatenate([x, y]), a, b))
     assert crossed.misfit <= crossed.misfit_bound and not crossed.success
     assert crossed.direction_misfit < -fit_spectrum.DIRECTION_Z_MAX  # measured -3.9
+    # two systems of one period from opposite directions: the direction fit wants a spreading
+    # broader than its grid allows (s_max at the grid's lower end, theta_std NaN) and puts the
+    # mean at right angles to both; the second-moment test alone passed it (z -1.86)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", spectrum.SteepnessWarning)
+        a = spectrum.sample_waves(jax.random.key(0), one._replace(s_max=10.0), 40).waves
+        b = spectrum.sample_waves(jax.random.key(1), one._replace(s_max=10.0, theta_mean=np.pi), 40).waves
+    opposed = fit_spectrum.spectrum(jax.tree.map(lambda x, y: jnp.concatenate([x, y]), a, b))
+    assert opposed.misfit <= opposed.misfit_bound
+    assert float(opposed.spectrum.s_max) == pytest.approx(fit_spectrum.S_MAX_GRID[0])
+    assert not opposed.success
     # a stated noise of the cumulative energy widens the bound: the same answer is accepted
     lenient = fit_spectrum.spectrum(both, noise=0.2)
     assert lenient.success and lenient.misfit == pytest.approx(bad.misfit)

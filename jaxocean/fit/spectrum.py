@@ -108,7 +108,7 @@ from jaxocean.errors import InvalidValueError, check_values
 from jaxocean.waves import GRAVITY, Waves, validate
 
 __all__ = ["SpectrumFit", "spectrum", "correct_amplitudes", "tail_waves", "sea_state", "SeaState", "NOISE_FACTOR",
-           "ENERGY_FLOOR", "ROUGHNESS_FLOOR", "MIN_DIRECTION_WAVES", "DIRECTION_Z_MAX", "TAIL_START",
+           "ENERGY_FLOOR", "ROUGHNESS_FLOOR", "MIN_DIRECTION_WAVES", "DIRECTION_Z_MAX", "S_MAX_GRID", "TAIL_START",
            "direction_misfit"]
 
 
@@ -121,7 +121,8 @@ class SpectrumFit(NamedTuple):
       ``misfit <= misfit_bound`` and, with roughness, ``roughness_misfit <=
       roughness_bound`` (see :func:`spectrum`), and the waves' energies give at least
       :data:`MIN_DIRECTION_WAVES` effective waves for the direction fit, and their
-      directions fit one spreading (``direction_misfit``). A converged fit of waves that no
+      directions fit one spreading (``direction_misfit``, and ``s_max`` above the lower end of
+      :data:`S_MAX_GRID`, the broadest spreading the fit allows). A converged fit of waves that no
       single JONSWAP / Mitsuyasu spectrum describes (two wave systems of different periods,
       or of one period from directions 2 rad or more apart) is reported failed.
     * ``steps``          solver steps.
@@ -229,6 +230,12 @@ ENERGY_FLOOR = 0.04
 #: directions 2.0 and 3.0 rad apart: -2.2 and -3.9; 1.0 and 1.5 rad apart -0.2 and -1.1, which
 #: one broad spreading describes about as well
 DIRECTION_Z_MAX = 2.0
+#: the ``s_max`` grid of the direction fit. A fit at its lower end wants a spreading broader
+#: than ``cos^1`` of the half angle, nearly isotropic: no single spreading describes the
+#: directions (measured: two 40-wave systems of one Tp from opposite directions ended there
+#: on 5 of 12 draws, two of them passing the ``DIRECTION_Z_MAX`` test with a mean direction
+#: at right angles to both), so ``success`` is refused there
+S_MAX_GRID = (0.5, 150.0)
 #: the same for the relative roughness residual of the rows, ``sqrt(NOISE_FACTOR
 #: roughness_noise^2 + ROUGHNESS_FLOOR^2)``: the true waves of four dataset scenes with their
 #: own roughness leave 0.00-0.08
@@ -524,6 +531,8 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     dir_misfit = (direction_misfit(om, th, wp, theta_mean, s_max, weight=h * h) if directions_determined
                   else float("nan"))
     one_spreading = not abs(dir_misfit) > DIRECTION_Z_MAX  # NaN (no variance to test) passes
+    # a spreading broader than the grid's broadest: no single spreading (S_MAX_GRID)
+    one_spreading = one_spreading and s_max > S_MAX_GRID[0] * (1 + 1e-9)
     fitted = spec.Spectrum(hs=jnp.asarray(hs_fit, dtype), tp=jnp.asarray(tp_fit, dtype),
                            gamma=jnp.asarray(g_fit, dtype), theta_mean=jnp.asarray(theta_mean, dtype),
                            s_max=jnp.asarray(s_max, dtype))
@@ -685,7 +694,7 @@ def _direction_mle(om, th, wp, weight=None):
     n_eff = float(np.sum(weight) ** 2 / max(float(np.sum(weight * weight)), 1e-300))  # Kish's effective size
     determined = n_eff >= MIN_DIRECTION_WAVES
     th_grid = np.linspace(-np.pi, np.pi, 360, endpoint=False)
-    s_grid = np.geomspace(0.5, 150.0, 48)
+    s_grid = np.geomspace(*S_MAX_GRID, 48)
     ll = np.sum(weight * _spreading_loglik(th_grid[:, None, None], s_grid[None, :, None], om, th, wp), -1)  # (T, S)
     i, j = np.unravel_index(np.argmax(ll), ll.shape)
 

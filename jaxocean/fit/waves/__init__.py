@@ -118,8 +118,8 @@ from jaxocean.fit.waves._band import LongWaveBand
 from jaxocean.fit.waves._inputs import UNIT_NORMAL_TOLERANCE, check_inputs
 from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAMES, WaveFit, normal_error_bound,
                                     refine)
-from jaxocean.fit.waves._match import (WaveMatch, forecast_model, forecast_plan, frequency_cell, match,
-                                       noise_cells, rayleigh_separation, resolvable, separable)
+from jaxocean.fit.waves._match import (WaveMatch, alias_separation, forecast_model, forecast_plan, frequency_cell,
+                                       match, noise_cells, rayleigh_separation, resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
@@ -146,6 +146,7 @@ __all__ = [
     "resolvable",
     "separable",
     "rayleigh_separation",
+    "alias_separation",
     "match",
     "frequency_cell",
     "noise_cells",

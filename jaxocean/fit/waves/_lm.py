@@ -87,8 +87,10 @@ class WaveFit(NamedTuple):
     * ``history``      ``(max_steps + 1,)`` loss after every step, or None.
     * ``determined``   (:func:`waves` only, else None) bool ``(N,)``: the wave is
       :func:`separable` -- resolved by the image and separated from every other fitted wave
-      by the observation window, so its parameters are measured; the others stand in for
-      what the view cannot separate (waves longer than the view, close pairs).
+      by the observation window, and from its own reverse twin by the frame rate
+      (:func:`alias_separation`), so its parameters are measured; the others stand in for
+      what the view cannot separate (waves longer than the view, close pairs, a wave whose
+      frequency is a multiple of half the frame rate).
     * ``converged``    the (final) refinement met its convergence tolerances (a fit that
       explains its data to well within the noise can still be creeping along the
       ill-conditioned directions of close or long waves when its step budget ends).

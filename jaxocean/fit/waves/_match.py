@@ -110,12 +110,38 @@ def separable(waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
     shorter-footprint ones resolving wave ``i`` when none resolves both): the Rayleigh limit
     (:func:`rayleigh_separation` >= 1). Closer pairs are one blurred peak in any space-time
     spectrum of the data, and a fit explains them with waves whose split the data do not
-    determine.
+    determine. A wave must also be separated from its own frame-rate alias
+    (:func:`alias_separation` >= 1): the frames cannot tell which way it travels.
     """
     ok = resolvable(waves_, camera, n_max=n_max, max_distance=max_distance)
     sep = rayleigh_separation(waves_, waves_, camera, times, n_max=n_max, max_distance=max_distance)
     np.fill_diagonal(sep, np.inf)
-    return ok & np.all(sep >= 1.0, axis=1)
+    return ok & np.all(sep >= 1.0, axis=1) & (alias_separation(waves_, times) >= 1.0)
+
+
+def alias_separation(waves_: Waves, times) -> np.ndarray:
+    """Separation ``(N,)`` of each wave from its reverse twin in units of the window's
+    Rayleigh limit, for frames a constant ``dt`` apart (eager, NumPy; ``inf`` for other
+    times or a single frame).
+
+    The twin ``(theta + pi, -phi)`` at the same ``omega`` is the wave at frequency ``-omega``,
+    which the frames alias onto ``omega`` when ``omega dt`` is a multiple of ``pi`` (the twin's
+    trochoid then equals the wave's in every frame: heights and horizontal displacements
+    alike). The separation is ``min_m |2 omega - 2 pi m / dt| T / (2 pi)`` over ``m >= 1``
+    (``T`` the observed duration); ``m = 0``, a wave observed for less than half its period,
+    is left to the long-wave rules."""
+    omega = np.asarray(waves_.omega, np.float64)
+    t = np.asarray(times, np.float64).ravel()
+    if t.size < 2:
+        return np.full(omega.shape, np.inf)
+    steps = np.diff(t)
+    dt = float(np.mean(steps))
+    if not (dt > 0 and np.allclose(steps, dt, rtol=1e-6, atol=0.0)):
+        return np.full(omega.shape, np.inf)  # irregular frames do not alias onto one frequency
+    duration = float(t[-1] - t[0])
+    alias = 2 * np.pi / dt  # 2 omega is aliased by multiples of the frame rate
+    m = np.maximum(np.round(2 * omega / alias), 1.0)
+    return np.abs(2 * omega - m * alias) * duration / (2 * np.pi)
 
 
 def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
