@@ -7,7 +7,7 @@
   input: :func:`check_memory` (a render's estimated peak memory, :func:`render_bytes`,
   against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
-  :func:`json_kind`, from :mod:`jaxocean.io.scene`), :func:`check_frames`.
+  :func:`jaxocean.io.scene.json_kind`), :func:`check_frames`.
 * Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``; the file's with its seed),
   :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
@@ -27,12 +27,12 @@ from pathlib import Path
 import numpy as np
 
 from jaxocean.files import read_json
-from jaxocean.io.scene import json_kind, refuse_other_kind
+from jaxocean.io.scene import refuse_other_kind
 
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
            "fov_degrees", "pitch_degrees", "sun_elevation_degrees",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
-           "json_kind", "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
+           "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
            "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
 
 

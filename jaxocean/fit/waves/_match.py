@@ -18,7 +18,7 @@ from typing import NamedTuple
 import numpy as np
 
 from jaxocean import camera as cam
-from jaxocean import hierarchy
+from jaxocean import hierarchy, spacetime
 from jaxocean.fit.waves._band import view_diameter
 from jaxocean.waves import GRAVITY, Waves, validate
 
@@ -121,8 +121,8 @@ def separable(waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
 
 def alias_separation(waves_: Waves, times) -> np.ndarray:
     """Separation ``(N,)`` of each wave from its reverse twin in units of the window's
-    Rayleigh limit, for frames a constant ``dt`` apart (eager, NumPy; ``inf`` for other
-    times or a single frame).
+    Rayleigh limit, for frames a constant ``dt`` apart (:func:`jaxocean.spacetime.uniformly_spaced`;
+    eager, NumPy; ``inf`` for other times or a single frame).
 
     The twin ``(theta + pi, -phi)`` at the same ``omega`` is the wave at frequency ``-omega``,
     which the frames alias onto ``omega`` when ``omega dt`` is a multiple of ``pi`` (the twin's
@@ -132,12 +132,9 @@ def alias_separation(waves_: Waves, times) -> np.ndarray:
     is left to the long-wave rules."""
     omega = np.asarray(waves_.omega, np.float64)
     t = np.asarray(times, np.float64).ravel()
-    if t.size < 2:
-        return np.full(omega.shape, np.inf)
-    steps = np.diff(t)
-    dt = float(np.mean(steps))
-    if not (dt > 0 and np.allclose(steps, dt, rtol=1e-6, atol=0.0)):
-        return np.full(omega.shape, np.inf)  # irregular frames do not alias onto one frequency
+    if not spacetime.uniformly_spaced(t):
+        return np.full(omega.shape, np.inf)  # irregular frames (or one) do not alias onto one frequency
+    dt = float(np.mean(np.diff(t)))
     duration = float(t[-1] - t[0])
     alias = 2 * np.pi / dt  # 2 omega is aliased by multiples of the frame rate
     m = np.maximum(np.round(2 * omega / alias), 1.0)
