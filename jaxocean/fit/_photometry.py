@@ -176,7 +176,13 @@ def prepare(image, normal, slope_var, camera, weight, horizon_gradient) -> Data:
     sea = hit.mask
     up = jnp.zeros(3, dtype).at[2].set(1.0)
     view = jnp.where(sea[..., None], hit.view.astype(dtype), up)
-    normal = jnp.where(sea[..., None], normal, up)
+    # pixels the fit does not use may hold no geometry (NaN): a flat sea there, whose weight 0
+    # then leaves it out (0 * NaN would be NaN); the used pixels keep theirs, NaN included,
+    # so a traced NaN shows in the loss
+    unused = ~jnp.any(weight > 0, axis=-1, keepdims=True)
+    no_normal = unused & ~jnp.all(jnp.isfinite(normal), -1, keepdims=True)
+    normal = jnp.where(sea[..., None] & ~no_normal, normal, up)
+    slope_var = jnp.where(unused & ~jnp.all(jnp.isfinite(slope_var), -1, keepdims=True), 0.0, slope_var)
     normal, view = safe_normalize(normal), safe_normalize(view)
     floor = shading.MIN_SLOPE_VARIANCE_AXIS
     sx2 = jnp.maximum(slope_var[..., 0], floor)

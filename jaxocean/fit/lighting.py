@@ -507,13 +507,6 @@ def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise, shifts=None):
 
 def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, normal_noise,
                 st: _Static):
-    # pixels the fit does not use may hold no geometry (NaN, as _validate_geometry allows):
-    # a flat sea there, whose weight 0 then leaves it out (0 * NaN would be NaN); the used
-    # pixels keep theirs, NaN included, so a traced NaN shows in the loss
-    unused = ~jnp.any(weight > 0, axis=-1, keepdims=True)
-    normal = jnp.where(unused & ~jnp.all(jnp.isfinite(normal), -1, keepdims=True),
-                       jnp.zeros(3, normal.dtype).at[2].set(1.0), normal)
-    slope_var = jnp.where(unused & ~jnp.all(jnp.isfinite(slope_var), -1, keepdims=True), 0.0, slope_var)
     data = ph.prepare(image, normal, slope_var, camera, weight, horizon_gradient)
     pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
     light = ph.finish(data, pq, colors)
