@@ -146,19 +146,23 @@ def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hiera
     """Separation ``(M, N)`` of each of ``new (M,)`` from each of ``waves_ (N,)`` in units of
     the window's Rayleigh limit: ``max(|omega_i - omega_j| T, |k_i - k_j| L_ij) / (2 pi)``
     with ``T`` and ``L_ij`` as in :func:`separable` (eager, NumPy); below 1 the window does
-    not separate the pair."""
+    not separate the pair. For frames a constant ``dt`` apart, also from each wave's reverse
+    twin aliased by the frame rate (wave vector ``-k_j``, frequency ``2 pi m / dt - omega_j``,
+    ``m >= 1``; :func:`alias_separation`): the smaller of the two. Such a twin makes the same
+    frames as wave ``j``, so a wave close to it is not separated from ``j`` either."""
     om_n, th_n, fp, xy = _sea_view(new, camera, max_distance)
     om_s, th_s, _, _ = _sea_view(waves_, camera, max_distance)
-    t = np.asarray(times, np.float64)
+    t = np.asarray(times, np.float64).ravel()
     duration = float(t[-1] - t[0])
+    frame_rate = 2 * np.pi / float(np.mean(np.diff(t))) if spacetime.uniformly_spaced(t) else None
     k_n, k_s = om_n ** 2 / GRAVITY, om_s ** 2 / GRAVITY
     kv_n = np.stack([k_n * np.cos(th_n), k_n * np.sin(th_n)], -1)
     kv_s = np.stack([k_s * np.cos(th_s), k_s * np.sin(th_s)], -1)
     lam_n, lam_s = 2 * np.pi / k_n, 2 * np.pi / k_s
     reach = fp * n_max  # (P,) the shortest wavelength each pixel resolves
-    out = np.zeros((om_n.size, om_s.size))
-    for i in range(om_n.size):
-        dk = kv_n[i] - kv_s  # (N, 2)
+
+    def limits(i, dk, d_om):
+        # (N,) separations of new wave i from wave vectors and frequencies dk, d_om away
         n = np.linalg.norm(dk, axis=-1)
         proj = xy @ (dk / np.maximum(n, 1e-12)[:, None]).T  # (P, N)
         sel = reach[:, None] <= np.minimum(lam_n[i], lam_s)[None, :]
@@ -168,7 +172,15 @@ def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hiera
         hi = np.max(np.where(sel, proj, -np.inf), axis=0)
         lo = np.min(np.where(sel, proj, np.inf), axis=0)
         extent = np.where(has, hi - lo, 0.0)
-        out[i] = np.maximum(np.abs(om_n[i] - om_s) * duration, n * extent) / (2 * np.pi)
+        return np.maximum(np.abs(d_om) * duration, n * extent) / (2 * np.pi)
+
+    out = np.zeros((om_n.size, om_s.size))
+    for i in range(om_n.size):
+        out[i] = limits(i, kv_n[i] - kv_s, om_n[i] - om_s)
+        if frame_rate is not None:
+            both = om_n[i] + om_s  # the twin stands at 2 pi m / dt - omega_j
+            m = np.maximum(np.round(both / frame_rate), 1.0)
+            out[i] = np.minimum(out[i], limits(i, kv_n[i] + kv_s, both - m * frame_rate))
     return out
 
 

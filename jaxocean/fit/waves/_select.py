@@ -343,25 +343,32 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         return True
 
     def try_hits(w: Waves, band_: Waves | None, rss: float | None):
-        """Where :func:`update_surface` switches, refit ``w`` on the hits path and keep that
-        fit -- ``(waves, band, out)`` -- if it explains the data better than the rows path's
-        ``rss`` (None: unknown, kept); else back on the rows path (data rendered on it, as
-        ``render`` does where no wave moves a hit by half a footprint, are its own; and the
-        band's heights, which its slopes barely fix, can move the hits on a sea the rows
-        path explains: measured 0.11 m on one short wave fitted to 3e-6 rad, 4 waves and a
-        failure on the hits path) and None."""
+        """Where :func:`update_surface` switches, refit ``w`` on both paths with the same steps
+        and keep the path that explains the data better: ``(waves, band, out)`` of that fit
+        (None where it does not switch). Equal steps, because ``w`` comes from a short trial:
+        against its residual a longer refit on either path wins (measured: one clean wave at
+        two frames per period, 8 steps from its start at 17x the noise floor, moved to the
+        hits path and took 12 stand-ins; 32 more steps on the rows path explain it). Back on
+        the rows path the data are its own (rendered on it, as ``render`` does where no wave
+        moves a hit by half a footprint; and the band's heights, which its slopes barely
+        fix, can move the hits on a sea the rows path explains: measured 0.11 m on one short
+        wave fitted to 3e-6 rad, 4 waves and a failure on the hits path)."""
         nonlocal total_steps
         if not update_surface(w, band_, rss):
             return None
-        h_waves, h_band, h_out = run_lm(w, band_, 4 * inner_steps)
-        total_steps += int(h_out.steps)
-        if rss is None or rss_of(h_out) < rss:
-            return h_waves, h_band, h_out
-        state["refine"], state["rows_kept_at"] = ROWS, rss
+        h_fit = run_lm(w, band_, 4 * inner_steps)
+        total_steps += int(h_fit[2].steps)
+        state["refine"] = ROWS
+        r_fit = run_lm(w, band_, 4 * inner_steps)
+        total_steps += int(r_fit[2].steps)
+        if rss_of(h_fit[2]) < rss_of(r_fit[2]):
+            state["refine"] = HITS
+            return h_fit
+        state["rows_kept_at"] = rss_of(r_fit[2])
         if verbose:
-            print(f"  the hits path explains the data no better (rss/m {rss_of(h_out) / m_obs:.3e} against "
-                  f"{rss / m_obs:.3e}): staying on the rows path", flush=True)
-        return None
+            print(f"  the hits path explains the data no better (rss/m {rss_of(h_fit[2]) / m_obs:.3e} against "
+                  f"{rss_of(r_fit[2]) / m_obs:.3e} on the rows path): staying on the rows path", flush=True)
+        return r_fit
 
     def model_of(w: Waves, band_: Waves | None) -> Waves:
         # the model's waves padded to a bucket size with zero-amplitude waves: every
@@ -658,7 +665,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             rss_now = rss_of(out)
             on_hits = try_hits(current, band, rss_now)
             if on_hits is not None:
-                # later trials are scored against the hits path's fit, under the same model
+                # later trials are scored against the refit on the path chosen
                 current, band, out = on_hits
                 best_score = score_of(current, band, out)
                 rss_now = rss_of(out)
