@@ -560,14 +560,18 @@ def _mean_square_slopes(geometry) -> tuple:
 
 
 def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.0, ahead=(2.0, 10.0, 30.0),
-                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0), model=None, plan="rows"):
+                  height_factor: float = 0.5, sun_elevation: float = math.radians(25.0), model=None, plan="rows",
+                  waves_ok: bool = True):
     """Stage 6b: forecast frames ``ahead`` seconds after the last observed frame, and the
     last frame re-rendered from a camera ``height_factor`` times as high and under a new sun
     (``sun_elevation``, from behind the camera; an overcast fit gets a sun 20 times its sky);
     linear images in the footage's units (times ``exposure``). ``model``: None (forecast
     ``waves`` as they are) or ``(waves, frequency_sigma, window)`` of
     :func:`jaxocean.fit.waves.forecast_model`: the least-squares forecast of a wave fit,
-    drawn with ``plan`` (:func:`jaxocean.fit.waves.forecast_plan`: the fit's surface path)."""
+    drawn with ``plan`` (:func:`jaxocean.fit.waves.forecast_plan`: the fit's surface path).
+
+    Success: ``waves_ok``, some stage confirmed the waves (as :func:`sea_stage`'s): frames
+    drawn from waves that explain no data are drawn all the same, but forecast nothing."""
     from jaxocean import fit
 
     def run():
@@ -587,9 +591,12 @@ def outlook_stage(seq: Sequence, waves: Waves, lighting, *, exposure: float = 1.
         out = dict(times=times, forecast=exposure * np.asarray(fcast.image), lower=exposure * np.asarray(lower),
                    new_sun=exposure * np.asarray(sun),
                    normals=np.asarray(fcast.geometry.normal))
-        return out, True, "", dict(ahead_s=list(ahead), camera_height_m=height_factor * float(seq.camera.height),
-                                   sun_elevation_deg=math.degrees(sun_elevation),
-                                   forecast="least-squares (damped)" if model is not None else "as fitted (no wave fit)")
+        why = "" if waves_ok else ("the forecast draws waves no stage confirmed (the wave fit failed and the "
+                                   "photometric refinement did not succeed): it forecasts nothing")
+        return out, waves_ok, why, dict(ahead_s=list(ahead), camera_height_m=height_factor * float(seq.camera.height),
+                                        sun_elevation_deg=math.degrees(sun_elevation),
+                                        forecast="least-squares (damped)" if model is not None
+                                        else "as fitted (no wave fit)")
 
     return timed("forecast", run)
 
@@ -670,7 +677,7 @@ def reconstruct(frames, camera_path, *, out=None, width: int = DEFAULT_WIDTH, re
         model = forecast_model(basis, seq.camera, np.asarray(seq.times)[_spread(len(seq.times), wave_frames)])
         plan = forecast_plan(basis, model[0].omega.shape[0])
     outlook, rep = outlook_stage(seq, waves, lighting, exposure=mean_exposure(photo) if refined else 1.0,
-                                 model=model, plan=plan)
+                                 model=model, plan=plan, waves_ok=waves_ok)
     say(rep)
     result = Reconstruction(seq, geometry, light, wfit, photo, dict(sea, waves=waves, check=check, spectrum_fit=sfit),
                             outlook, stages)

@@ -488,6 +488,26 @@ def test_camera_fit_jointly_with_the_lighting(x64):
     assert max(float(err[n]) for n in fit.COLOR_FIELDS) < 1e-8
 
 
+@pytest.mark.slow  # a joint camera + lighting fit
+def test_camera_fit_with_the_lighting_needs_the_sun_it_returns_determined(x64):
+    # the sun behind the camera shows no glitter: camera and image are matched exactly with
+    # no sun colour and the sun 139 deg from the truth, and that lighting was returned under
+    # success=True. fit.lighting calls such a sun undetermined; so does the joint fit now
+    waves, light, true_cam, _ = _jonswap_scene(16)
+    behind = light._replace(sun_azimuth=jnp.asarray(math.pi, jnp.float64), sun_elevation=jnp.asarray(0.5, jnp.float64))
+    image = render.render(waves, true_cam, behind, 0.0, plan=None)
+    guess = behind._replace(sun_azimuth=behind.sun_azimuth + 0.5, sun_elevation=behind.sun_elevation + 0.3)
+    kw = dict(lighting=guess, fit_lighting=True, plan=None, levels=(1,), search=(1, 1), n_starts=1)
+    res = fit.camera(image, waves, 0.0, _start(true_cam, 10.2, 0.355), throw=False, **kw)
+    assert float(res.loss) < 1e-20
+    np.testing.assert_allclose([float(res.camera.height), float(res.camera.pitch)], [10.0, 0.35], rtol=1e-8)
+    assert float(fit.lighting_error(res.lighting, behind)["sun_angle_deg"]) > 90  # the sun is not measured
+    assert bool(res.determined["height"]) and bool(res.determined["pitch"])
+    assert not bool(res.determined["sun_direction"]) and not bool(res.success)
+    with pytest.raises(fit.FitError, match="sun_direction undetermined"):
+        fit.camera(image, waves, 0.0, _start(true_cam, 10.2, 0.355), **kw)
+
+
 @pytest.mark.slow  # two camera fits
 def test_camera_fit_reports_a_local_minimum_as_failure(x64):
     # the full model alone from 13% low converges (within the step limit) to a neighbouring

@@ -329,7 +329,30 @@ def test_a_wave_the_view_does_not_resolve_is_never_determined():
     assert resolvable(waves, camera).tolist() == [True, True, True, False]
     y = pack(waves)
     used = jnp.ones((N_FRAMES,) + RES, bool)
-    ok, energy = ph._determined_waves(y, 1e12 * jnp.eye(y.size + 5), 1e-3, used, 3, 4, camera)
+    ok, energy = ph._determined_waves(y, 1e12 * jnp.eye(y.size + 5), 1e-3, used, 3, 4, camera,
+                                      np.arange(N_FRAMES) * 0.15)
     assert ok.tolist() == [True, True, True, False]
     slope = np.asarray(waves.amplitude * waves.omega ** 2) ** 2
     assert energy == pytest.approx(slope[:3].sum() / slope.sum())
+
+
+def test_a_wave_at_its_frame_rate_alias_is_not_determined(scene):
+    # frames pi / omega apart: the second wave and its reverse twin (theta + pi, -phi) make the
+    # same frames, so a fit started at the twin explains the images to the noise with that
+    # wave travelling backwards. Its covariance is as small as at the truth (another minimum):
+    # it was reported determined and the fit a success with a direction off by pi
+    from jaxocean.fit.waves import alias_separation
+
+    camera, truth, light = scene["camera"], scene["truth"], scene["light"]
+    times = np.arange(6) * np.pi / float(truth.omega[1])
+    assert (alias_separation(truth, times) >= 1.0).tolist() == [True, False, True]
+    twin = truth._replace(theta=truth.theta.at[1].add(np.pi), phase=truth.phase.at[1].set(2 * np.pi - truth.phase[1]))
+    plan = render.full_plan(3)
+    images = np.stack([np.asarray(render.render(truth, camera, light, t, plan=plan)) for t in times])
+    assert np.allclose(images, np.stack([np.asarray(render.render(twin, camera, light, t, plan=plan)) for t in times]),
+                       rtol=0.0, atol=1e-12)
+    r = ph.photometric(images, camera, times, twin._replace(phase=twin.phase + 0.1), light, robust=None)
+    assert np.cos(float(r.waves.theta[1] - truth.theta[1])) < -0.9999  # the twin explains the frames...
+    assert float(r.residual_scale) < 1e-3
+    assert r.determined.tolist() == [True, False, True]  # ...but the frames cannot tell it from the truth
+    assert not r.success and "do not determine the waves" in r.message

@@ -594,3 +594,17 @@ def test_stage_one_names_a_frame_outside_the_working_view(tmp_path):
     seq, rep = rc.load_sequence(files, scene_json, width=32, response="bruneton")
     assert not rep.success and "frame 1 (" in rep.message and "frame_00001.png: 0%)" in rep.message
     assert rep.details["usable_sea_fraction"] > 0.5 and rep.details["usable_sea_fraction_min"] == 0.0
+
+
+def test_the_forecast_of_waves_no_stage_confirmed_is_not_a_success():
+    # the forecast stage drew the waves of a failed wave fit (stage 5 not succeeding) and
+    # reported success: its flag said the forecast rested on waves that explain the data
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
+    seq = SimpleNamespace(camera=camera, times=np.arange(2) * 0.25)
+    waves = jo.make_waves([0.05, 0.03], [2.5, 3.2], [0.3, 1.1], [0.0, 1.0])
+    light = jo.make_lighting(sun_azimuth=2.5, sun_elevation=0.5)
+    out, rep = rc.outlook_stage(seq, waves, light, ahead=(2.0,), waves_ok=False)
+    assert not rep.success and "no stage confirmed" in rep.message
+    assert out["forecast"].shape == (1, 16, 16, 3)  # drawn all the same
+    _, rep = rc.outlook_stage(seq, waves, light, ahead=(2.0,))
+    assert rep.success and rep.message == ""

@@ -184,10 +184,10 @@ COLOR_RANGES = {"sun_color": (1.0, 40.0), "sky_color": (0.05, 1.0), "sea_color":
 
 _HALF_PI = math.pi / 2
 _ROUGH_LEVELS = (1e-2, 1e-3)
-# The sun is "seen" when its glitter carries at least this fraction of the (weighted) image
-# energy; below it (a sun behind the camera lights the sea through the BRDF's far tails,
-# 1e-20 and less) its direction is undetermined and the fit is reported as failed.
-_SUN_SEEN = 1e-8
+#: the sun is "seen" when its glitter carries at least this fraction of the (weighted) image
+#: energy; below it (a sun behind the camera lights the sea through the BRDF's far tails,
+#: 1e-20 and less) its direction is undetermined and the fit is reported as failed
+SUN_SEEN = 1e-8
 #: a fitted sun direction is determined when its standard deviation (RMS angle) is below this [deg]
 DETERMINED_SUN_DEG = 0.5
 #: a fitted colour is determined when every channel's standard deviation is below this
@@ -530,7 +530,7 @@ def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient
         # the sun direction is only determined where its glitter is seen: a fit that explains
         # the image without any sun light (zero sun colour or no glitter on a selected
         # pixel) has not found the sun, whatever its standard deviation says
-        determined["sun_direction"] = determined["sun_direction"] & (glitter > _SUN_SEEN)
+        determined["sun_direction"] = determined["sun_direction"] & (glitter > SUN_SEEN)
     success = success & jnp.isfinite(loss) & (light.sun_elevation > 0) & (loss <= bound)
     for name in st.fit:
         success = success & determined[name]
@@ -786,7 +786,7 @@ def failure_message(result: LightingFit, *, solver: str = "lm", structure: str =
     if "sun_direction" in undetermined:
         determined = [n for n in COLOR_FIELDS if n not in undetermined]
         keep = f"; the determined colours ({', '.join(determined)}) are in the result" if determined else ""
-        if float(result.glitter) <= _SUN_SEEN:
+        if float(result.glitter) <= SUN_SEEN:
             return f"sun direction undetermined: no sun glitter in the image{keep}"
         return (f"sun direction undetermined: its standard deviation {math.degrees(float(result.std['sun_direction'])):.3g}"
                 f" deg at the stated noise ({noise_text}) exceeds {DETERMINED_SUN_DEG} deg{keep}")

@@ -110,9 +110,12 @@ that fails):
   ``theta`` 0.05 rad) hold at least ``DETERMINED_ENERGY (0.9)`` of the fitted slope energy
   ``sum (k h)^2``, and a wave counts only if the view resolves it
   (:func:`jaxocean.fit.waves.resolvable`: at least one wavelength of sea along its
-  direction, on pixels finer than it). At low signal to noise a fit can reach the noise
-  level with waves the images do not pin down, and a wave longer than the view can stand in
-  for a tilt with a small covariance; this is what reports it.
+  direction, on pixels finer than it) and the frames tell which way it travels
+  (:func:`jaxocean.fit.waves.alias_separation` >= 1, the wave fit's rule: where ``omega dt``
+  is a multiple of pi its reverse twin ``(theta + pi, -phi)`` makes the same frames, a
+  second minimum as deep whose Gauss-Newton covariance is as small). At low signal to noise
+  a fit can reach the noise level with waves the images do not pin down, and a wave longer
+  than the view can stand in for a tilt with a small covariance; this is what reports it.
 
 Not checked: the rows path's own error for waves tall enough to move a pixel's hit by a
 footprint (render's ``needs_refinement``), beyond what it adds to the residual.
@@ -148,7 +151,7 @@ from jaxocean.fit._robust import (CODES, OUTLIER_WEIGHT, ROBUST_LOSSES, SCALE_FL
                                   robust_statistics, signal_scale)
 from jaxocean.fit.lighting import lighting_to_dict
 from jaxocean.fit.solvers import FitError
-from jaxocean.fit.waves import resolvable
+from jaxocean.fit.waves import alias_separation, resolvable
 from jaxocean.fit.waves._model import pack, to_waves
 from jaxocean.shading import Lighting
 from jaxocean.waves import Waves, validate
@@ -216,8 +219,9 @@ class PhotometricFit(NamedTuple):
     * ``sea_scale``  ``(C,)`` the per-channel sea median ``s`` of the comparison space.
     * ``noise_estimated`` bool: ``noise`` was estimated from the images.
     * ``determined`` ``(N,)`` bool (None when the waves are not fitted): the view resolves
-      the wave and its Gauss-Newton standard deviations are below :data:`DETERMINED_STD`;
-      ``determined_energy`` the determined waves' share of the slope energy.
+      the wave, the frames separate it from its reverse twin, and its Gauss-Newton standard
+      deviations are below :data:`DETERMINED_STD`; ``determined_energy`` the determined
+      waves' share of the slope energy.
     """
 
     waves: Waves
@@ -551,7 +555,8 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
     signal = signal_scale(target, used)
     sigma = max(float(noise_val) if math.isfinite(float(noise_val)) else 0.0, float(rscale), NOISE_FLOOR)
     if st.fit_waves:
-        determined, energy = _determined_waves(y, jtj, sigma, used, target.shape[-1], n, camera)
+        determined, energy = _determined_waves(y, jtj, sigma, used, target.shape[-1], n, camera,
+                                               np.asarray(times))
     else:
         determined, energy = None, 1.0
     message = _verdict(float(loss), float(loss_init), float(residual), float(noise_val), float(frac), float(signal),
@@ -605,14 +610,17 @@ def _verdict(loss, loss_init, rscale, noise, frac, signal, estimated, energy) ->
     return "; ".join(reasons)
 
 
-def _determined_waves(y, jtj, sigma, used, channels, n, camera):
+def _determined_waves(y, jtj, sigma, used, channels, n, camera, times):
     """``(determined (N,) NumPy bool, energy float)``: the waves :func:`_pinned_down` by the
     data that the view also resolves (:func:`jaxocean.fit.waves.resolvable`: a wave longer
     than the sea the view shows along its direction, or shorter than its pixels, stands in
-    for a tilt or a texture whatever its local standard deviations say), and their share of
-    the slope energy ``sum (k h)^2``."""
+    for a tilt or a texture whatever its local standard deviations say) and that the frames
+    ``times (T,)`` separate from their reverse twins (:func:`jaxocean.fit.waves.alias_separation`:
+    the twin is another minimum, which no local covariance sees), and their share of the
+    slope energy ``sum (k h)^2``."""
     w = to_waves(y[:4 * n], n)
     ok = np.asarray(_pinned_down(y, jtj, jnp.asarray(sigma, y.dtype), used, channels, n)) & resolvable(w, camera)
+    ok = ok & (alias_separation(w, times) >= 1.0)
     slope_energy = np.asarray(w.amplitude * w.omega ** 2, np.float64) ** 2
     return ok, float(np.sum(slope_energy[ok]) / max(float(np.sum(slope_energy)), 1e-30))
 
