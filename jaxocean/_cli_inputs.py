@@ -220,17 +220,29 @@ def check_disk(out, need: float, what: str) -> None:
                          f"{gigabytes(free)} free there; use fewer scenes or frames, or a smaller --res")
 
 
+def _check_out_parents(path: Path) -> None:
+    """``--out`` whose nearest existing parent is a directory: one that is a file would make
+    the write fail only after the work (a file cannot hold a directory)."""
+    for parent in path.parents:
+        if parent.exists():
+            if not parent.is_dir():
+                raise ValueError(f"--out {path}: {parent} is a file, not a directory; give a path in a directory")
+            return
+
+
 def check_out_dir(path) -> Path:
-    """``--out`` of a command that writes a directory: not an existing file."""
+    """``--out`` of a command that writes a directory: not an existing file, nor under one."""
     path = Path(path)
     if path.exists() and not path.is_dir():
         raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory there)")
+    _check_out_parents(path)
     return path
 
 
 def check_out_file(path) -> Path:
-    """``--out`` of a command that writes one JSON file: not an existing directory."""
+    """``--out`` of a command that writes one JSON file: not an existing directory, nor under a file."""
     path = Path(path)
+    _check_out_parents(path)
     if path.is_dir():
         raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / 'fit.json'}")
     return path

@@ -531,6 +531,42 @@ def test_render_replaces_the_previous_scene_in_its_directory(tmp_path, capsys):
     assert "removed 6 frame file(s) beyond the new 2 frame(s)" in capsys.readouterr().err
 
 
+def test_an_interrupted_simulate_is_named_unfinished_by_check_and_training(tmp_path, capsys, monkeypatch):
+    from jaxocean.io import dataset
+
+    calls = []
+
+    def render_then_interrupt(scene):
+        calls.append(scene)
+        if len(calls) == 2:  # Ctrl-C while rendering the second scene
+            raise KeyboardInterrupt
+        return render_scene(scene)
+
+    render_scene = dataset.render_scene
+    monkeypatch.setattr(dataset, "render_scene", render_then_interrupt)
+    root = tmp_path / "ds"
+    args = ["--out", str(root), "--scenes", "3", "--frames", "1", "--res", "8", "--waves", "4", "--quiet"]
+    assert cli.main(["simulate", *args]) == 130
+    capsys.readouterr()
+    # not "not a jaxocean dataset": the same simulate command finishes it
+    assert cli.main(["check", str(root)]) == 1
+    assert "splits.json: missing: an unfinished dataset" in capsys.readouterr().out
+    assert cli.main(["eval-geometry", str(root)]) == 2
+    err = capsys.readouterr().err
+    assert "an unfinished dataset" in err and "run the same simulate command to finish it" in err
+
+
+def test_an_out_under_a_file_is_refused_before_any_work(tmp_path, capsys):
+    note = tmp_path / "notes.txt"
+    note.write_text("mine")
+    # a directory to write (render), and a JSON file (eval-geometry: refused before its dataset is read)
+    for argv in (["render", "--out", str(note / "scene"), "--frames", "1", "--res", "8", "--waves", "2"],
+                 ["eval-geometry", str(tmp_path / "no_dataset"), "--out", str(note / "sub" / "scores.json")]):
+        assert cli.main(argv) == 2, argv
+        assert f"{note} is a file, not a directory" in capsys.readouterr().err, argv
+    assert note.read_text() == "mine"
+
+
 def test_check_of_a_path_that_is_no_dataset_exits_2(tmp_path, capsys):
     assert cli.main(["check", str(tmp_path / "nope_dir")]) == 2
     assert capsys.readouterr().err == f"jaxocean: error: {tmp_path / 'nope_dir'}: no such directory\n"

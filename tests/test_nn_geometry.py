@@ -331,6 +331,26 @@ def test_cli_predict_and_eval(tiny_dataset, tmp_path, capsys):
     assert "nan.exr: holds non-finite pixel values" in capsys.readouterr().err
 
 
+def test_cli_predict_refuses_an_out_that_would_lose_a_scene_or_its_inputs(tiny_dataset, tmp_path, capsys):
+    import shutil
+
+    model_path = tmp_path / "m.npz"
+    geo.save(model_path, geo.init(jax.random.key(0), TINY))
+    scene = shutil.copytree(dataset.scene_dir(tiny_dataset, 0), tmp_path / "scene")
+    before = {p.name: p.read_bytes() for p in scene.iterdir()}
+    # into the scene's own directory: its true-geometry frames would be replaced or removed
+    assert _cli("predict-geometry", scene / "frame_00000.exr", "--scene", scene, "--model", model_path,
+                "--out", scene) == 2
+    assert f"--out {scene}: holds a scene (scene.json)" in capsys.readouterr().err
+    # into the directory of input frames named like the prediction's files
+    frames = shutil.copytree(scene, tmp_path / "frames", ignore=shutil.ignore_patterns("scene.json"))
+    assert _cli("predict-geometry", frames / "frame_00000.exr", frames / "frame_00001.exr", "--scene", scene,
+                "--model", model_path, "--out", frames) == 2
+    assert f"its input frame {frames / 'frame_00000.exr'} (and 1 more)" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in scene.iterdir()} == before
+    assert {p.name: p.read_bytes() for p in frames.iterdir()} == {k: v for k, v in before.items() if k != "scene.json"}
+
+
 def test_the_steps_per_epoch_help_says_what_a_batch_holds(capsys):
     from jaxocean.cli import main
 

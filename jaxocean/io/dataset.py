@@ -97,6 +97,9 @@ __all__ = [
 DATASET_FILENAME = "dataset.json"
 SPLITS_FILENAME = "splits.json"
 MANIFEST_FILENAME = "manifest.json"
+# what a dataset.json without splits.json or manifest.json (written last) is
+_UNFINISHED = ("an unfinished dataset (its `jaxocean simulate` stopped before the end); run the same simulate "
+               "command to finish it")
 
 
 class SceneRanges(NamedTuple):
@@ -479,7 +482,9 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
     problems = []
     for name in (DATASET_FILENAME, MANIFEST_FILENAME, SPLITS_FILENAME):
         if not (directory / name).exists():
-            problems.append(f"{directory / name}: missing")
+            # simulate writes the splits and the manifest last: without them, its run stopped early
+            unfinished = name != DATASET_FILENAME and (directory / DATASET_FILENAME).exists()
+            problems.append(f"{directory / name}: missing" + (f": {_UNFINISHED}" if unfinished else ""))
     if problems:
         return problems
     try:
@@ -563,6 +568,9 @@ class Dataset:
 
     def __init__(self, root, cache_bytes: int = 2 << 30):
         self.root = Path(root)
+        if (self.root / DATASET_FILENAME).exists() and not (self.root / SPLITS_FILENAME).exists():
+            # simulate writes its splits last: an interrupted one left its settings alone
+            raise FileFormatError(self.root / SPLITS_FILENAME, f"missing: {_UNFINISHED}")
         for name in (DATASET_FILENAME, SPLITS_FILENAME):
             if not (self.root / name).exists():
                 raise FileFormatError(self.root / name, "missing: not a jaxocean dataset (run `jaxocean simulate`)")

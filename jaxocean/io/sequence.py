@@ -40,7 +40,7 @@ from jaxocean.io.exr import checked_frame, write_frame
 from jaxocean.io.images import save_png
 from jaxocean.io.scene import SCENE_FILENAME, scene_from_dict, scene_to_dict, waves_summary, write_scene
 
-__all__ = ["HALF_MAX", "fits_half", "frame_name", "remove_stale_frames", "write_sequence"]
+__all__ = ["HALF_MAX", "fits_half", "frame_name", "remove_stale_frames", "predicted_files_replaced", "write_sequence"]
 
 #: the largest finite half float: brighter radiance forces a float32 EXR
 HALF_MAX = 65504.0
@@ -146,9 +146,26 @@ def remove_stale_frames(out, n_frames: int) -> list[Path]:
     """Remove the frame files in directory ``out`` (``frame_XXXXX.exr`` / ``.png`` and their
     ``_normal`` / ``_roughness`` previews) numbered ``>= n_frames``: what a previous, longer
     sequence left that the new one does not overwrite. Returns the removed files."""
-    out = Path(out)
-    stale = sorted(path for path in out.iterdir()
-                   if (m := _FRAME_FILE.fullmatch(path.name)) and int(m.group(1)) >= n_frames and path.is_file())
+    stale = _frame_files(out, lambda index, kind: index >= n_frames)
     for path in stale:
         path.unlink()
     return stale
+
+
+def predicted_files_replaced(out, n_frames: int) -> list[Path]:
+    """The files in directory ``out`` that writing ``n_frames`` predicted frames replaces or
+    removes: ``frame_XXXXX.exr`` and its ``_normal`` / ``_roughness`` previews below
+    ``n_frames`` (a prediction writes no ``frame_XXXXX.png``), and every frame file from
+    ``n_frames`` on (:func:`remove_stale_frames`). Empty where ``out`` is not a directory."""
+    return _frame_files(out, lambda index, kind: index >= n_frames or kind != "png")
+
+
+def _frame_files(out, keep) -> list[Path]:
+    """The frame files in directory ``out`` for which ``keep(index, kind)`` holds; ``kind`` is
+    ``"exr"``, ``"png"`` or ``"_normal"`` / ``"_roughness"`` (a preview)."""
+    out = Path(out)
+    if not out.is_dir():
+        return []
+    return sorted(path for path in out.iterdir()
+                  if (m := _FRAME_FILE.fullmatch(path.name)) and path.is_file()
+                  and keep(int(m.group(1)), m.group(2) or m.group(3)))

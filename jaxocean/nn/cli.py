@@ -8,7 +8,8 @@ which owns error handling and exit codes; each command returns an exit code.
 * ``predict-geometry FRAMES... --out DIR``: per frame an EXR (the input as linear ``R G B``
   plus predicted ``normal``, ``roughness``, ``slope_variance``, ``mask``) and PNG previews of
   the normal and roughness maps. FRAMES are PNG / JPEG / 16-bit PNG / EXR files or one
-  video; the camera comes from ``--scene`` or the ``--camera-*`` options.
+  video; the camera comes from ``--scene`` or the ``--camera-*`` options. An ``--out`` that
+  holds a scene (``scene.json``) or input frames the prediction would replace is refused.
 * ``eval-geometry DATASET``: the model's scores on a split next to the flat-normal
   baseline (:func:`jaxocean.nn.geometry_train.evaluate`), printed and written as JSON.
 * ``train-waves DATASET --config {cpu,paper} --out RUN``: train (or resume) a wave network
@@ -179,6 +180,23 @@ def _load_frames(paths, space, exposure):
     return np.stack(frames)
 
 
+def _refuse_replacing_inputs(out: Path, frames, n_frames: int) -> None:
+    """A ``ValueError`` where predicting ``n_frames`` frames into ``out`` would replace or remove
+    what is not a previous prediction: a scene's frames (``out`` holds its ``scene.json``: its
+    EXR frames carry the true geometry) or an input frame."""
+    from jaxocean.io.scene import SCENE_FILENAME
+    from jaxocean.io.sequence import predicted_files_replaced
+
+    if (out / SCENE_FILENAME).is_file():
+        raise ValueError(f"--out {out}: holds a scene ({SCENE_FILENAME}), whose frame_XXXXX.exr files the prediction "
+                         "would replace or remove; give another --out directory")
+    replaced = {path.resolve() for path in predicted_files_replaced(out, n_frames)}
+    hit = [frame for frame in frames if Path(frame).resolve() in replaced]
+    if hit:
+        raise ValueError(f"--out {out}: the prediction would replace or remove its input frame {hit[0]}"
+                         f"{f' (and {len(hit) - 1} more)' if len(hit) > 1 else ''}; give another --out directory")
+
+
 def _predict(args, camera_from_args) -> int:
     import imageio.v3 as iio
     import numpy as np
@@ -198,6 +216,7 @@ def _predict(args, camera_from_args) -> int:
                                       "(--camera-fov-deg, --camera-yaw-deg)")
     model = geo.load(args.model)
     images = _load_frames(args.frames, args.space, args.exposure)
+    _refuse_replacing_inputs(out, args.frames, len(images))
     scene = read_scene(args.scene) if args.scene else None
     if scene is not None and scene.camera is None:
         raise ValueError(f"{args.scene}: the scene has no camera")
