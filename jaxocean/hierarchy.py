@@ -4,7 +4,7 @@ Protocol
 --------
 ``weights(waves, footprint, *, n_min=1.0, n_max=1.5, grid_cell=None) -> WaveWeights``
 
-* ``waves``: :class:`jaxocean.waves.Waves` with leaves ``(N,)``.
+* ``waves``: :class:`jaxocean.waves.Waves` with leaves ``(N,)`` (validated: finite, omega > 0).
 * ``footprint``: pixel footprint on the sea [m], any shape ``(...)`` (a scalar for a regular
   grid, ``(H, W)`` for a perspective image).
 * returns ``WaveWeights(displacement, normal, roughness)``, each ``(..., N)`` in [0, 1].
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 
 from jaxocean._roughness import normal_weight
 from jaxocean.errors import check_values
-from jaxocean.waves import Waves, wavelength
+from jaxocean.waves import Waves, validate, wavelength
 
 __all__ = ["WaveWeights", "weights", "all_resolved", "DEFAULT_N_MIN", "DEFAULT_N_MAX"]
 
@@ -44,6 +44,7 @@ class WaveWeights(NamedTuple):
 def weights(waves: Waves, footprint, *, n_min: float = DEFAULT_N_MIN, n_max: float = DEFAULT_N_MAX,
             grid_cell=None) -> WaveWeights:
     """Per-wave displacement / normal / roughness weights for pixels of size ``footprint``."""
+    validate(waves, max_steepness=None)  # a NaN omega gave NaN weights, omega = 0 a wave resolved everywhere
     if not n_max > n_min:
         raise ValueError(f"need n_max > n_min; got n_min={n_min}, n_max={n_max}")
     check_values(jnp.asarray(footprint) > 0, "footprint must be > 0 m", footprint)

@@ -440,12 +440,31 @@ def cos2s(theta, *, theta_mean, s):
     return _cos2s_kernel(theta, theta_mean, s)
 
 
+def _log_gamma_ratio(s):
+    """``log Gamma(s + 1) - log Gamma(s + 1/2)`` (``s >= 0``) to the float precision of ``s``.
+
+    The difference of two ``gammaln`` loses their magnitude's digits (float32 at s = 1e4:
+    0.4 %, at 1e6: 10 %); above a switch the asymptotic series ``Gamma(s + 1) / Gamma(s + 1/2)
+    = sqrt(s) (1 + 1/(8 s) + 1/(128 s^2) - 5/(1024 s^3) - 21/(32768 s^4) + 399/(262144 s^5))``
+    (error ~2e-4 / s^6) is used instead: above s = 4 in float32 (5e-8), 64 in float64
+    (3e-15). Double ``where``: finite gradients on both sides.
+    """
+    switch = 4.0 if jnp.finfo(jnp.result_type(s, float)).bits <= 32 else 64.0
+    big = s > switch
+    x = jnp.where(big, s, switch)
+    y = jnp.where(big, switch, s)
+    u = 1 / x
+    series = 0.5 * jnp.log(x) + jnp.log1p(u * (1 / 8 + u * (1 / 128 + u * (-5 / 1024 + u * (-21 / 32768
+                                                                                      + u * 399 / 262144)))))
+    return jnp.where(big, series, gammaln(y + 1.0) - gammaln(y + 0.5))
+
+
 @jax.jit
 def _cos2s_kernel(theta, theta_mean, s):
     c2 = 0.5 * (1.0 + jnp.cos(theta - theta_mean))
     ok = c2 > 1e-30
     power = jnp.where(ok, jnp.exp(s * jnp.log(jnp.where(ok, c2, 1.0))), jnp.where(s > 0, 0.0, 1.0))
-    log_q = gammaln(s + 1.0) - gammaln(s + 0.5) - jnp.log(2.0 * jnp.sqrt(jnp.pi))
+    log_q = _log_gamma_ratio(s) - jnp.log(2.0 * jnp.sqrt(jnp.pi))
     return jnp.exp(log_q) * power
 
 

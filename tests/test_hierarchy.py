@@ -46,6 +46,15 @@ def test_all_resolved_and_bad_input():
         hierarchy.weights(waves, 1.0, n_min=2.0, n_max=1.0)
 
 
+@pytest.mark.parametrize("omega", [0.0, float("nan")])
+def test_invalid_waves_are_rejected(omega):
+    # a NaN frequency gave NaN weights and omega = 0 (an infinite wavelength) a wave resolved
+    # by every pixel, without a word
+    waves = _waves_with_wavelengths([1.0, 2.0])
+    with pytest.raises(InvalidValueError, match="Waves.omega must be"):
+        hierarchy.weights(waves._replace(omega=waves.omega.at[1].set(omega)), 1.0)
+
+
 @pytest.mark.parametrize("grid_cell", [0.0, -1.0, float("nan")])
 def test_nonpositive_or_nan_grid_cell_is_rejected(grid_cell):
     # a grid cell <= 0 or NaN sent every wave to (or out of) the displacement silently

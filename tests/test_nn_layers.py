@@ -109,6 +109,23 @@ def test_bad_shapes_are_named(key):
         nl.fan_in_sum().init(key, ((1, 4), (1, 5)))
 
 
+@pytest.mark.parametrize("make", [lambda: nl.Upsample(0), lambda: nl.AvgPool(-1), lambda: nl.ConvTranspose(3, 0),
+                                  lambda: nl.GroupNorm(-2), lambda: nl.GroupNorm(0), lambda: nl.Dense(0),
+                                  lambda: nl.Conv(-3), lambda: nl.Conv(3, 2.5), lambda: nl.Conv(3, 3, True)])
+def test_bad_layer_sizes_are_named(make, key):
+    # were accepted: AvgPool(-1) declared (1, -4, -4, 1), Upsample(0) and Dense(0) empty
+    # outputs, GroupNorm(-2) passed its divisibility check, Conv(3, 2.5) a compiler error
+    with pytest.raises(ValueError, match="must be an int >= 1"):
+        make()
+
+
+def test_groupnorm_names_channels_that_its_groups_do_not_divide_at_apply(key):
+    layer = nl.GroupNorm(4)
+    _, params = layer.init(key, (1, 4, 4, 8))
+    with pytest.raises(ValueError, match="divisible by 4; got 6"):
+        layer.apply({k: v[:6] for k, v in params.items()}, jnp.ones((1, 4, 4, 6)))
+
+
 def test_odd_sizes_are_refused_at_init_and_apply(key):
     # the ResNet's stride-2 conv and transposed conv turned 7 x 9 into 8 x 10 without a word
     # traced only (jax.eval_shape): nothing compiled

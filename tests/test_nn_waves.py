@@ -298,3 +298,30 @@ def test_train_records_the_device_count_in_its_resume_signature(tmp_path, monkey
     with pytest.raises(KeyboardInterrupt):
         wt.train(data, tmp_path / "run", config, progress=False)
     assert seen["devices"] == jax.local_device_count()
+
+
+def test_direction_gradient_is_finite_where_the_direction_outputs_vanish(tiny_model):
+    # theta = atan2 of two outputs, kept off the origin: at (0, 0) the guard never fired (it
+    # compared sqrt(r^2 + 1e-12) >= 1e-6 with 1e-6) and the gradient of every param was NaN
+    normals, rough = _scene()
+    b = _batch(normals, rough)
+    last = dict(tiny_model.params["mlp"][-1])
+    last["w"] = jnp.zeros_like(last["w"])
+    last["b"] = last["b"].reshape(-1, 4).at[:, 1:3].set(0.0).reshape(-1)
+    params = {**tiny_model.params, "mlp": tiny_model.params["mlp"][:-1] + (last,)}
+
+    def direction(p):
+        slots = wn.apply(tiny_model._replace(params=p), b["normal"], b["roughness"], b["camera"], b["times"])
+        return jnp.sum(jnp.sin(slots.waves.theta))
+
+    grads = jax.grad(direction)(params)
+    assert all(np.all(np.isfinite(np.asarray(g))) for g in jax.tree.leaves(grads))
+
+
+def test_predict_refuses_a_model_with_nan_parameters(tiny_model):
+    # its NaN presences failed the threshold: predict answered "no waves" without a word
+    normals, rough = _scene()
+    params = jax.tree.map(lambda p: p, tiny_model.params)
+    params["mlp"] = params["mlp"][:-1] + ({**params["mlp"][-1], "b": params["mlp"][-1]["b"].at[0].set(np.nan)},)
+    with pytest.raises(ValueError, match="outputs are not finite"):
+        wn.predict(tiny_model._replace(params=params), normals, rough, CAMERA, TIMES)

@@ -502,7 +502,7 @@ def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timin
 
 def _finish(sums):
     out = metrics.finish(sums)
-    out["image_loss"] = sums["image_loss_sum"] / max(sums["pixels"], 1.0)
+    out["image_loss"] = sums["image_loss_sum"] / sums["pixels"] if sums["pixels"] > 0 else float("nan")  # as finish
     return out
 
 

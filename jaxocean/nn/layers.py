@@ -37,6 +37,8 @@ import jax
 import jax.numpy as jnp
 from jax import lax
 
+from jaxocean.errors import is_integer
+
 __all__ = [
     "Layer",
     "Dense",
@@ -81,6 +83,15 @@ def _check_rank(in_shape, rank: int, name: str) -> None:
         raise ValueError(f"{name} takes rank-{rank} inputs; got shape {tuple(in_shape)}")
 
 
+def _check_sizes(layer: str, **sizes) -> None:
+    """Refuse a size setting of a layer (features, kernel, factor, groups) that is not an
+    int >= 1, when the layer is built (a 0 or negative size gave empty or negative output
+    shapes, a float kernel a compiler error)."""
+    for name, value in sizes.items():
+        if not is_integer(value, 1):
+            raise ValueError(f"{layer}: {name} must be an int >= 1; got {value!r}")
+
+
 def _he_normal(key, shape, fan_in: int, scale: float = 1.0):
     return jax.random.normal(key, shape, jnp.float32) * (scale * math.sqrt(2.0 / fan_in))
 
@@ -90,6 +101,7 @@ def _he_normal(key, shape, fan_in: int, scale: float = 1.0):
 
 def Dense(features: int, *, w_scale: float = 1.0) -> Layer:
     """Affine map of the last axis: ``x @ w + b`` (any leading axes)."""
+    _check_sizes("Dense", features=features)
 
     def init(key, in_shape):
         fan_in = in_shape[-1]
@@ -111,8 +123,7 @@ def _same_padding(size: int, kernel: int, stride: int):
 def Conv(features: int, kernel: int = 3, stride: int = 1, *, w_scale: float = 1.0, bias: bool = True) -> Layer:
     """2-D convolution, NHWC input, HWIO kernel ``(kernel, kernel, C_in, features)``,
     ``"SAME"`` padding: output ``(B, ceil(H / stride), ceil(W / stride), features)``."""
-    if kernel < 1 or stride < 1:
-        raise ValueError(f"kernel and stride must be >= 1; got {kernel}, {stride}")
+    _check_sizes("Conv", features=features, kernel=kernel, stride=stride)
 
     def init(key, in_shape):
         _check_rank(in_shape, 4, "Conv")
@@ -136,6 +147,7 @@ def ConvTranspose(features: int, factor: int = 2, *, w_scale: float = 1.0) -> La
     pixel becomes a ``factor x factor`` block, an affine map of its channels. Output
     ``(B, factor H, factor W, features)``. Written as one matrix product and a
     depth-to-space reshape, which is exactly this transposed convolution."""
+    _check_sizes("ConvTranspose", features=features, factor=factor)
 
     def init(key, in_shape):
         _check_rank(in_shape, 4, "ConvTranspose")
@@ -154,6 +166,7 @@ def ConvTranspose(features: int, factor: int = 2, *, w_scale: float = 1.0) -> La
 
 def Upsample(factor: int = 2) -> Layer:
     """Nearest-neighbour upsampling by an integer factor (no parameters)."""
+    _check_sizes("Upsample", factor=factor)
 
     def init(key, in_shape):
         _check_rank(in_shape, 4, "Upsample")
@@ -168,6 +181,7 @@ def Upsample(factor: int = 2) -> Layer:
 
 def AvgPool(factor: int = 2) -> Layer:
     """Average over non-overlapping ``factor x factor`` blocks; H and W must divide."""
+    _check_sizes("AvgPool", factor=factor)
 
     def check(H, W):
         if H % factor or W % factor:
@@ -193,11 +207,15 @@ def AvgPool(factor: int = 2) -> Layer:
 def GroupNorm(groups: int = 8, eps: float = 1e-5) -> Layer:
     """Group normalisation (Wu & He 2018) over ``(H, W, C / groups)`` per image and group,
     then a per-channel scale and shift. No batch statistics."""
+    _check_sizes("GroupNorm", groups=groups)
+
+    def check(C):
+        if C % groups:
+            raise ValueError(f"GroupNorm({groups}) needs channels divisible by {groups}; got {C}")
 
     def init(key, in_shape):
         C = in_shape[-1]
-        if C % groups:
-            raise ValueError(f"GroupNorm({groups}) needs channels divisible by {groups}; got {C}")
+        check(C)
         return tuple(in_shape), {"scale": jnp.ones((C,), jnp.float32), "shift": jnp.zeros((C,), jnp.float32)}
 
     def apply(params, x, *, key=None, train=False):
@@ -209,6 +227,7 @@ def GroupNorm(groups: int = 8, eps: float = 1e-5) -> Layer:
         # backward pass's passes over the activations against normalising the grouped view
         # and scaling after.
         N, C = x.shape[0], x.shape[-1]
+        check(C)  # as AvgPool: an input of another size than init's
         per_group = C // groups
         flat = x.reshape(N, -1, C)
         count = flat.shape[1] * per_group

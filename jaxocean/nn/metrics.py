@@ -19,7 +19,11 @@ yaw (radians) that defines the along-view direction ``(cos yaw, sin yaw)``.
   average 0) and ``unfolded_skill_*`` the same over pixels whose true normal is tilted
   less than 60 degrees (``unfolded_fraction`` of them), ``roughness_mse`` (of sigma^2 =
   sum of the pair, dimensionless), ``log_slope_variance_mse`` (of log10 of each variance,
-  decades^2), ``image_mse`` (display values in [0, 1]).
+  decades^2), ``image_mse`` (display values in [0, 1]). With no sea pixel every score is
+  NaN: nothing was compared (as :func:`jaxocean.forecast.geometry_error`).
+
+The angle between two normals is :func:`jaxocean._math.angle_between` (``atan2``, exact
+for equal normals, where ``arccos`` of the dot product loses half the digits).
 
 Host and device agnostic (jnp); sums are float64 on the host when accumulated there.
 """
@@ -31,7 +35,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from jaxocean._math import slope_from_normal
+from jaxocean._math import angle_between, slope_from_normal
 
 __all__ = ["THRESHOLDS_DEG", "UNFOLDED_MIN_COS", "slopes", "normal_scores", "roughness_scores", "image_scores", "finish"]
 
@@ -57,7 +61,7 @@ def _along_across(slope, yaw):
 def normal_scores(pred, true, mask, yaw) -> dict:
     cos = jnp.clip(jnp.sum(pred * true, -1), -1.0, 1.0)
     m = jnp.broadcast_to(mask, cos.shape).astype(jnp.float32)
-    angle = jnp.arccos(cos)
+    angle = angle_between(pred, true)
     out = {"pixels": m.sum(), "angle_sum": (angle * m).sum(), "one_minus_cos_sum": ((1 - cos) * m).sum()}
     for k in THRESHOLDS_DEG:
         out[f"within_{k}deg_count"] = ((angle <= math.radians(k)) * m).sum()
@@ -89,7 +93,8 @@ def image_scores(pred_display, true_display, mask) -> dict:
 def finish(sums: dict) -> dict:
     """Turn accumulated sums into scores (see the module docstring)."""
     s = {k: float(np.asarray(v, np.float64)) for k, v in sums.items()}
-    n = max(s["pixels"], 1.0)
+    # no pixel: every mean is NaN, not the 0 of an empty sum (a perfect score)
+    n = s["pixels"] if s["pixels"] > 0 else math.nan
     out = {"normal_mae": s["angle_sum"] / n, "cos_loss": s["one_minus_cos_sum"] / n}
     for k in THRESHOLDS_DEG:
         out[f"within_{k}deg"] = s[f"within_{k}deg_count"] / n

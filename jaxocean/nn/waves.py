@@ -276,9 +276,9 @@ def _slot_outputs(config: WaveNetConfig, raw, om_lo, om_hi):
     log_lo, log_hi = jnp.log(om_lo), jnp.log(om_hi)
     omega = jnp.exp(log_lo + (log_hi - log_lo) * jax.nn.sigmoid(raw[:, 0]))
     c, s = raw[:, 1], raw[:, 2]
-    # atan2 of a vector kept away from the origin (a finite gradient everywhere)
-    r = jnp.sqrt(c * c + s * s + 1e-12)
-    theta = jnp.arctan2(s, c + 1e-6 * (r < 1e-6))
+    # atan2 of a vector kept away from the origin (a finite gradient everywhere): the
+    # squared length is compared, as sqrt(r^2 + 1e-12) is never below 1e-6
+    theta = jnp.arctan2(s, c + 1e-6 * (c * c + s * s < 1e-12))
     return omega, theta, jax.nn.sigmoid(raw[:, 3])
 
 
@@ -361,6 +361,11 @@ def predict(model: WaveNetModel, normals, roughness, camera, times, *, threshold
     slots = _predict_jit(model.config, model.params, normals[None], None if rough is None else rough[None],
                          jax.tree.map(lambda x: jnp.asarray(x)[None], camera), jnp.asarray(times_np, jnp.float32)[None])
     slots = jax.tree.map(lambda x: x[0], slots)
+    # finite inputs give finite slots (the outputs are bounded maps): a NaN is the model's,
+    # and dropping its slots at the threshold would answer "no waves"
+    check_values(np.all([np.all(np.isfinite(np.asarray(x))) for x in jax.tree.leaves(slots)]),
+                 "the wave network's outputs are not finite: its parameters hold NaN or inf (a diverged "
+                 "training?)")
     w = slots_to_waves(slots, threshold)
     return (w, slots) if return_slots else w
 

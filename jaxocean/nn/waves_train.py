@@ -17,8 +17,9 @@ Protocol
     valid sea pixel-frames), divided per scene by the same loss of the flat sea, so that
     calm and rough scenes weigh alike (1 = nothing explained, 0 = everything). It compares
     geometry, not parameter lists, so it does not depend on the order of the slots. Plus
-    ``presence_weight`` x the mean presence: a slot must explain more than that fraction of
-    the scene to stay on (the model uses no more waves than the scene needs).
+    ``presence_weight`` x the summed presence of a scene's slots (the number of slots on):
+    a slot must explain more than that fraction of the scene to stay on (the model uses no
+    more waves than the scene needs).
   - ``supervised`` -- for the ablation: a symmetric Chamfer distance in wave-vector space
     between the slots and the scene's true waves that the camera resolves
     (:func:`jaxocean.fit.waves.resolvable`), relative distances ``|k - k_true| / |k_true|``,
