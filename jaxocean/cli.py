@@ -915,7 +915,7 @@ def _format_warning(message, category, filename, lineno, line=None, *, default):
 def main(argv=None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
-    from jaxocean.errors import InvalidValueError
+    from jaxocean.errors import InvalidValueError, MissingDependencyError
 
     # compiled programs kept between runs: a second ``reconstruct`` or ``demo`` skips most of
     # the minutes of compilation (jaxocean.compile_cache)
@@ -931,8 +931,8 @@ def main(argv=None) -> int:
     except (InvalidValueError, ValueError, FileNotFoundError, json.JSONDecodeError) as err:
         print(f"jaxocean: error: {err}", file=sys.stderr)
         return EXIT_INPUT
-    except (FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError) as err:
-        # a path argument that cannot be written or read as given
+    except (FileExistsError, IsADirectoryError, NotADirectoryError, PermissionError, MissingDependencyError) as err:
+        # a path argument that cannot be written or read as given, or not read without a package
         print(f"jaxocean: error: {err}", file=sys.stderr)
         return EXIT_INPUT
 

@@ -7,6 +7,9 @@
   are concrete. Under ``jit`` the values are tracers and cannot be inspected; validate the
   inputs once outside the compiled function (every public entry point does when called
   eagerly).
+* An input that needs an optional package which is not installed (a video container
+  without an imageio video plugin) raises :class:`MissingDependencyError` (an
+  ``ImportError``) that names the input and what to install.
 """
 
 from __future__ import annotations
@@ -16,12 +19,17 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["InvalidValueError", "is_concrete", "is_integer", "check_values", "check_finite", "check_number",
-           "check_nonnegative_number"]
+__all__ = ["InvalidValueError", "MissingDependencyError", "is_concrete", "is_integer", "check_values",
+           "check_finite", "check_number", "check_nonnegative_number"]
 
 
 class InvalidValueError(ValueError):
     """A value outside the physical or numerical domain of a public function."""
+
+
+class MissingDependencyError(ImportError):
+    """An input that needs an optional package which is not installed; the message names the
+    input and what to install (the command line reports it as an input error)."""
 
 
 def is_concrete(*xs) -> bool:

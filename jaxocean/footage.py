@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 from pathlib import Path
 from typing import Any, NamedTuple, Sequence as Seq
 
@@ -191,32 +192,52 @@ def _frame_files(frames, listed: Seq[Path], where) -> list:
     return out
 
 
+def _name_order(stem: str) -> tuple:
+    """The key that orders frame names by their numbers as numbers: ``frame_2`` before
+    ``frame_10`` (a shell's ``frame_*`` lists ``frame_10`` first)."""
+    parts = re.split(r"(\d+)", stem)  # text, number, text, ...: like parts at like places
+    return tuple((0, int(part), "") if part.isdigit() else (1, 0, part) for part in parts) + ((2, 0, stem),)
+
+
+def _scene_frames(folder: Path) -> list:
+    """A scene directory's frames: its ``frame_*.exr`` files, else its ``frame_*.png`` ones,
+    in name order (:func:`_name_order`)."""
+    for suffix in (".exr", ".png"):
+        found = sorted(folder.glob(f"frame_*{suffix}"), key=lambda path: _name_order(path.stem))
+        if found:
+            return found
+    return []
+
+
 def _check_scene_frame_order(frames, where) -> None:
     """A ``scene.json`` pairs the given frames with its times in the order given: each frame
-    once, in name order (``render`` writes ``frame_00000``, ``frame_00001``, ...), or time
-    would run backwards or a still frame pass for a sequence."""
+    once, in name order, numbers compared as numbers (``render`` writes ``frame_00000``,
+    ``frame_00001``, ...; ``frame_2`` comes before ``frame_10``), or time would run backwards
+    or a still frame pass for a sequence."""
     stems = [Path(f).stem for f in frames]
     if len({Path(f).resolve() for f in frames}) < len(frames) or len(set(stems)) < len(stems):
         raise InvalidValueError(f"a frame is given twice; the frames of {where} pair with its times, each once")
-    if stems != sorted(stems):
+    if stems != sorted(stems, key=_name_order):
         raise InvalidValueError(f"frames must be given in the order of the times of {where} (frame_00000, "
-                                f"frame_00001, ...); got {[Path(f).name for f in frames]}")
+                                f"frame_00001, ...; numbers in order of value, frame_2 before frame_10); got "
+                                f"{[Path(f).name for f in frames]}")
 
 
 def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: str = "srgb", gamma: float = 2.2,
                   step: int = 1, max_frames: int | None = None, height: float | None = None,
                   full_view: bool = False, evidence_width: int | None = EVIDENCE_WIDTH):
     """Stage 1 of ``reconstruct`` (module docstring). ``frames``: paths (or one video path, or empty to take
-    the camera file's list); ``camera_path``: a camera file or a ``scene.json`` (then the
-    frames must be the scene's, one per time), or a directory holding one. ``step`` /
-    ``max_frames`` thin the sequence.
+    the camera file's list; given frames pair with its entries by path, else by name, and are
+    the files read, so the listed ones need not exist); ``camera_path``: a camera file or a
+    ``scene.json`` (then the frames must be the scene's, one per time), or a directory
+    holding one. ``step`` / ``max_frames`` thin the sequence.
     ``height``: the camera height [m] when the camera file gives no pose (pitch and roll
     then come from the horizon). ``full_view``: keep the camera's own view (sky and all)
     instead of :func:`sea_view`. ``evidence_width``: the width of ``Sequence.fine`` (None:
     no fine sequence). Returns ``(Sequence, StageReport)``."""
     from jaxocean import lens, radiometry, rectify
     from jaxocean.io import camera_file as cf_io
-    from jaxocean.io.scene import SCENE_FILENAME, refuse_other_kind
+    from jaxocean.io.scene import SCENE_FILENAME, SceneFileError, refuse_other_kind
 
     camera_path = Path(camera_path)
     if camera_path.is_dir() and not (camera_path / cf_io.CAMERA_FILENAME).exists():
@@ -254,8 +275,11 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
             if scene.camera is None or scene.times is None:
                 raise InvalidValueError(f"{camera_path} has no camera or no times")
             times = np.asarray(scene.times, np.float64)
-            listed = frames or sorted(camera_path.parent.glob("frame_*.exr")) or sorted(
-                camera_path.parent.glob("frame_*.png"))
+            if np.any(np.diff(times) <= 0):  # the camera file's rule (a scene may hold any times)
+                n = int(np.argmax(np.diff(times) <= 0)) + 1
+                raise SceneFileError(json_path, f"times[{n}]: the frame times of a sequence must increase strictly; "
+                                                f"got {times[n]:g} after {times[n - 1]:g}")
+            listed = frames or _scene_frames(camera_path.parent)
             count = n_video if video else len(listed)
             if count != len(times):
                 raise InvalidValueError(f"{count} frames given for the {len(times)} times of {camera_path}")
@@ -274,7 +298,7 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
                                            poses, False)
         else:
             camera_file = cf_io.camera_file_from_json(data, json_path, require_pose=height is None,
-                                                      check_files=not video)
+                                                      check_files=not frames)
             if camera_file.poses is not None and height is not None:
                 raise InvalidValueError(f"{camera_path}: every frame gives a pose with its camera_height_m; a camera "
                                         f"height ({height} m) applies only to a camera file without poses (pitch "

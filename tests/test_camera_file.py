@@ -160,6 +160,9 @@ def _error_cases():
         ("frame not object", edit(lambda d: d["frames"].__setitem__(1, 3)), r"frames\[1\]: must be a JSON object"),
         ("missing file", edit(delete("frames", 2, "file")), r"frames\[2\]\.file: missing"),
         ("missing t", edit(delete("frames", 2, "t")), r"frames\[2\]\.t: missing"),
+        # one image at two times (a pose of another frame for it, when frames are given) passed
+        ("file listed twice", edit(set_frame(3, "file", "frames/../frames/frame_0001.png")),
+         r"frames\[3\]\.file: 'frames/\.\./frames/frame_0001\.png' is frames\[1\]'s file too"),
         ("null t", edit(set_frame(1, "t", None)), r"frames\[1\]\.t: must be a number; got null"),
         ("equal times", edit(set_frame(3, "t", 0.4)), r"frames\[3\]\.t: frame times must increase strictly"),
         ("decreasing times", edit(set_frame(4, "t", 0.1)), r"frames\[4\]\.t: frame times must increase strictly"),
@@ -174,6 +177,9 @@ def _error_cases():
          r"frames\[1\]\.camera_height_m: missing \(other frames"),
         ("offset on some frames", edit(delete("frames", 4, "ship_north_m")), r"frames\[4\]\.ship_north_m: missing"),
         ("string yaw", edit(set_frame(2, "yaw_rad", "1.0")), r"frames\[2\]\.yaw_rad: must be a number"),
+        # a compass heading in degrees passed for radians: 270 rad is a valid angle, 3.0 rad off
+        ("heading in degrees", edit(set_frame(2, "yaw_rad", 270.0)),
+         r"frames\[2\]\.yaw_rad: a heading must lie in \[-2pi, 2pi\] rad \(degrees\?\); got 270\.0"),
         ("frame_rate <= 0", edit(lambda d: d.__setitem__("frame_rate_hz", 0)), r"frame_rate_hz: must be > 0"),
         ("frame_rate against times", edit(lambda d: d.__setitem__("frame_rate_hz", 100.0)),
          r"frame_rate_hz: 100\.0 Hz disagrees with the frames' times \(mean step 0\.2 s, 5 Hz\)"),

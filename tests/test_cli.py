@@ -884,3 +884,16 @@ def test_render_stores_the_hs_its_clamped_waves_carry(tmp_path):
     assert scene.extra["clamped_waves"] > 0
     assert scene.extra["waves_hs_m"] == pytest.approx(4 * np.sqrt(np.sum(amplitude ** 2) / 2), rel=1e-6)
     assert scene.extra["waves_hs_m"] < 0.9 * 10.0
+
+
+def test_reconstruct_of_a_video_without_a_plugin_exits_2_saying_what_to_install(tmp_path, capsys, monkeypatch):
+    # an MP4 without PyAV or imageio-ffmpeg ended in a traceback of an ImportError
+    from jaxocean.io import images
+
+    monkeypatch.setattr(images, "_video_plugin_available", lambda: False)
+    (tmp_path / "clip.mp4").write_bytes(b"\x00" * 64)
+    (tmp_path / "camera.json").write_text("{}")
+    assert cli.main(["reconstruct", str(tmp_path / "clip.mp4"), "--camera", str(tmp_path / "camera.json"),
+                     "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("jaxocean: error: reading the video") and "pip install 'imageio[pyav]'" in err

@@ -79,6 +79,33 @@ def test_16_bit_colour_png_is_refused_not_truncated(tmp_path):
         load_display(path)
 
 
+def test_16_bit_colour_tiff_is_refused_or_read_exactly_never_truncated(tmp_path):
+    # without tifffile, Pillow decodes a 16-bit RGB TIFF to 8 bits; it loaded as 8-bit values
+    # (bits 8, off by up to 1/510) without a word
+    import struct
+
+    pixels = np.arange(2 * 3 * 3, dtype=np.uint16).reshape(2, 3, 3) * 3001
+    data = pixels.astype("<u2").tobytes()
+    # little-endian baseline TIFF: one strip of 16-bit RGB after the header and one IFD
+    tags = [(256, 3, 1, 3), (257, 3, 1, 2), (258, 3, 3, 0), (262, 3, 1, 2), (273, 4, 1, 0), (277, 3, 1, 3),
+            (278, 3, 1, 2), (279, 4, 1, len(data))]
+    ifd_size = 2 + 12 * len(tags) + 4
+    bits_at, data_at = 8 + ifd_size, 8 + ifd_size + 6
+    tags = [(tag, kind, count, {258: bits_at, 273: data_at}.get(tag, value)) for tag, kind, count, value in tags]
+    ifd = struct.pack("<H", len(tags)) + b"".join(
+        struct.pack("<HHI", tag, kind, count) + (struct.pack("<HH", value, 0) if kind == 3 and count == 1
+                                                 else struct.pack("<I", value)) for tag, kind, count, value in tags)
+    (tmp_path / "c16.tif").write_bytes(b"II*\x00" + struct.pack("<I", 8) + ifd + struct.pack("<I", 0)
+                                       + struct.pack("<3H", 16, 16, 16) + data)
+    try:
+        display = load_display(tmp_path / "c16.tif")
+    except FileFormatError as error:
+        assert "16-bit colour TIFF" in str(error) and "c16.tif" in str(error)
+    else:  # a reader that keeps the 16 bits (tifffile)
+        assert display.bits == 16
+        np.testing.assert_array_equal(np.round(display.values.astype(np.float64) * 65535), pixels)
+
+
 def test_saturated_pixels_are_masked():
     display = np.array([[0.0, 0.5, 254 / 255, 1.0]])
     np.testing.assert_array_equal(radiometry.saturation_mask(display), [[True, True, True, False]])

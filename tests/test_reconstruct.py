@@ -74,7 +74,7 @@ def test_scene_view_at_a_wider_working_aspect_stays_inside_the_frames(tmp_path):
 
 
 def test_frames_must_match_the_camera_file(tmp_path):
-    files, scene_json, _, _ = _scene(tmp_path)
+    files, scene_json, camera, _ = _scene(tmp_path)
     with pytest.raises(InvalidValueError, match="2 times"):
         rc.load_sequence(files[:1] * 3, scene_json)
     # a scene's times pair with the frames in the order given: not backwards, not a still
@@ -82,6 +82,13 @@ def test_frames_must_match_the_camera_file(tmp_path):
         rc.load_sequence(files[::-1], scene_json)
     with pytest.raises(InvalidValueError, match="a frame is given twice"):
         rc.load_sequence(files[:1] * 2, scene_json)
+    # a scene whose times do not increase is named with its field (was camera_file.select's
+    # "the selected frames' times must increase strictly", naming no file)
+    backwards = tmp_path / "backwards"
+    write_scene(backwards, scene_to_dict(camera=camera, times=[0.5, 0.25]))
+    with pytest.raises(InvalidValueError, match=r"backwards/scene\.json: times\[1\]: .* must increase strictly; got "
+                                                r"0\.25 after 0\.5"):
+        rc.load_sequence(files, backwards)
     # the Python entry point checks its output before minutes of work, as the command does
     (tmp_path / "a_file").write_text("")
     with pytest.raises(ValueError, match="exists and is not a directory"):
@@ -94,6 +101,19 @@ def test_frames_must_match_the_camera_file(tmp_path):
     for count in (-1, 0, 2.0):
         with pytest.raises(ValueError, match=r"max_frames must be an int >= 1 .*got " + repr(count)):
             rc.load_sequence(files, scene_json, max_frames=count)
+
+
+def test_scene_frames_are_ordered_by_their_numbers(tmp_path):
+    # frame_2 comes before frame_10 (the names compared as text put frame_10 first, which is
+    # the order a shell's frame_* gives: it was taken for time order, frame_10 at t = 0.5)
+    camera = cam.make_camera(height=8.0, pitch=0.5, fov=0.6, resolution=(16, 16))
+    named = [save_png(tmp_path / f"frame_{i}.png", np.full((16, 16, 3), 0.2, np.float32)) for i in range(11)]
+    scene_json = write_scene(tmp_path, scene_to_dict(camera=camera, times=np.arange(11) * 0.25))
+    by_text = sorted(named, key=lambda f: f.name)
+    with pytest.raises(InvalidValueError, match="in the order of the times"):
+        rc.load_sequence(by_text, scene_json, width=16, response="bruneton", evidence_width=None)
+    seq, _ = rc.load_sequence(named, scene_json, width=16, response="bruneton", evidence_width=None)
+    assert seq.files == tuple(str(f) for f in named)
 
 
 def _camera_file(tmp_path, files, camera, times, *, pose: bool):
@@ -185,6 +205,14 @@ def test_frames_matched_by_name_are_the_ones_read(tmp_path):
     iio.imwrite(video, np.stack([iio.imread(f) for f in files]), duration=100, loop=0)
     seq, _ = rc.load_sequence([video], posed, width=32)
     assert seq.files == (str(video.resolve()),) * len(times)
+    # the frames given are the ones read: the listed files need not exist (they were refused as
+    # missing, though never read)
+    for f in files:
+        Path(f).unlink()
+    seq, rep = rc.load_sequence(gray, posed, width=32, evidence_width=None)
+    assert rep.success and seq.files == tuple(str(g.resolve()) for g in gray)
+    with pytest.raises(cf.CameraFileError, match=r"frames\[0\]\.file: no such frame file"):
+        rc.load_sequence([], posed, width=32)
 
 
 def test_non_finite_exr_pixels_are_masked_not_fatal(tmp_path):

@@ -26,14 +26,16 @@ A camera file is one JSON object beside (or above) the frames it describes::
   ``k3`` or ``skew``, is refused unless it is 0). The principal point lies inside the image,
   and the radial distortion must be one-to-one out to the image's corners (every pixel has a
   ray; :func:`jaxocean.lens.max_radius`).
-* ``file``: path of the frame relative to the camera file's folder; it must exist.
+* ``file``: path of the frame relative to the camera file's folder; it must exist, and no
+  two frames name one file.
 * ``t`` [s]: strictly increasing frame times. It may be left out of every frame when
   ``frame_rate_hz`` is given (then ``t = n / frame_rate_hz`` for the n-th frame listed);
   given with both, the times' mean step is ``1 / frame_rate_hz`` within 1%.
 * The pose (:class:`jaxocean.lens.Pose`): ``camera_height_m`` (> 0, the optical centre above
   mean sea level, heave included), ``pitch_rad`` (optical axis below the horizontal, in
   (-pi/2, pi/2)), ``roll_rad`` (in (-pi/2, pi/2), positive: the horizon descends to the right), ``yaw_rad``
-  (the *compass heading* of the optical axis, clockwise from north, despite its name), and
+  (the *compass heading* of the optical axis, clockwise from north, despite its name; in
+  [-2 pi, 2 pi]: a larger one is taken for degrees and refused), and
   optionally ``ship_east_m`` / ``ship_north_m`` (horizontal position relative to any fixed
   origin; 0 when absent). Every frame gives these four fields, or none does (then
   ``poses`` is None, allowed with ``require_pose=False``: estimate pitch and roll from the
@@ -282,6 +284,9 @@ def camera_file_from_json(data, path, *, require_pose: bool = True, check_files:
         file = (path.parent / name).resolve()
         if check_files and not file.is_file():
             f.fail(f"frames[{n}].file", f"no such frame file {str(file)!r}")
+        if file in files:  # one image at two times would pass a still frame for motion
+            f.fail(f"frames[{n}].file", f"{name!r} is frames[{files.index(file)}]'s file too; each frame is a "
+                                        f"file of its own")
         files.append(file)
 
     times = _times(f, frames, frame_rate)
@@ -369,6 +374,8 @@ def _poses(f: _Fields, frames: list[dict], require_pose: bool) -> Pose | None:
     check("camera_height_m", values["camera_height_m"] > 0, "the camera must be above mean sea level (> 0 m)")
     for name in ("pitch_rad", "roll_rad"):
         check(name, (values[name] > -np.pi / 2) & (values[name] < np.pi / 2), "must lie in (-pi/2, pi/2) rad")
+    # a compass heading in degrees (0-360) lies beyond a turn but for the first 6 degrees
+    check("yaw_rad", np.abs(values["yaw_rad"]) <= 2 * np.pi, "a heading must lie in [-2pi, 2pi] rad (degrees?)")
     pitch = values["pitch_rad"]
     return Pose(height=values["camera_height_m"], pitch=pitch, roll=values["roll_rad"], heading=values["yaw_rad"],
                 east=values["ship_east_m"], north=values["ship_north_m"])

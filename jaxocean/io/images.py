@@ -40,7 +40,7 @@ from typing import NamedTuple
 import imageio.v3 as iio
 import numpy as np
 
-from jaxocean.errors import check_finite
+from jaxocean.errors import MissingDependencyError, check_finite
 from jaxocean.files import atomic_write
 from jaxocean.io.exr import FileFormatError, read_frame, require_file
 from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
@@ -102,8 +102,9 @@ def load_display_video(path) -> Display:
 
     Raises:
         MissingFileError: no such file.
-        ImportError: a video container (:data:`VIDEO_SUFFIXES`) and no imageio video plugin
-            installed; the message says what to install.
+        MissingDependencyError: (an ``ImportError``) a video container
+            (:data:`VIDEO_SUFFIXES`) and no imageio video plugin installed; the message says
+            what to install.
         FileFormatError: undecodable file, no frames, or frames of different sizes.
     """
     values, bits = _decode_video(require_file(path, "video file"))
@@ -139,8 +140,9 @@ def load_video(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
 
     Raises:
         MissingFileError: no such file.
-        ImportError: a video container (:data:`VIDEO_SUFFIXES`) and no imageio video plugin
-            installed; the message says what to install.
+        MissingDependencyError: (an ``ImportError``) a video container
+            (:data:`VIDEO_SUFFIXES`) and no imageio video plugin installed; the message says
+            what to install.
         FileFormatError: undecodable file, no frames, or frames of different sizes.
         ValueError: unknown ``space``.
     """
@@ -237,25 +239,35 @@ def _decode_image(path: Path) -> tuple[np.ndarray, int | None]:
         pixels = iio.imread(path, plugin=plugin, **({"mode": "RGB"} if mode in _CONVERT_TO_RGB else {}))
     except (OSError, ValueError) as error:
         raise FileFormatError(path, f"cannot read the image ({error})") from error
-    if np.asarray(pixels).dtype == np.uint8 and _png_bit_depth(path) == 16:
-        # Pillow decodes 16-bit gray PNG as uint16 but 16-bit colour PNG as 8 bits, silently.
-        raise FileFormatError(path, "a 16-bit colour PNG, which Pillow decodes to 8 bits only; convert it to "
-                                    "16-bit gray PNG(s), OpenEXR, or 8-bit PNG explicitly")
+    if np.asarray(pixels).dtype == np.uint8 and (stored := _stored_bit_depth(path, plugin)) is not None:
+        # Pillow decodes 16-bit gray PNG and TIFF as uint16 but 16-bit colour as 8 bits, silently.
+        kind, bits = stored
+        if bits > 8:
+            raise FileFormatError(path, f"a {bits}-bit colour {kind}, which Pillow decodes to 8 bits only; convert "
+                                        f"it to 16-bit gray {kind}(s), OpenEXR, or 8-bit {kind} explicitly")
     return _display(pixels, path)
 
 
-def _png_bit_depth(path: Path) -> int | None:
-    """The bit depth in a PNG file's header (None for other files)."""
+def _stored_bit_depth(path: Path, plugin: str | None) -> tuple[str, int] | None:
+    """``(kind, bits)``: the bits per sample a PNG file's header or, read through Pillow, a
+    TIFF file's tags give (the largest over its samples), with the format's name; None for
+    other files."""
     with open(path, "rb") as stream:
         head = stream.read(25)
-    if len(head) < 25 or head[:8] != b"\x89PNG\r\n\x1a\n" or head[12:16] != b"IHDR":
-        return None
-    return head[24]
+    if len(head) == 25 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+        return "PNG", head[24]
+    if plugin == "pillow" and head[:4] in (b"II*\x00", b"MM\x00*"):
+        from PIL import Image
+
+        with Image.open(path) as image:
+            bits = image.tag_v2.get(258, 1)  # BitsPerSample: one value per sample, 1 when absent
+        return "TIFF", max(bits) if isinstance(bits, tuple) else int(bits)
+    return None
 
 
 def _decode_video(path: Path) -> tuple[np.ndarray, int | None]:
     if path.suffix.lower() in VIDEO_SUFFIXES and not _video_plugin_available():
-        raise ImportError(
+        raise MissingDependencyError(
             f"reading the video {str(path)!r} needs an imageio video plugin, and neither PyAV nor "
             f"imageio-ffmpeg is installed: pip install 'imageio[pyav]' (or 'imageio[ffmpeg]')"
         )
