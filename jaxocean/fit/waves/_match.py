@@ -132,13 +132,22 @@ def alias_separation(waves_: Waves, times) -> np.ndarray:
     is left to the long-wave rules."""
     omega = np.asarray(waves_.omega, np.float64)
     t = np.asarray(times, np.float64).ravel()
-    if not spacetime.uniformly_spaced(t):
+    rate = _frame_rate(t)
+    if rate is None:
         return np.full(omega.shape, np.inf)  # irregular frames (or one) do not alias onto one frequency
-    dt = float(np.mean(np.diff(t)))
-    duration = float(t[-1] - t[0])
-    alias = 2 * np.pi / dt  # 2 omega is aliased by multiples of the frame rate
-    m = np.maximum(np.round(2 * omega / alias), 1.0)
-    return np.abs(2 * omega - m * alias) * duration / (2 * np.pi)
+    return _alias_gap(2 * omega, rate) * float(t[-1] - t[0]) / (2 * np.pi)
+
+
+def _frame_rate(t):
+    """``2 pi / dt`` [rad/s] of frames ``t (T,)`` a constant ``dt`` apart; None for others."""
+    return 2 * np.pi / float(np.mean(np.diff(t))) if spacetime.uniformly_spaced(t) else None
+
+
+def _alias_gap(both, frame_rate):
+    """``|both - m frame_rate|`` for the nearest ``m >= 1``: how far a frequency sum
+    ``omega_i + omega_j`` is from making wave ``i`` the frames' image of wave ``j``'s twin."""
+    m = np.maximum(np.round(both / frame_rate), 1.0)
+    return np.abs(both - m * frame_rate)
 
 
 def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hierarchy.DEFAULT_N_MAX,
@@ -154,7 +163,7 @@ def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hiera
     om_s, th_s, _, _ = _sea_view(waves_, camera, max_distance)
     t = np.asarray(times, np.float64).ravel()
     duration = float(t[-1] - t[0])
-    frame_rate = 2 * np.pi / float(np.mean(np.diff(t))) if spacetime.uniformly_spaced(t) else None
+    frame_rate = _frame_rate(t)
     k_n, k_s = om_n ** 2 / GRAVITY, om_s ** 2 / GRAVITY
     kv_n = np.stack([k_n * np.cos(th_n), k_n * np.sin(th_n)], -1)
     kv_s = np.stack([k_s * np.cos(th_s), k_s * np.sin(th_s)], -1)
@@ -178,9 +187,8 @@ def rayleigh_separation(new: Waves, waves_: Waves, camera, times, *, n_max=hiera
     for i in range(om_n.size):
         out[i] = limits(i, kv_n[i] - kv_s, om_n[i] - om_s)
         if frame_rate is not None:
-            both = om_n[i] + om_s  # the twin stands at 2 pi m / dt - omega_j
-            m = np.maximum(np.round(both / frame_rate), 1.0)
-            out[i] = np.minimum(out[i], limits(i, kv_n[i] + kv_s, both - m * frame_rate))
+            # the twin stands at 2 pi m / dt - omega_j
+            out[i] = np.minimum(out[i], limits(i, kv_n[i] + kv_s, _alias_gap(om_n[i] + om_s, frame_rate)))
     return out
 
 
