@@ -7,6 +7,7 @@ Protocol
 * ``waves``: :class:`jaxocean.waves.Waves` with leaves ``(N,)`` (validated: finite, omega > 0).
 * ``footprint``: pixel footprint on the sea [m], any shape ``(...)`` (a scalar for a regular
   grid, ``(H, W)`` for a perspective image).
+* ``n_min``, ``n_max``: finite, ``0 < n_min < n_max`` (else ``ValueError``).
 * returns ``WaveWeights(displacement, normal, roughness)``, each ``(..., N)`` in [0, 1].
 
 With lambda_i the wavelength, a wave's weight in the per-pixel normal is
@@ -19,12 +20,13 @@ C1 in lambda and in the footprint, so gradients flow through it to every wave pa
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
 
 from jaxocean._roughness import normal_weight
-from jaxocean.errors import check_values
+from jaxocean.errors import check_number, check_values
 from jaxocean.waves import Waves, validate, wavelength
 
 __all__ = ["WaveWeights", "weights", "all_resolved", "DEFAULT_N_MIN", "DEFAULT_N_MAX"]
@@ -45,8 +47,10 @@ def weights(waves: Waves, footprint, *, n_min: float = DEFAULT_N_MIN, n_max: flo
             grid_cell=None) -> WaveWeights:
     """Per-wave displacement / normal / roughness weights for pixels of size ``footprint``."""
     validate(waves, max_steepness=None)  # a NaN omega gave NaN weights, omega = 0 a wave resolved everywhere
-    if not n_max > n_min:
-        raise ValueError(f"need n_max > n_min; got n_min={n_min}, n_max={n_max}")
+    # n_min <= 0 gave every sub-pixel wave, however short, a share of the normal (aliased)
+    check_number(n_min, "n_min must be a finite number of footprints > 0", low_open=True)
+    if not (n_max > n_min and math.isfinite(n_max)):
+        raise ValueError(f"need a finite n_max > n_min; got n_min={n_min}, n_max={n_max}")
     check_values(jnp.asarray(footprint) > 0, "footprint must be > 0 m", footprint)
     if grid_cell is not None:
         check_values(jnp.asarray(grid_cell) > 0, "grid_cell must be > 0 m", grid_cell)

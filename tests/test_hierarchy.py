@@ -46,6 +46,20 @@ def test_all_resolved_and_bad_input():
         hierarchy.weights(waves, 1.0, n_min=2.0, n_max=1.0)
 
 
+@pytest.mark.parametrize("n_min", [0.0, -1.0, float("nan")])
+def test_nonpositive_n_min_is_rejected(n_min):
+    # n_min <= 0 gave a wave a tenth of a footprint long a share of the normal (aliasing)
+    waves = _waves_with_wavelengths([0.1, 1.0])
+    with pytest.raises(ValueError, match="n_min must be a finite number of footprints > 0"):
+        hierarchy.weights(waves, 1.0, n_min=n_min, n_max=1.5)
+
+
+def test_infinite_n_max_is_rejected():
+    waves = _waves_with_wavelengths([1.0, 2.0])
+    with pytest.raises(ValueError, match="finite n_max > n_min"):
+        hierarchy.weights(waves, 1.0, n_max=float("inf"))
+
+
 @pytest.mark.parametrize("omega", [0.0, float("nan")])
 def test_invalid_waves_are_rejected(omega):
     # a NaN frequency gave NaN weights and omega = 0 (an infinite wavelength) a wave resolved

@@ -49,6 +49,25 @@ def test_undistort_inverts_distort_over_the_image(x64):
     assert float(np.abs(np.asarray(undistorted_uv) - uv).max()) > 50
 
 
+@pytest.mark.parametrize("fx, k1, k2", [(300.0, -0.4, 0.1), (250.0, -0.4, 0.1), (300.0, -0.3, 0.05),
+                                         (300.0, 0.5, 0.3), (400.0, 1.0, 1.0)])
+def test_undistort_inverts_strong_barrel_and_pincushion_over_the_full_frame(x64, fx, k1, k2):
+    # 6 Newton steps left 0.02 px at k1 = -0.4, k2 = 0.1, fx = 300 (5.6 px at k1 = -0.3,
+    # k2 = 0.05): the radial slope 1 + 3 k1 r^2 + 5 k2 r^4 dips near 0 on the way, where the
+    # first steps are short
+    intrinsics = Intrinsics(fx, fx, (W_REAL - 1) / 2, (H_REAL - 1) / 2)
+    distortion = Distortion(k1, k2)
+    assert lens.fold_problem(distortion, intrinsics, (W_REAL, H_REAL)) is None  # a valid lens
+    u, v = np.meshgrid(np.linspace(-0.5, W_REAL - 0.5, 321), np.linspace(-0.5, H_REAL - 0.5, 241))
+    uv = np.stack([u, v], -1)  # every edge, the corners included
+    xy = lens.undistort(lens.normalize_pixels(uv, intrinsics), distortion)
+    back = np.asarray(lens.denormalize(lens.distort(xy, distortion), intrinsics))
+    assert float(np.abs(back - uv).max()) < 1e-3
+    # and the values do not depend on tracing (a fixed count of steps)
+    jitted = jax.jit(lambda q, d: lens.undistort(q, d))(lens.normalize_pixels(uv, intrinsics), distortion)
+    np.testing.assert_array_equal(np.asarray(jitted), np.asarray(xy))
+
+
 def test_undistort_with_two_iterations_is_not_converged(x64):
     # the convergence check above is real: too few iterations leave a visible error
     xy_d = lens.normalize_pixels(np.array([[0.0, 0.0], [639.0, 479.0]]), K_REAL)

@@ -13,6 +13,7 @@ import pytest
 
 from jaxocean import camera as cam
 from jaxocean import shading
+from jaxocean.errors import InvalidValueError
 from jaxocean.io import dataset
 from jaxocean.nn import CheckpointError
 from jaxocean.nn import geometry as geo
@@ -131,6 +132,23 @@ def test_a_run_directory_given_as_the_model_is_named_as_such(tmp_path):
     with pytest.raises(CheckpointError, match=r"is a directory, not a model or checkpoint file; its model is "
                                               r".*run/model\.npz"):
         geo.load(tmp_path / "run")
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf])
+def test_a_model_with_nonfinite_parameters_is_refused_at_load_and_predict(key, tmp_path, value):
+    # it loaded, and predict returned NaN slope variances without a word (the wave network
+    # already refused its non-finite outputs)
+    model = geo.init(key, TINY)
+    leaves, treedef = jax.tree.flatten(model.params)
+    leaves[-1] = np.asarray(leaves[-1]).copy()
+    leaves[-1].flat[0] = value
+    bad = geo.GeometryModel(model.config, jax.tree.unflatten(treedef, leaves))
+    camera = cam.make_camera(height=10.0, pitch=0.6, fov=0.8, resolution=(16, 16))
+    with pytest.raises(InvalidValueError, match="geometry model's parameters hold NaN or inf"):
+        geo.predict(bad, np.ones((16, 16, 3)), camera)
+    path = geo.save(tmp_path / "diverged.npz", bad)
+    with pytest.raises(CheckpointError, match=rf"diverged\.npz: array {len(leaves) - 1} holds NaN or inf"):
+        geo.load(path)
 
 
 def test_model_file_round_trip(key, tmp_path):

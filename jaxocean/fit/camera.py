@@ -48,7 +48,9 @@ The loss is the lighting fit's: weighted mean square residual in linear radiance
 Success: the final solve converged, the camera is valid (height > 0, |pitch| < pi/2, with
 ``fit_lighting`` the sun above the horizon) *and* the loss is plausible for a right camera::
 
-    loss <= NOISE_FACTOR * noise**2 + LOSS_FLOOR * sum(w^2 image^2) / sum(w^2)
+    loss <= NOISE_FACTOR * (noise**2 + time_loss) + LOSS_FLOOR * sum(w^2 image^2) / sum(w^2)
+
+(``time_loss``: 0 unless ``time_noise`` is given; see Time).
 
 ``noise`` is the RMS of the weighted residual the data allow at the true camera (with the
 default display weights: the standard deviation of the noise on display values); ``None``
@@ -69,7 +71,22 @@ explains the image to its noise, not that no other camera does; the start search
 sun direction determined, by the lighting fit's rule (its glitter seen, its standard
 deviation below 0.5 deg): an image without glitter (the sun behind the camera) is explained
 as well by a sun anywhere with no sun colour (measured: 139 deg from the true sun on a 16^2
-scene, the camera exact), and the lighting returned with it is no measurement.
+scene, the camera exact), and the lighting returned with it is no measurement. Likewise each
+fitted colour must be determined by the lighting fit's rule (every channel's standard
+deviation below 10% of its brightest, from ``J^T J`` in camera, sun and colours): with
+display noise 0.01 on the 16^2 test scene the sun colour came out 27% low with a standard
+deviation of 41%, camera and sun direction determined, and was reported as success.
+
+Time: ``t`` is taken as exact unless ``time_noise=`` [s] states its error. A wrong frame
+time moves the waves, and height and pitch follow them: measured on the 16^2 scene with
+display noise 0.01, ``t`` off by 0.1 s gave the height 16 standard deviations off (0.16 m)
+at a loss of 0.96 noise^2, within the bound (0.2 s: 45 sigma, 1.37 noise^2) -- a loss test
+cannot tell such an error from noise. With ``time_noise`` the answer's linear response to
+the time (``dy/dt`` of the least-squares answer) times ``time_noise`` is added to ``std`` in
+quadrature, and the loss the time error leaves once the parameters have absorbed what they
+can is added to the bound (the ``geometry`` term of
+:func:`jaxocean.fit._plausibility.loss_bound`): a camera that the stated time error could
+have moved further than the determined limits is not reported as measured.
 
 Everything after validation is one jitted function; results are arrays only (``vmap`` with
 ``throw=False``).
@@ -129,12 +146,14 @@ class CameraFit(NamedTuple):
     winning start); ``success`` also needs a plausible loss (module docstring); ``history``
     ``(levels, max_steps + 1)``, the winning start's at each level. ``std`` ``{field: ()}``:
     the Gauss-Newton standard deviation of each fitted camera field (height [m], pitch and
-    fov [rad]) at the stated noise (without one, at the loss floor); ``determined``
+    fov [rad]) at the stated noise (without one, at the loss floor), the stated
+    ``time_noise``'s effect added in quadrature; ``determined``
     ``{field: () bool}``: below :data:`DETERMINED_HEIGHT_REL` of the height or
     :data:`DETERMINED_ANGLE_DEG`. With ``fit_lighting`` both also hold ``"sun_direction"``:
     the RMS standard deviation [rad] of the sun's ``(p, q)``, determined as
     :func:`jaxocean.fit.lighting.lighting` determines it (below its ``DETERMINED_SUN_DEG``,
-    and its glitter seen). ``success`` needs every entry of ``determined``.
+    and its glitter seen), and each colour ``(3,)`` (determined as fit.lighting determines
+    a colour). ``success`` needs every entry of ``determined``.
     """
 
     camera: cam.Camera
@@ -266,7 +285,7 @@ def _score(fn, y, args):
     return jnp.where(jnp.isfinite(loss), loss, jnp.inf)
 
 
-def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
+def _core(image, weight, waves, t, init, hg, light, noise, time_noise, st: _Static):
     args = (image, weight, waves, t, init, hg, light)
     dtype = image.dtype
     fns = [_bound(st.fit, st.fit_lighting, plan, scale) for plan, scale in zip(st.plans, st.levels)]
@@ -304,25 +323,40 @@ def _core(image, weight, waves, t, init, hg, light, noise, st: _Static):
     loss = 2 * out.loss
     hist = None if out.history is None else 2 * jnp.stack(hists)
     success = out.success & jnp.isfinite(loss) & (c.height > 0) & (jnp.abs(c.pitch) < jnp.pi / 2)
-    success = success & (loss <= _plausibility.loss_bound(image, weight, noise))
+    std, determined, time_loss = _uncertainty(fns[-1], y, args, c, st.fit, image, weight, noise, time_noise)
+    bound = _plausibility.loss_bound(image, weight, noise, time_loss)
+    success = success & (loss <= bound)
     if st.fit_lighting:
         success = success & (light.sun_elevation > 0)
-    std, determined = _uncertainty(fns[-1], y, args, c, st.fit, image, weight, noise)
     if st.fit_lighting:
         std["sun_direction"], determined["sun_direction"] = _sun_uncertainty(y, args, st, std.pop("_pq"))
+        colors_std, colors_determined = _color_uncertainty(y, args, st, image, weight, noise)
+        std.update(colors_std)
+        determined.update(colors_determined)
     else:
         std.pop("_pq")
     for name in determined:
         success = success & determined[name]
-    return c, light, loss, steps, success, hist, std, determined
+    return c, light, loss, steps, success, hist, std, determined, bound
 
 
-def _uncertainty(fn, y, args, camera_at, fit, image, weight, noise):
-    """``(std, determined)`` of the fitted camera fields: Gauss-Newton standard deviations
-    from ``J^T J`` of the residual at the answer (every fitted parameter, the sun's too,
-    marginalised), at the noise of :func:`jaxocean.fit._plausibility.noise_variance`."""
-    jac = jax.jacfwd(lambda p: fn(p, args))(jax.lax.stop_gradient(y)).reshape(-1, y.shape[0])
+def _uncertainty(fn, y, args, camera_at, fit, image, weight, noise, time_noise):
+    """``(std, determined, time_loss)`` of the fitted camera fields: Gauss-Newton standard
+    deviations from ``J^T J`` of the residual at the answer (every fitted parameter, the
+    sun's too, marginalised), at the noise of :func:`jaxocean.fit._plausibility.noise_variance`,
+    with the shift a frame-time error of ``time_noise`` [s] makes added in quadrature;
+    ``time_loss`` the loss that time error leaves once the parameters absorb what they can."""
+    y = jax.lax.stop_gradient(y)
+    jac = jax.jacfwd(lambda p: fn(p, args))(y).reshape(-1, y.shape[0])
     sd = _plausibility.parameter_std(jac.T @ jac, _plausibility.noise_variance(image, weight, noise))
+    # a wrong frame time moves the waves, and height and pitch follow them (0.1 s: 16 sigma
+    # in height, at 1.3x the loss): the answer's linear response dy/dt to the time
+    t = jax.lax.stop_gradient(args[3])
+    dr_dt = jax.jvp(lambda tt: fn(y, args[:3] + (tt,) + args[4:]).reshape(-1), (t,), (jnp.ones_like(t),))[1]
+    dy_dt = -jnp.linalg.lstsq(jac, dr_dt)[0]
+    shift = dy_dt * time_noise
+    sd = jnp.where(time_noise > 0, jnp.sqrt(sd * sd + shift * shift), sd)
+    time_loss = jnp.sum((dr_dt + jac @ dy_dt) ** 2) * time_noise * time_noise
     std, determined = {"_pq": sd[len(fit):]}, {}  # the sun's (p, q) follow the camera fields
     for i, name in enumerate(fit):
         if name == "height":  # y holds log(height)
@@ -331,7 +365,7 @@ def _uncertainty(fn, y, args, camera_at, fit, image, weight, noise):
         else:  # pitch itself; fov through log(tan(fov / 2)), d fov / d y = sin(fov)
             std[name] = sd[i] if name == "pitch" else jnp.sin(camera_at.fov) * sd[i]
             determined[name] = std[name] < math.radians(DETERMINED_ANGLE_DEG)
-    return std, determined
+    return std, determined, time_loss
 
 
 def _sun_uncertainty(y, args, st: _Static, sd_pq):
@@ -342,10 +376,32 @@ def _sun_uncertainty(y, args, st: _Static, sd_pq):
     behind the camera) is explained as well with the sun anywhere, or with no sun at all."""
     data = _data(y, args, st.fit, st.plans[-1], st.levels[-1])
     direction, colors = _sun_and_colors(y, data, args[6], st.fit, True)
-    sun = ph.columns(data, direction)["sun_color"][..., None] * colors["sun_color"]
-    glitter = jnp.sum((data.weight * sun) ** 2) / jnp.sum((data.weight * data.target) ** 2)
+    glitter = lf.glitter_share(data, ph.columns(data, direction)["sun_color"], colors["sun_color"])
     std = jnp.sqrt(jnp.sum(sd_pq * sd_pq))
     return std, (std < math.radians(lf.DETERMINED_SUN_DEG)) & (glitter > lf.SUN_SEEN)
+
+
+def _color_uncertainty(y, args, st: _Static, image, weight, noise):
+    """``(std, determined)`` of the jointly fitted colours, ``{name: (3,)}`` and ``{name: ()
+    bool}``: Gauss-Newton standard deviations from ``J^T J`` of the residual in the camera
+    fields, the sun's ``(p, q)`` and the nine colour channels (all marginalised; the colours
+    are solved in closed form inside the fit, so the fit's own Jacobian has no column for
+    them), determined as :func:`jaxocean.fit.lighting.lighting` determines a colour. A colour
+    the image does not show (the sea's under a bright sky reflection, say) is no measurement."""
+    data = _data(y, args, st.fit, st.plans[-1], st.levels[-1])
+    _, colors = _sun_and_colors(y, data, args[6], st.fit, True)
+    n = y.shape[0]
+
+    def residual(p):
+        at = _data(p[:n], args, st.fit, st.plans[-1], st.levels[-1])
+        cols = {name: p[n + 3 * i: n + 3 * i + 3] for i, name in enumerate(ph.COLOR_FIELDS)}
+        return ph.residual_from_model(at, ph.model(at, ph.pq_to_direction(p[len(st.fit):n]), cols))
+
+    p = jax.lax.stop_gradient(jnp.concatenate([y] + [colors[name] for name in ph.COLOR_FIELDS]))
+    jac = jax.jacfwd(residual)(p).reshape(-1, p.shape[0])
+    sd = _plausibility.parameter_std(jac.T @ jac, _plausibility.noise_variance(image, weight, noise))
+    std = {name: sd[n + 3 * i: n + 3 * i + 3] for i, name in enumerate(ph.COLOR_FIELDS)}
+    return std, {name: lf.color_determined(std[name], colors[name]) for name in ph.COLOR_FIELDS}
 
 
 _core_jit = jax.jit(_core, static_argnames=("st",))
@@ -357,7 +413,8 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
            max_steps: int | None = None, rtol: float | None = None, atol: float | None = None,
            search=(7, 5), height_span: float = 0.15, pitch_span: float = 0.04, n_starts: int = 2, grid: int = 16,
            levels=DEFAULT_LEVELS, coarse_steps: int | None = DEFAULT_COARSE_STEPS, noise: float | None = None,
-           plan="auto", history: bool = False, throw: bool = True, options: dict | None = None) -> CameraFit:
+           time_noise: float | None = None, plan="auto", history: bool = False, throw: bool = True,
+           options: dict | None = None) -> CameraFit:
     """Fit camera height and pitch (and ``fov``) to ``image`` of ``waves`` at time ``t``.
 
     Args:
@@ -377,6 +434,8 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
             starts; :data:`DEFAULT_COARSE_STEPS`); ``None``: ``max_steps``.
         noise: RMS of the weighted residual the data allow at the true camera (display-space
             noise std with the default weights), for the success test; None: noise-free.
+        time_noise: the standard deviation [s] of the error of ``t`` (module docstring, Time);
+            None: ``t`` is exact.
         grid: the sun grid of the lighting starts (``fit_lighting`` only).
         plan: how the geometry is evaluated for every candidate camera: ``"auto"`` (default)
             uses the path :func:`jaxocean.render.plan` picks at ``init`` (rows or converged
@@ -416,6 +475,8 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     if len(search) != 2 or any(not is_integer(n, 1) for n in search):
         raise ValueError(f"search must be two positive ints (n_heights, n_pitches); got {search!r}")
     check_nonnegative_number(height_span, "height_span must be a finite number >= 0")
+    if time_noise is not None:
+        check_nonnegative_number(time_noise, "time_noise must be a finite number >= 0 s (or None)")
     check_nonnegative_number(pitch_span, "pitch_span must be a finite number >= 0 rad")
     if not is_integer(n_starts, 1) or not is_integer(grid, 0):
         raise ValueError(f"n_starts must be an int >= 1 and grid an int >= 0; got {n_starts!r}, {grid!r}")
@@ -454,9 +515,10 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
                  coarse_steps=max_steps if coarse_steps is None else int(coarse_steps), plans=plans)
     run = _core_jit if spec.traceable else _core
     t0 = time.perf_counter()
-    c, light, loss, steps, success, hist, std, determined = run(
+    c, light, loss, steps, success, hist, std, determined, bound = run(
         image, weight, waves, jnp.asarray(t, dtype), init, jnp.asarray(horizon_gradient, dtype), lighting,
-        jnp.asarray(0.0 if noise is None else noise, dtype), st)
+        jnp.asarray(0.0 if noise is None else noise, dtype),
+        jnp.asarray(0.0 if time_noise is None else time_noise, dtype), st)
     if traced:
         wall = jnp.asarray(jnp.nan, dtype)
     else:
@@ -465,7 +527,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     result = CameraFit(c, light, loss, steps, success, wall, hist, std, determined)
     if throw and not bool(success):
         undetermined = [name for name in determined if not bool(determined[name])]
-        bound = float(_plausibility.loss_bound(image, weight, 0.0 if noise is None else noise))
+        bound = float(bound)
         if float(loss) > bound:
             why = f"the answer does not explain the image (loss {float(loss):.3e} above its bound {bound:.3e})"
         elif undetermined:

@@ -158,6 +158,8 @@ __all__ = [
     "COLOR_FIELDS",
     "DETERMINED_SUN_DEG",
     "DETERMINED_COLOR_REL",
+    "glitter_share",
+    "color_determined",
     "GEOMETRY_SAMPLES",
     "STRUCTURES",
     "COLOR_RANGES",
@@ -372,31 +374,39 @@ class _Static(NamedTuple):
 
 def _final(data: ph.Data, pq, init_colors, free, colors=None):
     """One evaluation at the solution: colours (projected unless given), the loss
-    ``0.5 |r|^2`` and the weighted energy of the sun's glitter."""
+    ``0.5 |r|^2`` and the sun's glitter share (:func:`glitter_share`)."""
     direction = pq_to_direction(pq)
     cols = ph.columns(data, direction)
     if colors is None:
         colors = ph.project_colors(data, direction, init_colors, free, cols)
     model = sum(cols[name][..., None] * colors[name] for name in COLOR_FIELDS)
     r = ph.residual_from_model(data, model)
-    sun = cols["sun_color"][..., None] * colors["sun_color"]
-    return colors, 0.5 * jnp.sum(r * r), jnp.sum((data.weight * sun) ** 2)
+    return colors, 0.5 * jnp.sum(r * r), glitter_share(data, cols["sun_color"], colors["sun_color"])
+
+
+def glitter_share(data: ph.Data, sun_column, sun_color):
+    """The weighted energy of the sun's glitter ``sun_column (H, W) * sun_color (3,)`` (the
+    sun's column of :func:`jaxocean.fit._photometry.columns` times its colour) over that of
+    the image ``data.target``: the sun is seen above :data:`SUN_SEEN` (this fit's and the
+    joint camera fit's rule)."""
+    sun = sun_column[..., None] * sun_color
+    return jnp.sum((data.weight * sun) ** 2) / jnp.sum((data.weight * data.target) ** 2)
 
 
 def _solve_core(data: ph.Data, used, init: Lighting, st: _Static):
     """Everything after preparation; with ``space="display"`` a display-space refinement
     follows (its loss is the reported one, its steps are added)."""
-    pq, colors, loss, steps, success, hist, sun_energy = _solve_linear(data, init, st)
+    pq, colors, loss, steps, success, hist, glitter = _solve_linear(data, init, st)
     if st.space == "display":
         init_colors = {n: getattr(init, n).astype(data.target.dtype) for n in COLOR_FIELDS}
         pq, colors, out = _refine_display(data, used, pq, colors, init_colors, st)
-        _, _, sun_energy = _final(data, pq, init_colors, st.free, colors)
+        _, _, glitter = _final(data, pq, init_colors, st.free, colors)
         loss, steps, success = 2 * out.loss, steps + out.steps, success & out.success
-    return pq, colors, loss, steps, success, hist, sun_energy
+    return pq, colors, loss, steps, success, hist, glitter
 
 
 def _solve_linear(data: ph.Data, init: Lighting, st: _Static):
-    """The linear-radiance fit: returns (pq, colors, loss, steps, success, history, sun energy)."""
+    """The linear-radiance fit: returns (pq, colors, loss, steps, success, history, glitter share)."""
     dtype = data.target.dtype
     init_pq = sun_to_pq(init.sun_azimuth, init.sun_elevation).astype(dtype)
     init_colors = {n: getattr(init, n).astype(dtype) for n in COLOR_FIELDS}
@@ -405,10 +415,10 @@ def _solve_linear(data: ph.Data, init: Lighting, st: _Static):
 
     if st.structure == "varpro":
         if "sun_direction" not in st.fit:
-            colors, half_loss, sun_energy = _final(data, init_pq, init_colors, st.free)
+            colors, half_loss, glitter = _final(data, init_pq, init_colors, st.free)
             loss = 2 * half_loss
             hist = jnp.full((st.max_steps + 1,), loss) if st.history else None
-            return init_pq, colors, loss, jnp.asarray(0, jnp.int32), jnp.isfinite(loss), hist, sun_energy
+            return init_pq, colors, loss, jnp.asarray(0, jnp.int32), jnp.isfinite(loss), hist, glitter
         starts = ph.starts(data, init_pq, init_colors, st.free, grid=st.grid, n_starts=st.n_starts, glint=st.glint,
                          rough_levels=_ROUGH_LEVELS if st.glint else (), tol=(st.rtol, st.atol))
 
@@ -425,7 +435,7 @@ def _solve_linear(data: ph.Data, init: Lighting, st: _Static):
         out = jax.tree.map(lambda a: a[best], outs)
         pq = out.params
         # the loss of the colours returned (not the solver's copy of it)
-        colors, half_loss, sun_energy = _final(data, pq, init_colors, st.free)
+        colors, half_loss, glitter = _final(data, pq, init_colors, st.free)
         out = out._replace(loss=half_loss)
     else:
         log_colors = not spec.bounded
@@ -442,11 +452,11 @@ def _solve_linear(data: ph.Data, init: Lighting, st: _Static):
                             max_steps=st.max_steps, rtol=st.rtol, atol=st.atol, lower=lower, upper=upper,
                             history=st.history, options=options)
         pq, colors = _plain_unpack(out.params, init_pq, init_colors, st.fit, log_colors)
-        _, _, sun_energy = _final(data, pq, init_colors, st.free, colors)
+        _, _, glitter = _final(data, pq, init_colors, st.free, colors)
     # 0.5 |r|^2 -> weighted mean square
     loss = 2 * out.loss
     hist = None if out.history is None else 2 * out.history
-    return pq, colors, loss, out.steps, out.success, hist, sun_energy
+    return pq, colors, loss, out.steps, out.success, hist, glitter
 
 
 @functools.lru_cache(maxsize=None)
@@ -501,14 +511,21 @@ def _uncertainty(data: ph.Data, pq, colors, st: _Static, noise, shifts=None):
             determined[name] = std[name] < math.radians(DETERMINED_SUN_DEG)
         else:
             std[name] = sd[layout[name]]
-            determined[name] = jnp.all(std[name] < DETERMINED_COLOR_REL * jnp.max(colors[name]))
+            determined[name] = color_determined(std[name], colors[name])
     return std, determined
+
+
+def color_determined(std, color):
+    """Whether a fitted colour ``(3,)`` with standard deviations ``std (3,)`` is determined:
+    every channel's below :data:`DETERMINED_COLOR_REL` of its brightest channel (this fit's
+    and the joint camera fit's rule)."""
+    return jnp.all(std < DETERMINED_COLOR_REL * jnp.max(color))
 
 
 def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient, init, noise, normal_noise,
                 st: _Static):
     data = ph.prepare(image, normal, slope_var, camera, weight, horizon_gradient)
-    pq, colors, loss, steps, success, hist, sun_energy = _solve_core(data, used, init, st)
+    pq, colors, loss, steps, success, hist, glitter = _solve_core(data, used, init, st)
     light = ph.finish(data, pq, colors)
     if st.geometry:
         def prepare_at(n):
@@ -525,7 +542,6 @@ def _fit_arrays(image, normal, slope_var, camera, weight, used, horizon_gradient
     else:
         bound = _plausibility.loss_bound(data.target, data.weight, noise, geometry_loss)
     std, determined = _uncertainty(data, pq, colors, st, noise, shifts)
-    glitter = sun_energy / jnp.sum((data.weight * data.target) ** 2)
     if "sun_direction" in st.fit:
         # the sun direction is only determined where its glitter is seen: a fit that explains
         # the image without any sun light (zero sun colour or no glitter on a selected

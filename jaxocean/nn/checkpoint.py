@@ -12,7 +12,11 @@ Protocol
   metadata alone.
 * ``save_model`` / ``load_model``: a network's parameters with its config and a format tag
   (``{"format": ..., "config": config.to_json()}`` in the metadata); loading checks the tag
-  and rebuilds the config before the parameters are read into a fresh initialisation.
+  and rebuilds the config before the parameters are read into a fresh initialisation, and
+  refuses parameters that hold NaN or inf (a diverged training predicts NaN).
+* ``nonfinite_arrays(params) -> list[int]``: the flattening indices of the floating leaves
+  that hold NaN or inf (what ``load_model`` refuses, and a network's ``predict`` checks
+  for a model built in memory).
 
 Every problem -- missing file, not an npz, truncated, another structure -- raises
 :class:`CheckpointError` naming the file. Host-side only.
@@ -29,7 +33,8 @@ import numpy as np
 
 from jaxocean.files import atomic_write
 
-__all__ = ["CheckpointError", "save_tree", "load_tree", "save_model", "load_model", "model_path"]
+__all__ = ["CheckpointError", "save_tree", "load_tree", "save_model", "load_model", "model_path",
+           "nonfinite_arrays"]
 
 
 class CheckpointError(ValueError):
@@ -129,7 +134,20 @@ def load_model(path, *, fmt: str, what: str, config_from_json, init_params):
     except (KeyError, TypeError, ValueError) as err:
         raise CheckpointError(path, f"bad model config: {err}") from None
     params, _ = load_tree(path, init_params(config))
+    bad = nonfinite_arrays(params)
+    if bad:
+        raise CheckpointError(path, f"array {bad[0]} holds NaN or inf ({len(bad)} such array(s)): the parameters "
+                              "of a diverged training, not a usable model")
     return config, params
+
+
+def nonfinite_arrays(params) -> list[int]:
+    """Flattening indices of the floating-point leaves of ``params`` holding NaN or inf."""
+    def dtype(leaf):
+        return leaf.dtype if hasattr(leaf, "dtype") else np.result_type(leaf)
+
+    return [i for i, leaf in enumerate(jax.tree.leaves(params))
+            if jax.dtypes.issubdtype(dtype(leaf), np.inexact) and not np.all(np.isfinite(np.asarray(leaf)))]
 
 
 def model_path(path, shipped: dict, default: Path) -> Path:

@@ -53,10 +53,10 @@ from jaxocean import shading
 from jaxocean._math import normal_from_slope, safe_normalize
 from jaxocean._records import record_from_json, record_to_json, register_static
 from jaxocean._sea_scale import compress, sea_median
-from jaxocean.errors import is_integer
+from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
-from jaxocean.nn.checkpoint import load_model, load_tree, model_path, save_model
+from jaxocean.nn.checkpoint import load_model, load_tree, model_path, nonfinite_arrays, save_model
 
 __all__ = [
     "GeometryConfig",
@@ -269,7 +269,8 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8) -> Geo
     """Geometry of linear images seen by ``camera``: a sequence ``(T, H, W, 3)`` (RGB) or
     ``(T, H, W)`` (gray), or one image ``(H, W, 3)`` / ``(H, W)``. The result has the same
     leading axes. A gray input to an RGB model is taken as equal R, G, B; an RGB input to a
-    gray model as its luminance."""
+    gray model as its luminance. A model whose parameters hold NaN or inf is refused
+    (``InvalidValueError``)."""
     if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer; got {batch_size!r}")
     images = np.asarray(images, np.float32)
@@ -288,6 +289,12 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8) -> Geo
         raise ValueError("images is an empty sequence (T = 0)")
     if not np.all(np.isfinite(images)):
         raise ValueError("images hold non-finite values")
+    # a NaN parameter gives NaN maps (or, behind the sky mask, none at all): refused, as the
+    # wave network refuses its non-finite outputs
+    bad = nonfinite_arrays(model.params)
+    if bad:
+        raise InvalidValueError(f"the geometry model's parameters hold NaN or inf (array {bad[0]}, {len(bad)} in all; "
+                                "a diverged training?)")
     outs = [_predict_jit(model.config, model.params, jnp.asarray(images[i:i + batch_size]), camera)
             for i in range(0, len(images), batch_size)]
     pred = GeometryPrediction(*[np.concatenate([np.asarray(getattr(o, f)) for o in outs])
