@@ -7,7 +7,7 @@
   input: :func:`check_memory` (a render's estimated peak memory, :func:`render_bytes`,
   against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
-  :func:`jaxocean.io.scene.json_kind`), :func:`check_frames`.
+  :func:`jaxocean.io.scene.json_kind`), :func:`check_frames`, :func:`check_increasing`.
 * Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``; the file's with its seed),
   :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
@@ -33,7 +33,8 @@ __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positiv
            "fov_degrees", "pitch_degrees", "sun_elevation_degrees",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
            "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
-           "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "gigabytes"]
+           "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "check_increasing",
+           "gigabytes"]
 
 
 def resolution_arg(text: str):
@@ -239,12 +240,13 @@ def check_out_dir(path) -> Path:
     return path
 
 
-def check_out_file(path) -> Path:
-    """``--out`` of a command that writes one JSON file: not an existing directory, nor under a file."""
+def check_out_file(path, example: str) -> Path:
+    """``--out`` of a command that writes one JSON file: not an existing directory, nor under a
+    file. ``example``: the command's usual file name, suggested in the directory."""
     path = Path(path)
     _check_out_parents(path)
     if path.is_dir():
-        raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / 'fit.json'}")
+        raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / example}")
     return path
 
 
@@ -377,13 +379,21 @@ def lighting_from_args(args, base):
                          sun_elevation=radians_or_none(args.sun_elevation))
 
 
+def check_increasing(values, what: str) -> None:
+    """ValueError unless ``values`` (frame indices or times) increase strictly, each once: they
+    are a time sequence, and the scene a command writes from them must be one too (fit-waves
+    and forecast refuse one whose times do not increase)."""
+    if any(b <= a for a, b in zip(values, values[1:])):
+        raise ValueError(f"{what} must increase strictly (a time sequence, each once); got "
+                         f"{','.join(f'{v:g}' for v in values)}")
+
+
 def check_frames(frames, n: int, where: str):
     """``frames`` (or all ``n``) as a list, every index < n, increasing strictly: the frames
     are a time sequence, and the scene a command writes from them must be one too."""
     if frames is None:
         return list(range(n))
-    if any(b <= a for a, b in zip(frames, frames[1:])):
-        raise ValueError(f"frame indices must increase strictly (a time sequence); got {','.join(map(str, frames))}")
+    check_increasing(frames, "frame indices")
     bad = [f for f in frames if f >= n]
     if bad:
         raise ValueError(f"{where} has {n} frame(s) (indices 0..{n - 1}); no frame {bad[0]}")

@@ -274,9 +274,9 @@ def build_parser():
     p.add_argument("--allow-failed", action="store_true", help="forecast the waves of a fit-waves result that "
                    "reported failure (refused otherwise: its waves need not explain the frames)")
     when = p.add_mutually_exclusive_group(required=True)
-    when.add_argument("--frames", type=inputs.index_list, help="frame indices, e.g. 0,100,500")
+    when.add_argument("--frames", type=inputs.index_list, help="frame indices, increasing, e.g. 0,100,500")
     when.add_argument("--times", type=inputs.number_list,
-                      help="times [s], e.g. 0,10,50 (a list that starts negative takes =: --times=-5,10)")
+                      help="times [s], increasing, e.g. 0,10,50 (a list that starts negative takes =: --times=-5,10)")
     p.add_argument("--fps", type=inputs.positive_float,
                    help="frames per second for --frames (default: the JSON's frame "
                         "interval; frame 0 is its first time)")
@@ -545,7 +545,7 @@ def cmd_fit_lighting(args):
     from jaxocean.camera import camera_to_dict
     from jaxocean.io import read_frame, read_scene
 
-    inputs.check_out_file(args.out)
+    inputs.check_out_file(args.out, "fit.json")
     frame = read_frame(args.frame, warn_incomplete=False)
     if frame.normal is None:
         raise ValueError(f"{args.frame}: the frame has no normal channels (normal.X/Y/Z, roughness, mask); "
@@ -674,7 +674,7 @@ def cmd_fit_waves(args):
         raise ValueError(f"--noise-correlation must be a finite number of pixels >= 0; got {args.noise_correlation}")
     if args.noise_correlation > 0 and args.noise is None:
         raise ValueError("--noise-correlation is the correlation of --noise: give --noise too")
-    inputs.check_out_file(args.out)
+    inputs.check_out_file(args.out, "waves.json")
     inputs.refuse_other_json(args.scene, "fit-waves needs a scene directory (scene.json and its frame_XXXXX.exr files)")
     scene_dir = Path(args.scene)
     scene_dir = scene_dir.parent if scene_dir.suffix.lower() == ".json" else scene_dir
@@ -792,6 +792,9 @@ def cmd_forecast(args):
     if args.fps is not None and args.times is not None:
         raise ValueError("--fps applies to --frames; --times are already in seconds")
     known = None if scene.times is None else np.asarray(scene.times, np.float64)
+    # the forecast is written as a scene, whose times must run forward
+    inputs.check_increasing(args.frames if args.times is None else args.times,
+                            "--frames" if args.times is None else "--times")
     if args.times is not None:
         times, frame_ids = np.asarray(args.times, np.float64), list(range(len(args.times)))
     else:

@@ -57,8 +57,9 @@ HORIZON_MARGIN = 0.05
 BOTTOM_MARGIN = 0.03
 #: width [px] of the view the space-time evidence is computed in (at most the source's)
 EVIDENCE_WIDTH = 320
-#: display values at or below this are black (the bottom code of an 8-bit file): masked
-BLACK_LEVEL = 0.5 / 255
+#: display values at or below the bottom code of the frames' bit depth are black: masked
+#: (:func:`jaxocean.radiometry.bottom_code`: 0.5 / 255 for 8-bit files, 0.5 / 65535 for 16-bit)
+BLACK_LEVEL = "bottom"
 #: stage 1 fails when less than this share of the working view's sea pixels, over all frames,
 #: is usable
 MIN_USABLE = 0.5
@@ -326,13 +327,18 @@ def load_sequence(frames, camera_path, *, width: int = DEFAULT_WIDTH, response: 
             resp = radiometry.Response("bruneton")
             # its unusable pixels (NaN, inf, negative: masked) hold 0, as rectify's invalid ones
             # do, so that the display and the horizon see finite values
-            linear = np.where(loaded.usable[..., None], loaded.linear, 0).astype(np.float32)
+            usable = loaded.usable if loaded.gray else loaded.usable[..., None]  # gray: (T, H, W)
+            linear = np.where(usable, loaded.linear, 0).astype(np.float32)
             loaded = loaded._replace(linear=linear,
                                      display=np.asarray(radiometry.to_display(linear, resp), np.float32))
         W_src, H_src = camera_file.image_size
         if loaded.linear.shape[1:3] != (H_src, W_src):
+            # frames are read upright (their EXIF orientation applied): a camera file made from
+            # the stored, sideways pixels has width and height swapped
+            turned = (" (the frames are read as displayed, their EXIF orientation applied: the camera file must "
+                      "describe the upright image)" if loaded.linear.shape[1:3] == (W_src, H_src) else "")
             raise InvalidValueError(f"the frames are {loaded.linear.shape[2]}x{loaded.linear.shape[1]} pixels; the "
-                                    f"camera file {camera_path} says {W_src}x{H_src}")
+                                    f"camera file {camera_path} says {W_src}x{H_src}{turned}")
         if camera_file.poses is None:
             from jaxocean import horizon as hz
 

@@ -10,8 +10,9 @@ files atomically; nothing here is differentiable or used inside a model.
   (magma: black at ``vmin``, white at ``vmax``) of any positive per-pixel quantity (an
   error map, say).
 * ``display(linear_image, exposure=1.0, mode="bruneton") -> uint8 (H,W,3)``: tone-mapped.
-* ``contact_sheet(path, rows, col_titles=None, row_titles=None, title=None)``: a grid of
-  images (each uint8 or float in [0, 1]) saved as one PNG.
+* ``contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_titles=None)``:
+  a grid of images (each uint8 or float in [0, 1]) saved as one PNG; ``col_titles`` head the
+  columns (above the first row), ``cell_titles`` (lists like ``rows``) name single images.
 * ``save_figure(fig, path, dpi=100) -> Path``: a matplotlib figure as PNG, atomically, then
   closed.
 """
@@ -60,8 +61,11 @@ def display(linear_image, exposure=1.0, mode="bruneton"):
     return (np.asarray(tonemap(np.asarray(linear_image, np.float32), exposure, mode)) * 255 + 0.5).astype(np.uint8)
 
 
-def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_inches=2.6):
-    """Save a grid of images (``rows``: list of lists of (H,W,3) arrays) as one PNG."""
+def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_inches=2.6, cell_titles=None):
+    """Save a grid of images (``rows``: list of lists of (H,W,3) arrays) as one PNG.
+
+    ``cell_titles[i][j]`` (optional, None or missing: none) titles image ``j`` of row ``i``,
+    in place of its column title: for rows whose images are not what their column says."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -76,7 +80,11 @@ def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell
             ax.axis("off")
             if j < len(row) and row[j] is not None:
                 ax.imshow(row[j])
-            if i == 0 and col_titles and j < len(col_titles):
+            named = (cell_titles[i] if cell_titles and i < len(cell_titles) else None) or []
+            own = named[j] if j < len(named) else None
+            if own is not None:
+                ax.set_title(own, fontsize=9)
+            elif i == 0 and col_titles and j < len(col_titles):
                 ax.set_title(col_titles[j], fontsize=9)
             if j == 0 and row_titles and i < len(row_titles):
                 ax.text(-0.04, 0.5, row_titles[i], transform=ax.transAxes, ha="right", va="center", fontsize=8,

@@ -25,12 +25,14 @@ Protocol
   pixels must be masked (:func:`saturation_mask`).
 * :func:`saturation_mask(display, bits=8, high=None, low=None)` -> bool ``(..., H, W)``: True
   where a pixel is usable, i.e. not clipped at the top (any channel of an RGB pixel) and,
-  when ``low`` is given, not crushed to black (no channel at or below ``low``).
+  when ``low`` is given, not crushed to black (no channel at or below ``low``; ``low="bottom"``
+  is the bottom code of the file's bit depth, :func:`bottom_code`).
 * :func:`luminance(rgb)`: ``(..., 3) -> (...)`` with the Rec. 709 weights of
   :data:`jaxocean.shading.LUMINANCE`, the weights by which the library models a gray
   image as the luminance of its RGB model.
 * :func:`load_frames(paths_or_video, response=...)` -> :class:`Frames`: PNG / JPEG / 16-bit
-  gray PNG / OpenEXR files (one frame each) or one video file, all of one size.
+  gray PNG / OpenEXR (``R G B``, or ``Y`` alone for gray) files (one frame each) or one video
+  file, all of one size.
 
 Shapes: ``display`` and ``linear`` are ``(T, H, W)`` for gray footage and ``(T, H, W, 3)``
 for colour; ``usable`` is ``(T, H, W)``. Values are float32 NumPy arrays on the host.
@@ -45,7 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean.errors import check_values, is_concrete
-from jaxocean.io.exr import FileFormatError, read_frame, require_file
+from jaxocean.io.exr import FileFormatError, read_radiance, require_file
 from jaxocean.io.images import VIDEO_SUFFIXES, is_video_file, load_display, load_display_video
 from jaxocean.shading import LUMINANCE, inverse_tonemap, tonemap
 
@@ -56,6 +58,7 @@ __all__ = [
     "to_linear",
     "to_display",
     "saturation_mask",
+    "bottom_code",
     "luminance",
     "load_frames",
 ]
@@ -147,6 +150,14 @@ def to_display(linear, response: Response = Response(), exposure=1.0):
     return _power(exposed, 1.0 / response.gamma)
 
 
+def bottom_code(bits: int | None) -> float:
+    """The display value at or below which a pixel of a ``bits``-bit file is black: half a
+    quantisation step, ``0.5 / (2^bits - 1)`` (``0.5 / 255`` for 8 bits, ``0.5 / 65535`` for
+    16: a threshold in display values must scale with the depth, or it would mask the 16-bit
+    codes 1-128 as black); 0.0 for float data (``bits=None``)."""
+    return 0.0 if bits is None else 0.5 / (2.0 ** int(bits) - 1.0)
+
+
 def saturation_mask(display, *, bits: int | None = 8, high=None, low=None, channel_axis: bool | None = None):
     """Usable pixels of display values: bool, the shape of ``display`` without a colour axis.
 
@@ -157,7 +168,8 @@ def saturation_mask(display, *, bits: int | None = 8, high=None, low=None, chann
         high: a pixel with any channel ``>= high`` is clipped. Default: the top code value,
             ``1 - 0.5 / (2^bits - 1)`` (1.0 for ``bits=None``).
         low: when given, a pixel with any channel ``<= low`` is crushed to black and masked
-            too (e.g. ``0.5 / 255`` for the bottom code of an 8-bit file).
+            too; ``"bottom"``: the bottom code of ``bits`` (:func:`bottom_code`: ``0.5 / 255``
+            for 8 bits, ``0.5 / 65535`` for 16, 0 for ``bits=None``).
         channel_axis: whether the last axis is colour. Default: True when it has length 3
             and ``display.ndim >= 3``; pass it explicitly for a gray image 3 pixels wide.
 
@@ -167,7 +179,11 @@ def saturation_mask(display, *, bits: int | None = 8, high=None, low=None, chann
     if bits is not None and not (isinstance(bits, (int, np.integer)) and not isinstance(bits, bool) and bits >= 1):
         raise ValueError(f"bits must be an int >= 1 (8 or 16 for image files) or None; got {bits!r}")
     if high is None:
-        high = 1.0 if bits is None else 1.0 - 0.5 / (2.0 ** int(bits) - 1.0)
+        high = 1.0 - bottom_code(bits)  # the top code; 1.0 for float data
+    if isinstance(low, str):
+        if low != "bottom":
+            raise ValueError(f"low must be a display value, None or 'bottom'; got {low!r}")
+        low = bottom_code(bits)
     if channel_axis is None:
         channel_axis = display.ndim >= 3 and display.shape[-1] == 3
     bad = (display >= high) | ~np.isfinite(display)  # a NaN pixel carries no value either
@@ -191,12 +207,13 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
     """Load an image sequence as :class:`Frames`.
 
     Args:
-        paths_or_video: a sequence of image files (PNG, JPEG, 16-bit gray PNG, OpenEXR, one
-            frame each, in time order), or one video file (a single path, or a sequence
-            holding one path with a video suffix, :data:`jaxocean.io.images.VIDEO_SUFFIXES`,
-            or ``.gif``).
+        paths_or_video: a sequence of image files (PNG, JPEG, 16-bit gray PNG, OpenEXR with
+            ``R G B`` or ``Y`` alone, one frame each, in time order), or one video file (a
+            single path, or a sequence holding one path with a video suffix,
+            :data:`jaxocean.io.images.VIDEO_SUFFIXES`, or ``.gif``).
         response: the display response curve (ignored for OpenEXR, which is radiance).
-        high, low: clipping thresholds passed to :func:`saturation_mask`.
+        high, low: clipping thresholds passed to :func:`saturation_mask` with the files'
+            bit depth (``low="bottom"``: black at the bottom code of that depth).
 
     Raises:
         ValueError: no files; a video among other files; files of mixed kinds
@@ -224,11 +241,13 @@ def load_frames(paths_or_video, *, response: Response = Response(), high=None, l
         if suffixes != {_EXR_SUFFIX}:
             raise ValueError(f"load_frames got OpenEXR and display-referred files together ({sorted(suffixes)}); "
                              "one sequence must be one kind")
-        images = [read_frame(require_file(p, "frame file"), warn_incomplete=False).image for p in paths]
+        images = [read_radiance(require_file(p, "frame file")) for p in paths]
         _check_same_shape(images, paths)
         linear = np.stack(images).astype(np.float32)
-        usable = np.all(np.isfinite(linear) & (linear >= 0), axis=-1)
-        return Frames(None, linear, usable, False, None, tuple(paths))
+        gray = linear.ndim == 3  # grayscale files: one Y channel each
+        finite = np.isfinite(linear) & (linear >= 0)
+        usable = finite if gray else np.all(finite, axis=-1)
+        return Frames(None, linear, usable, gray, None, tuple(paths))
     decoded = [load_display(p) for p in paths]
     _check_same_shape([d.values for d in decoded], paths)
     for path, d in zip(paths, decoded):

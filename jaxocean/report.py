@@ -12,7 +12,8 @@ Protocol
 * ``sea.png``      the fitted waves' amplitude spectrum against frequency with the fitted
   JONSWAP density, and a polar plot of the wave directions.
 * ``dispersion.png`` the images' space-time spectrum with the dispersion shell.
-* ``forecast.png`` forecast frames and the re-rendered views.
+* ``forecast.png`` forecast frames (titled by their time after the last frame) and the
+  re-edited views of the last frame (titled so).
 * ``report.html``  all of the above with every stage's flag and time; a banner says when a
   stage failed, i.e. when the numbers are not backed by a model that explains the footage.
 
@@ -87,7 +88,16 @@ def _frames_figure(path, result):
         rows.append(row)
     titles = ["input (rectified)", "normal (net)", "roughness (net)", "re-rendered", "|display residual| 1e-3..0.3"]
     return plots.contact_sheet(path, rows, col_titles=titles + (["outliers (stage 5)"] if outliers else []),
-                               row_titles=[f"t = {seq.times[i]:.1f} s" for i in idx])
+                               row_titles=[f"t = {_time_label(seq.times[i], seq.times)} s" for i in idx])
+
+
+def _time_label(t, times) -> str:
+    """A frame time [s] with the decimals the frame step needs (one decimal for 0.25 s
+    steps showed 0.25 s as 0.2 s, and 30 fps frames 0.03 s apart as one time)."""
+    steps = np.diff(np.asarray(times, np.float64))
+    step = float(np.min(steps)) if steps.size and np.min(steps) > 0 else 1.0
+    decimals = int(np.clip(np.ceil(-np.log10(step)) + 1, 1, 6))
+    return f"{float(t):.{decimals}f}"
 
 
 def _sea_figure(path, result):
@@ -151,8 +161,11 @@ def _forecast_figure(path, result):
     row1 = list(_display(out["forecast"], seq))
     row2 = [_display(out["lower"], seq), _display(out["new_sun"], seq)]
     titles = [f"+{t - seq.times[-1]:.0f} s" for t in out["times"]]
+    # the re-edited views show the last observed frame, not the forecast times above them
+    last = f"t = {_time_label(seq.times[-1], seq.times)} s (last frame)"
     return plots.contact_sheet(path, [row1, row2], col_titles=titles,
-                               row_titles=["forecast", "re-edited: lower camera / new sun"])
+                               row_titles=["forecast", "re-edited: lower camera / new sun"],
+                               cell_titles=[None, [f"lower camera, {last}", f"new sun, {last}"]])
 
 
 def _banner(data) -> str:

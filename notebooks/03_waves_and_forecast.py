@@ -35,7 +35,7 @@ small = os.environ.get("JAXOCEAN_SMALL") == "1"
 n = 32 if small else 64
 n_frames = 6 if small else 8
 
-# a swell of three long-crested trains, 2.5-7 m long, seen from 20 m looking steeply down
+# a swell of three long-crested trains, 2.9-6.0 m long, seen from 20 m looking steeply down
 truth = make_waves(amplitude=[0.03, 0.02, 0.015], omega=[3.2, 3.9, 4.6], theta=[0.4, 1.1, -0.2],
                    phase=[0.5, 2.0, 4.0])
 cam = camera.make_camera(height=20.0, pitch=1.2, fov=0.9, resolution=(n, n))

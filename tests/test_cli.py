@@ -332,6 +332,17 @@ def test_forecast_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert not out.exists()
 
 
+@pytest.mark.parametrize("option, values", [("--frames", "5,2,9"), ("--frames", "2,2"), ("--times", "1,0.5")])
+def test_forecast_refuses_frames_or_times_that_do_not_increase(tiny_scene, tmp_path, capsys, option, values):
+    # the forecast is written as a scene: 5,2,9 wrote times 0.75, 0.3, 1.35 s, which fit-waves
+    # and forecast then refuse to read as a sequence
+    out = tmp_path / "fc"
+    assert cli.main(["forecast", str(tiny_scene / "scene.json"), option, values, "--out", str(out)]) == 2
+    assert capsys.readouterr().err == (f"jaxocean: error: {option} must increase strictly (a time sequence, each "
+                                       f"once); got {values}\n")
+    assert not out.exists()
+
+
 def test_forecast_frames_of_a_scene_without_a_frame_clock_name_the_scene(tiny_scene, tmp_path, capsys):
     scene = json.loads((tiny_scene / "scene.json").read_text())
     scene["times"] = [0.0, 0.5, 0.5]
@@ -356,6 +367,16 @@ def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out)]).heights
     assert not cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out), "--no-heights"]).heights
     assert not out.exists()
+
+
+def test_fit_waves_on_a_dataset_root_names_its_scene_directories(tmp_path, capsys):
+    from jaxocean import io
+
+    for i in range(2):
+        io.write_scene(tmp_path / "data" / f"scene_{i:05d}", io.scene_to_dict(times=[0.0, 0.1]))
+    assert cli.main(["fit-waves", str(tmp_path / "data"), "--out", str(tmp_path / "waves.json")]) == 2
+    assert (f"holds scene directories (scene_00000, scene_00001); give one of them, e.g. "
+            f"{tmp_path / 'data' / 'scene_00000'}\n") in capsys.readouterr().err
 
 
 def test_fit_waves_that_finds_no_wave_exits_1_with_its_json(tiny_scene, tmp_path, capsys):
@@ -513,6 +534,17 @@ def test_out_that_is_a_file_exits_2(tmp_path, capsys):
     assert cli.main(["fit-lighting", str(existing), "--out", str(tmp_path), "--camera-height", "5",
                      "--camera-pitch-deg", "30"]) == 2
     assert "is a directory; give the JSON file to write" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("argv, example", [
+    (["fit-lighting", "frame.exr"], "fit.json"),
+    (["fit-waves", "scene"], "waves.json"),  # it suggested fit.json, a fit-lighting result's name
+    (["eval-geometry", "dataset"], "scores.json"),
+])
+def test_out_directory_for_a_json_file_suggests_the_commands_file(tmp_path, capsys, argv, example):
+    assert cli.main(argv + ["--out", str(tmp_path)]) == 2
+    assert f"--out {tmp_path}: is a directory; give the JSON file to write, e.g. {tmp_path / example}\n" in \
+        capsys.readouterr().err
 
 
 def test_render_replaces_the_previous_scene_in_its_directory(tmp_path, capsys):

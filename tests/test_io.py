@@ -476,6 +476,35 @@ def test_missing_rgb_channel_is_named_with_the_file(tmp_path):
         read_frame(path)
 
 
+def test_grayscale_exr_reads_as_gray_radiance_but_is_no_frame(tmp_path):
+    # a Y-only OpenEXR (a grayscale image) was refused for missing R G B, though gray frames
+    # are accepted: it reads as (H, W) radiance, and load_image repeats it over R, G, B
+    luminance = np.linspace(0.0, 3.0, 20, dtype=np.float32).reshape(4, 5)
+    write_raw_exr(tmp_path / "gray.exr", {"Y": luminance})
+    np.testing.assert_array_equal(exr.read_radiance(tmp_path / "gray.exr"), luminance)
+    np.testing.assert_array_equal(load_image(tmp_path / "gray.exr"), np.repeat(luminance[..., None], 3, -1))
+    with pytest.raises(FrameError, match=r"gray\.exr: a grayscale image \(one 'Y' channel\), not a frame"):
+        read_frame(tmp_path / "gray.exr")  # a frame (with geometry, for the fits) stays R G B
+    # a file with R G B is colour whatever else it holds; a luminance-chroma image is no gray one
+    write_raw_exr(tmp_path / "rgby.exr", {name: np.full((4, 5), i, np.float32) for i, name in enumerate("RGBY")})
+    assert exr.read_radiance(tmp_path / "rgby.exr").shape == (4, 5, 3)
+    write_raw_exr(tmp_path / "yc.exr", {"Y": luminance, "RY": luminance, "BY": luminance})
+    with pytest.raises(FrameError, match=r"yc\.exr: a luminance-chroma image"):
+        load_image(tmp_path / "yc.exr")
+    write_raw_exr(tmp_path / "rg.exr", {name: luminance for name in "RG"})
+    with pytest.raises(FrameError, match=r"rg\.exr: missing channel\(s\) \['B'\]; an image needs"):
+        exr.read_radiance(tmp_path / "rg.exr")
+
+
+def test_a_directory_given_for_a_file_is_named_with_its_article(tmp_path):
+    with pytest.raises(MissingFileError, match="a directory, not an EXR frame file"):
+        read_frame(tmp_path)
+    with pytest.raises(MissingFileError, match="a directory, not an image file"):
+        load_image(tmp_path)
+    with pytest.raises(MissingFileError, match="a directory, not a video file"):
+        load_video(tmp_path)
+
+
 def test_partial_geometry_is_named_with_the_file(tmp_path):
     path = tmp_path / "partial.exr"
     names = ["R", "G", "B", "normal.X", "normal.Y", "normal.Z"]
@@ -643,6 +672,16 @@ def test_read_scene_of_a_frame_file_names_the_scene_directory(tmp_path):
         read_scene(frame)
 
 
+def test_read_scene_of_a_dataset_root_names_its_scene_directories(tmp_path):
+    # a dataset's root said only ".../scene.json: no such scene file", no hint of what to give
+    for i in range(5):
+        write_scene(tmp_path / f"scene_{i:05d}", scene_to_dict(times=[0.0, 0.1]))
+    with pytest.raises(MissingFileError, match=r"holds scene directories \(scene_00000, scene_00001, scene_00002, "
+                                               r"\.\.\. \(5 in all\)\); give one of them, e\.g\. .*scene_00000"):
+        read_scene(tmp_path)
+    assert read_scene(tmp_path / "scene_00003").times is not None
+
+
 # --------------------------------------------------------------------------- images and video
 
 
@@ -673,6 +712,24 @@ def test_load_image_reads_exr_as_linear_and_png_gray_and_alpha(tmp_path):
     iio.imwrite(tmp_path / "gray.png", gray)
     np.testing.assert_allclose(load_image(tmp_path / "gray.png", space="linear", exposure=2.0),
                                np.full((3, 4, 3), 0.1), rtol=1e-4)
+
+
+@pytest.mark.parametrize("suffix", [".jpg", ".png"])
+def test_load_image_applies_the_exif_orientation(tmp_path, suffix):
+    # a phone stores a portrait photo sideways with EXIF orientation 6 (turn 90 deg clockwise
+    # to display it): it was read sideways, 2 x 4 instead of the displayed 4 x 2
+    from PIL import Image
+
+    stored = np.zeros((2, 4, 3), np.uint8)
+    stored[0, 0] = 255  # top-left as stored: top-right once turned clockwise
+    image = Image.fromarray(stored)
+    exif = image.getexif()
+    exif[0x0112] = 6  # Orientation
+    image.save(tmp_path / f"photo{suffix}", exif=exif.tobytes(), **({"quality": 100} if suffix == ".jpg" else {}))
+    for display in (load_image(tmp_path / f"photo{suffix}", space="linear"),
+                    images.load_display(tmp_path / f"photo{suffix}").values):
+        assert display.shape == (4, 2, 3)
+        assert display[0, 1].min() > 0.9 and display[0, 0].max() < 0.1 and display[3].max() < 0.1
 
 
 def test_unreadable_image_is_reported_by_name(tmp_path):

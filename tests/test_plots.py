@@ -19,3 +19,14 @@ def test_contact_sheet_is_written_atomically(tmp_path):
                                col_titles=["a", "b"], row_titles=["r"], title="t")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert [p.name for p in tmp_path.iterdir()] == ["sheet.png"]
+
+
+def test_cell_titles_name_single_images_in_place_of_their_column_title(tmp_path, monkeypatch):
+    seen = []
+    save = plots.save_figure
+    monkeypatch.setattr(plots, "save_figure", lambda fig, path: seen.extend(ax.get_title() for ax in fig.axes)
+                        or save(fig, path))
+    img = np.zeros((4, 4, 3))
+    plots.contact_sheet(tmp_path / "sheet.png", [[img, img], [img, img]], col_titles=["a", "b"],
+                        cell_titles=[None, ["c", None]])
+    assert seen == ["a", "b", "c", ""]

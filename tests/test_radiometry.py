@@ -124,6 +124,22 @@ def test_saturated_pixels_are_masked():
             radiometry.saturation_mask(display, bits=bits)
 
 
+def test_black_level_is_the_bottom_code_of_the_files_bit_depth(tmp_path):
+    # the black level of 8-bit files, 0.5 / 255 as a display value, masked the 16-bit codes
+    # 1-128 too: "bottom" scales it with the bit depth, as the top code does
+    assert radiometry.bottom_code(8) == 0.5 / 255 and radiometry.bottom_code(16) == 0.5 / 65535
+    assert radiometry.bottom_code(None) == 0.0
+    codes = np.array([[0, 1, 100, 128, 129, 40000, 65535]], np.uint16)
+    iio.imwrite(tmp_path / "deep.png", codes)
+    deep = radiometry.load_frames([tmp_path / "deep.png"], low="bottom")
+    np.testing.assert_array_equal(deep.usable[0], [[False, True, True, True, True, True, False]])
+    iio.imwrite(tmp_path / "shallow.png", np.array([[0, 1, 128, 255]], np.uint8))
+    shallow = radiometry.load_frames([tmp_path / "shallow.png"], low="bottom")
+    np.testing.assert_array_equal(shallow.usable[0], [[False, True, True, False]])
+    with pytest.raises(ValueError, match="low must be a display value, None or 'bottom'"):
+        radiometry.saturation_mask(codes / 65535.0, bits=16, low="black")
+
+
 @pytest.mark.parametrize("response", ["srgb", "gamma", "linear", "bruneton"])
 def test_to_display_refuses_non_finite_radiance(response):
     # the curves would map NaN to a display value (sRGB: -0.055, outside [0, 1])
@@ -161,6 +177,22 @@ def test_load_frames_reads_exr_as_radiance_and_a_gif_video(tmp_path):
     assert clip.gray and clip.linear.shape == (3, 4, 6)
     np.testing.assert_allclose(clip.linear[:, 0, 0], [0, 100 / 255, 1.0], atol=1e-6)
     assert clip.usable[:2].all() and not clip.usable[2].any()
+
+
+def test_load_frames_reads_grayscale_exr_as_gray_footage(tmp_path):
+    # OpenEXR files of one Y channel were refused (missing R G B): they are gray radiance
+    import OpenEXR
+
+    luminance = np.random.default_rng(2).uniform(0, 3, (2, 4, 5)).astype(np.float32)
+    luminance[1, 2, 3] = np.nan
+    paths = [tmp_path / f"f{i}.exr" for i in range(2)]
+    for path, plane in zip(paths, luminance):
+        OpenEXR.File({"compression": OpenEXR.ZIP_COMPRESSION}, {"Y": plane.copy()}).write(str(path))
+    frames = radiometry.load_frames(paths)
+    assert frames.gray and frames.display is None and frames.linear.shape == (2, 4, 5)
+    np.testing.assert_array_equal(frames.linear, luminance)
+    assert frames.usable.shape == (2, 4, 5) and frames.usable.sum() == frames.usable.size - 1
+    assert not frames.usable[1, 2, 3]
 
 
 def test_a_frame_of_another_size_is_named(tmp_path):

@@ -1,6 +1,7 @@
 """jaxocean.reconstruct and the `reconstruct` command: stage 1 on synthetic and real frames,
 the result file's contract, conventions and input errors; a 2-frame end-to-end run."""
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -215,9 +216,11 @@ def test_frames_matched_by_name_are_the_ones_read(tmp_path):
         rc.load_sequence([], posed, width=32)
 
 
-def test_non_finite_exr_pixels_are_masked_not_fatal(tmp_path):
+@pytest.mark.parametrize("channels", ["RGB", "Y"])
+def test_non_finite_exr_pixels_are_masked_not_fatal(tmp_path, channels):
     # OpenEXR pixels that are NaN or inf (a half float's overflow) are unusable, as
-    # radiometry.load_frames marks them; the display made for the reports raised on them
+    # radiometry.load_frames marks them; the display made for the reports raised on them.
+    # A grayscale OpenEXR (one Y channel) is gray footage (it was refused for missing R G B)
     import OpenEXR
 
     camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(16, 16))
@@ -226,12 +229,37 @@ def test_non_finite_exr_pixels_are_masked_not_fatal(tmp_path):
         image = np.full((16, 16, 3), 0.2, np.float32)
         image[8, 8 - 4 * i] = (math.nan, math.inf)[i]
         OpenEXR.File({"type": OpenEXR.scanlineimage},
-                     {name: np.ascontiguousarray(image[..., c]) for c, name in enumerate("RGB")}).write(str(file))
+                     {name: np.ascontiguousarray(image[..., c]) for c, name in enumerate(channels)}).write(str(file))
     posed = _camera_file(tmp_path, files, camera, times, pose=True)
     seq, rep = rc.load_sequence(files, posed, width=16, evidence_width=None)
     assert rep.success, rep.message
+    assert seq.gray == (channels == "Y") and seq.images.shape == (2, 16, 16, 3)
     assert np.isfinite(seq.images).all() and np.isfinite(seq.display).all()
     assert not seq.usable.all() and seq.usable.mean() > 0.5
+
+
+def test_exif_rotated_frames_are_read_upright_and_sized_against_the_camera_file(tmp_path):
+    # a portrait photo stored sideways (EXIF orientation 6: turn it clockwise to display) is
+    # read upright, so the camera file describes the upright image; one describing the stored
+    # pixels is refused with the reason
+    from PIL import Image
+
+    camera = cam.make_camera(height=8.0, pitch=0.7, fov=0.8, resolution=(32, 16))  # upright: 16 wide, 32 tall
+    files, times = [tmp_path / f"frame_{i:05d}.png" for i in range(2)], np.arange(2) * 0.25
+    rng = np.random.default_rng(3)
+    for file in files:
+        upright = rng.integers(60, 200, (32, 16, 3), dtype=np.uint8)
+        image = Image.fromarray(np.ascontiguousarray(np.rot90(upright)))  # stored turned counter-clockwise
+        exif = image.getexif()
+        exif[0x0112] = 6
+        image.save(file, exif=exif.tobytes())
+    seq, rep = rc.load_sequence(files, _camera_file(tmp_path, files, camera, times, pose=True), width=16,
+                                evidence_width=None)
+    assert rep.success, rep.message
+    sideways = _camera_file(tmp_path, files, dataclasses.replace(camera, resolution=(16, 32)), times, pose=True)
+    with pytest.raises(InvalidValueError, match=r"the frames are 16x32 pixels; the camera file .* says 32x16 \(the "
+                                                r"frames are read as displayed, their EXIF orientation applied"):
+        rc.load_sequence(files, sideways, width=16, evidence_width=None)
 
 
 @pytest.mark.slow  # the whole pipeline compiles every stage (about 2 min)
@@ -500,6 +528,48 @@ def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
                                          direction_deg=150.0, direction_std_deg=30.0, peak_period_s=2.8)
     path = report._sea_figure(tmp_path / "sea_geometry.png", flat)
     assert Path(path).stat().st_size > Path(tmp_path / "sea.png").stat().st_size
+
+
+def _figure_titles(monkeypatch, draw):
+    """The axes titles and texts of the figure ``draw()`` saves (captured before it closes)."""
+    from jaxocean import plots
+
+    seen = {}
+    save = plots.save_figure
+
+    def capture(fig, path, **kw):
+        seen["titles"] = [ax.get_title() for ax in fig.axes]
+        seen["texts"] = [t.get_text() for ax in fig.axes for t in ax.texts]
+        return save(fig, path, **kw)
+
+    monkeypatch.setattr(plots, "save_figure", capture)
+    draw()
+    return seen
+
+
+def test_the_report_labels_frame_times_to_the_frame_step():
+    # 0.25 s steps were labelled "t = 0.2 s" (one decimal), 30 fps frames all "t = 0.0 s"
+    from jaxocean import report
+
+    assert [report._time_label(t, [0.0, 0.25]) for t in (0.0, 0.25)] == ["0.00", "0.25"]
+    thirty = np.arange(3) / 30
+    assert len({report._time_label(t, thirty) for t in thirty}) == 3
+    assert report._time_label(12.0, [10.0, 12.0]) == "12.0"
+
+
+def test_the_forecast_figure_does_not_title_the_re_edited_views_with_forecast_times(tmp_path, monkeypatch):
+    # the re-edited views (at the last frame) sat under the forecast's "+2 s" / "+10 s" titles
+    from jaxocean import report
+
+    monkeypatch.setattr(report, "_display", lambda linear, seq: np.clip(linear, 0.0, 1.0))
+    frame = np.full((4, 4, 3), 0.5)
+    result = SimpleNamespace(sequence=SimpleNamespace(times=np.array([0.0, 0.25])),
+                             outlook=dict(times=np.array([2.25, 10.25, 30.25]), forecast=np.stack([frame] * 3),
+                                          lower=frame, new_sun=frame))
+    seen = _figure_titles(monkeypatch, lambda: report._forecast_figure(tmp_path / "forecast.png", result))
+    titles = seen["titles"]
+    assert titles[:3] == ["+2 s", "+10 s", "+30 s"]
+    assert titles[3:5] == ["lower camera, t = 0.25 s (last frame)", "new sun, t = 0.25 s (last frame)"]
 
 
 def test_stage_frame_arguments_are_checked(tmp_path):

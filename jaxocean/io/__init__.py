@@ -9,7 +9,7 @@ A rendered or observed sequence is a directory::
     ...
 
 * :mod:`jaxocean.io.exr`     -- :func:`write_frame` / :func:`read_frame` and the channel
-  protocol.
+  protocol; :func:`read_radiance` for any OpenEXR image (colour or grayscale).
 * :mod:`jaxocean.io.scene`   -- :func:`scene_to_dict` / :func:`scene_from_dict`,
   :func:`write_scene` / :func:`read_scene`.
 * :mod:`jaxocean.io.sequence` -- :func:`write_sequence`: a rendered sequence (EXR + PNG
@@ -31,6 +31,7 @@ from jaxocean.io.camera_file import CameraFile, CameraFileError, read_camera_fil
 from jaxocean.io.exr import (
     COMPRESSIONS,
     GEOMETRY_CHANNELS,
+    GRAY_CHANNEL,
     META_PREFIX,
     NORMAL_CHANNELS,
     RGB_CHANNELS,
@@ -42,6 +43,7 @@ from jaxocean.io.exr import (
     MissingFileError,
     atomic_write,
     read_frame,
+    read_radiance,
     write_frame,
 )
 from jaxocean.io.images import VIDEO_SUFFIXES, load_image, load_video, save_png
@@ -65,6 +67,7 @@ __all__ = [
     "sequence",
     # frames
     "RGB_CHANNELS",
+    "GRAY_CHANNEL",
     "NORMAL_CHANNELS",
     "GEOMETRY_CHANNELS",
     "SLOPE_VARIANCE_CHANNELS",
@@ -73,6 +76,7 @@ __all__ = [
     "Frame",
     "write_frame",
     "read_frame",
+    "read_radiance",
     "atomic_write",
     # errors
     "FileFormatError",

@@ -35,6 +35,10 @@ with geometry but without them (written before they were stored, or by another t
 reads: ``Frame.slope_variance`` is None and :func:`read_frame` warns
 (:class:`IncompleteFrameWarning`) unless ``warn_incomplete=False``. Channels outside this
 list are ignored on reading, so files from other tools load as long as they carry ``R G B``.
+A grayscale image -- one luminance channel ``Y`` (:data:`GRAY_CHANNEL`) and no ``R G B`` --
+is no frame (it has no colour to fit), but :func:`read_radiance` reads it as ``(H, W)``
+radiance, and with it :func:`jaxocean.io.images.load_image` and
+:func:`jaxocean.radiometry.load_frames` (the ``reconstruct`` command).
 ``converged`` (:data:`CONVERGED_CHANNEL`) is written with the geometry whenever it has a
 ``converged`` flag that is not None; a file without it reads with ``Frame.converged`` None,
 without a warning (unknown, not False).
@@ -101,6 +105,7 @@ from jaxocean.files import atomic_write
 
 __all__ = [
     "RGB_CHANNELS",
+    "GRAY_CHANNEL",
     "NORMAL_CHANNELS",
     "GEOMETRY_CHANNELS",
     "SLOPE_VARIANCE_CHANNELS",
@@ -115,9 +120,13 @@ __all__ = [
     "atomic_write",
     "write_frame",
     "read_frame",
+    "read_radiance",
 ]
 
 RGB_CHANNELS = ("R", "G", "B")
+GRAY_CHANNEL = "Y"
+"""The one channel of a grayscale OpenEXR image: OpenEXR's luminance channel."""
+_CHROMA_CHANNELS = ("RY", "BY")  # OpenEXR's luminance-chroma images: Y alone is not their radiance
 NORMAL_CHANNELS = ("normal.X", "normal.Y", "normal.Z")
 GEOMETRY_CHANNELS = NORMAL_CHANNELS + ("roughness", "mask")
 """The geometry channels written together or not at all."""
@@ -183,7 +192,8 @@ def require_file(path, what: str) -> Path:
     """``Path(path)``, or :class:`MissingFileError` if it is not an existing file."""
     path = Path(path)
     if path.is_dir():
-        raise MissingFileError(path, f"a directory, not a {what} (give the files in it, e.g. {path / '*'})")
+        article = "an" if what[:1].lower() in "aeiou" else "a"  # "an EXR frame file", "a video file"
+        raise MissingFileError(path, f"a directory, not {article} {what} (give the files in it, e.g. {path / '*'})")
     if not path.is_file():
         raise MissingFileError(path, f"no such {what}")
     return path
@@ -511,31 +521,11 @@ def _decode_problem(path: Path, error: Exception, printed: str) -> str:
     return telling[0] if telling else str(error)
 
 
-def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) -> Frame:
-    """Read a frame written by :func:`write_frame` (or any OpenEXR file with ``R G B``).
-
-    Args:
-        path: the ``.exr`` file.
-        expect_resolution: optional ``(H, W)``; a frame of another size is an error.
-        warn_incomplete: warn (:class:`IncompleteFrameWarning`) when the file has geometry
-            but no ``slope_variance.X/Y`` channels; ``Frame.slope_variance`` is None either
-            way, so a caller that reports it itself passes False.
-
-    Returns:
-        a :class:`Frame` of float32 NumPy arrays (the mask as bool: channel value > 0.5),
-        geometry fields None when the file has no geometry channels, ``slope_variance``
-        None when it has no slope-variance channels, ``converged`` None when it has no
-        ``converged`` channel (bool otherwise: channel value > 0.5).
-
-    Raises:
-        MissingFileError: no such file.
-        FrameError: the file is not OpenEXR (a PNG, JPEG, ... is named as such), is corrupt
-            or truncated, lacks a channel of ``R G B``, has only part of the geometry (or
-            slope-variance) channels, has channels of different sizes, or is not
-            ``expect_resolution``. The message names the file (and the channels); what
-            the OpenEXR library prints about a damaged file does not reach stdout / stderr.
-    """
-    path = require_file(path, "EXR frame file")
+def _read_pixels(path, what: str) -> tuple[dict, dict]:
+    """``(header, {channel: pixels})`` of an OpenEXR file whose pixels cover its image (the
+    decoding part of :func:`read_frame`'s Raises; ``what`` names the file kind when it is
+    missing)."""
+    path = require_file(path, what)
     _check_magic(path)
     error = None
     with _captured_output() as printed:
@@ -559,6 +549,81 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
         # be a crop (or padding) that the camera's view does not know about
         raise FrameError(path, f"pixels cover the data window {data_window} but the image is the display window "
                                f"{display_window} ((x, y) min, max corners): crop or pad it to one window")
+    return header, pixels
+
+
+def _is_gray(pixels: dict) -> bool:
+    """A grayscale image: a ``Y`` channel and none of ``R G B``."""
+    return GRAY_CHANNEL in pixels and not any(name in pixels for name in RGB_CHANNELS)
+
+
+def _check_same_size(path, pixels: dict, names) -> tuple:
+    """The common shape of the channels ``names``, or :class:`FrameError`."""
+    shapes = {name: np.shape(pixels[name]) for name in names}
+    if len(set(shapes.values())) != 1:
+        raise FrameError(path, f"channels of different sizes (subsampled?): {shapes}")
+    return shapes[names[0]]
+
+
+def _stack(pixels: dict, names) -> np.ndarray:
+    return np.stack([np.asarray(pixels[name], dtype=np.float32) for name in names], axis=-1)
+
+
+def read_radiance(path) -> np.ndarray:
+    """The linear radiance of an OpenEXR image, float32, without its geometry: ``(H, W, 3)``
+    from ``R G B``, or ``(H, W)`` from a grayscale image's one ``Y`` channel
+    (:data:`GRAY_CHANNEL`; a file with ``R G B`` is read as colour whatever else it holds).
+
+    Raises:
+        MissingFileError: no such file.
+        FrameError: not OpenEXR, corrupt or truncated, neither ``R G B`` nor ``Y`` (nor a
+            luminance-chroma ``Y RY BY`` image: its colour is not in ``Y``), channels of
+            different sizes. The message names the file.
+    """
+    _, pixels = _read_pixels(path, "EXR image file")
+    if _is_gray(pixels):
+        chroma = [name for name in _CHROMA_CHANNELS if name in pixels]
+        if chroma:
+            raise FrameError(path, f"a luminance-chroma image ({GRAY_CHANNEL!r} with {chroma}): save it as "
+                                   f"{list(RGB_CHANNELS)} (colour) or {GRAY_CHANNEL!r} alone (gray)")
+        return np.asarray(pixels[GRAY_CHANNEL], dtype=np.float32)
+    missing = [name for name in RGB_CHANNELS if name not in pixels]
+    if missing:
+        raise FrameError(path, f"missing channel(s) {missing}; an image needs {list(RGB_CHANNELS)} (colour) or "
+                               f"{GRAY_CHANNEL!r} alone (gray)")
+    _check_same_size(path, pixels, RGB_CHANNELS)
+    return _stack(pixels, RGB_CHANNELS)
+
+
+def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) -> Frame:
+    """Read a frame written by :func:`write_frame` (or any OpenEXR file with ``R G B``).
+
+    Args:
+        path: the ``.exr`` file.
+        expect_resolution: optional ``(H, W)``; a frame of another size is an error.
+        warn_incomplete: warn (:class:`IncompleteFrameWarning`) when the file has geometry
+            but no ``slope_variance.X/Y`` channels; ``Frame.slope_variance`` is None either
+            way, so a caller that reports it itself passes False.
+
+    Returns:
+        a :class:`Frame` of float32 NumPy arrays (the mask as bool: channel value > 0.5),
+        geometry fields None when the file has no geometry channels, ``slope_variance``
+        None when it has no slope-variance channels, ``converged`` None when it has no
+        ``converged`` channel (bool otherwise: channel value > 0.5).
+
+    Raises:
+        MissingFileError: no such file.
+        FrameError: the file is not OpenEXR (a PNG, JPEG, ... is named as such), is corrupt
+            or truncated, lacks a channel of ``R G B`` (a grayscale ``Y`` image is named as
+            such: :func:`read_radiance` reads it), has only part of the geometry (or
+            slope-variance) channels, has channels of different sizes, or is not
+            ``expect_resolution``. The message names the file (and the channels); what
+            the OpenEXR library prints about a damaged file does not reach stdout / stderr.
+    """
+    header, pixels = _read_pixels(path, "EXR frame file")
+    if _is_gray(pixels):
+        raise FrameError(path, f"a grayscale image (one {GRAY_CHANNEL!r} channel), not a frame: a frame needs "
+                               f"{list(RGB_CHANNELS)} (load_image and reconstruct read a grayscale image)")
     missing_rgb = [name for name in RGB_CHANNELS if name not in pixels]
     if missing_rgb:
         raise FrameError(path, f"missing channel(s) {missing_rgb}; a frame needs {list(RGB_CHANNELS)}")
@@ -577,29 +642,23 @@ def read_frame(path, *, expect_resolution=None, warn_incomplete: bool = True) ->
                                f"{list(GEOMETRY_CHANNELS)}")
     used = (RGB_CHANNELS + (GEOMETRY_CHANNELS if present_geometry else ()) + tuple(present_slope)
             + ((CONVERGED_CHANNEL,) if has_converged else ()))
-    shapes = {name: np.shape(pixels[name]) for name in used}
-    if len(set(shapes.values())) != 1:
-        raise FrameError(path, f"channels of different sizes (subsampled?): {shapes}")
-    resolution = shapes["R"]
+    resolution = _check_same_size(path, pixels, used)
     if expect_resolution is not None and tuple(resolution) != tuple(expect_resolution):
         raise FrameError(path, f"resolution {tuple(resolution)} (H, W), expected {tuple(expect_resolution)}")
 
-    def stack(names):
-        return np.stack([np.asarray(pixels[name], dtype=np.float32) for name in names], axis=-1)
-
     if not present_geometry:
-        return Frame(stack(RGB_CHANNELS), None, None, None, _meta_from_header(header))
+        return Frame(_stack(pixels, RGB_CHANNELS), None, None, None, _meta_from_header(header))
     if not present_slope and warn_incomplete:
         warnings.warn(f"{path}: no {'/'.join(SLOPE_VARIANCE_CHANNELS)} channels (an older or foreign file): "
                       f"Frame.slope_variance is None, and shading its geometry uses roughness / 2 per axis, "
                       f"which does not reproduce an image rendered with anisotropic slope variance",
                       IncompleteFrameWarning, stacklevel=2)
     return Frame(
-        image=stack(RGB_CHANNELS),
-        normal=stack(NORMAL_CHANNELS),
+        image=_stack(pixels, RGB_CHANNELS),
+        normal=_stack(pixels, NORMAL_CHANNELS),
         roughness=np.asarray(pixels["roughness"], dtype=np.float32),
         mask=np.asarray(pixels["mask"]) > 0.5,
         meta=_meta_from_header(header),
-        slope_variance=stack(SLOPE_VARIANCE_CHANNELS) if present_slope else None,
+        slope_variance=_stack(pixels, SLOPE_VARIANCE_CHANNELS) if present_slope else None,
         converged=np.asarray(pixels[CONVERGED_CHANNEL]) > 0.5 if has_converged else None,
     )

@@ -9,7 +9,10 @@ Observed ocean images come in two kinds:
   1. integers to display values in [0, 1]: ``uint8 / 255``, ``uint16 / 65535`` (floats are
      taken as display values already, and a float file outside [0, 1] is refused; signed
      integers are refused); a gray image is repeated over R, G, B and an alpha channel is
-     dropped; CMYK and other colour models Pillow decodes are converted to RGB;
+     dropped; CMYK and other colour models Pillow decodes are converted to RGB; an EXIF
+     orientation (a phone's portrait photo stored sideways) is applied, so the pixels are the
+     image as displayed (files Pillow reads: JPEG, PNG, WebP, ... and TIFF unless tifffile is
+     installed);
   2. ``radiance = jaxocean.shading.inverse_tonemap(display, exposure, mode=space)``:
      ``space="srgb"`` (photographs and most video: the sRGB transfer curve),
      ``"bruneton"`` (images made by :func:`save_png` or the paper's renderer) or
@@ -18,7 +21,8 @@ Observed ocean images come in two kinds:
      back at the lower bound of what they could be (see ``inverse_tonemap``).
 
 * **Scene-referred** (OpenEXR): the ``R G B`` channels already are linear radiance and are
-  returned as they are; ``space`` and ``exposure`` do not apply.
+  returned as they are (a grayscale file's one ``Y`` channel is repeated over R, G, B);
+  ``space`` and ``exposure`` do not apply.
 
 Everything is returned as float32 NumPy arrays on the host, ``(H, W, 3)`` per image and
 ``(T, H, W, 3)`` per video. Video needs an imageio plugin for its container (PyAV or
@@ -42,7 +46,7 @@ import numpy as np
 
 from jaxocean.errors import MissingDependencyError, check_finite
 from jaxocean.files import atomic_write
-from jaxocean.io.exr import FileFormatError, read_frame, require_file
+from jaxocean.io.exr import FileFormatError, read_radiance, require_file
 from jaxocean.shading import TONEMAP_MODES, inverse_tonemap, tonemap
 
 __all__ = ["VIDEO_SUFFIXES", "Display", "is_video_file", "load_display", "load_display_video", "load_image",
@@ -115,7 +119,8 @@ def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
     """Load one image as linear radiance ``(H, W, 3)`` float32 (see the module docstring).
 
     Args:
-        path: a PNG, JPEG, ... file (display-referred) or an OpenEXR file (linear).
+        path: a PNG, JPEG, ... file (display-referred) or an OpenEXR file (linear: ``R G B``,
+            or ``Y`` alone for gray).
         space: the tone curve the display-referred image was made with, one of
             ``"srgb"`` (default), ``"bruneton"``, ``"linear"``.
         exposure: the exposure it was made with, > 0.
@@ -128,7 +133,7 @@ def load_image(path, *, space: str = "srgb", exposure=1.0) -> np.ndarray:
     _check_space(space)
     path = require_file(path, "image file")
     if path.suffix.lower() == _EXR_SUFFIX:
-        return read_frame(path, warn_incomplete=False).image  # the image alone: no geometry used
+        return _rgb(read_radiance(path), 2)  # the image alone: no geometry used
     return _to_linear(_rgb(_decode_image(path)[0], 2), space, exposure)
 
 
@@ -236,7 +241,10 @@ def _decode_image(path: Path) -> tuple[np.ndarray, int | None]:
     try:
         plugin = _plugin(path)
         mode = iio.immeta(path, plugin=plugin).get("mode") if plugin == "pillow" else None
-        pixels = iio.imread(path, plugin=plugin, **({"mode": "RGB"} if mode in _CONVERT_TO_RGB else {}))
+        options = {"mode": "RGB"} if mode in _CONVERT_TO_RGB else {}
+        if plugin == "pillow":
+            options["rotate"] = True  # the EXIF orientation: the image as displayed, not as stored
+        pixels = iio.imread(path, plugin=plugin, **options)
     except (OSError, ValueError) as error:
         raise FileFormatError(path, f"cannot read the image ({error})") from error
     if np.asarray(pixels).dtype == np.uint8 and (stored := _stored_bit_depth(path, plugin)) is not None:

@@ -49,7 +49,7 @@ import numpy as np
 from jaxocean.camera import Camera, camera_to_dict, validate_camera
 from jaxocean.errors import InvalidValueError, check_finite
 from jaxocean.files import write_json
-from jaxocean.io.exr import FileFormatError, require_file
+from jaxocean.io.exr import FileFormatError, MissingFileError, require_file
 from jaxocean.shading import Lighting, validate_lighting
 from jaxocean.spectrum import Spectrum, validate_spectrum
 from jaxocean.waves import Waves, validate
@@ -393,11 +393,24 @@ def write_scene(dir_or_path, scene_dict) -> Path:
     return write_json(_scene_path(dir_or_path), scene_dict)
 
 
+def _refuse_directory_of_scenes(path: Path) -> None:
+    """:class:`MissingFileError` naming the scene directories in ``path`` when it is a
+    directory without a scene file of its own but with scenes one level down (a dataset's root)."""
+    if not path.is_dir() or (path / SCENE_FILENAME).exists():
+        return
+    inner = sorted(found.parent.name for found in path.glob(f"*/{SCENE_FILENAME}"))
+    if inner:
+        listed = ", ".join(inner[:3]) + (f", ... ({len(inner)} in all)" if len(inner) > 3 else "")
+        raise MissingFileError(path / SCENE_FILENAME, f"no such scene file: {path} holds scene directories "
+                                                      f"({listed}); give one of them, e.g. {path / inner[0]}")
+
+
 def read_scene(path) -> Scene:
     """Read a scene file (a directory means its ``scene.json``).
 
     Raises:
-        MissingFileError: no such file.
+        MissingFileError: no such file (for a directory of scene directories, a dataset's root
+            say, the message names them: give one).
         SceneFileError: a file that is neither ``*.json`` nor a directory (a frame, say), malformed
             JSON (with line and column) or a dict that :func:`scene_from_dict` rejects; the
             message names the file.
@@ -405,6 +418,7 @@ def read_scene(path) -> Scene:
     if Path(path).is_file() and Path(path).suffix.lower() != ".json":  # a frame, say: not a scene directory
         raise SceneFileError(path, f"not a scene file or directory; give the scene's directory ({Path(path).parent}) "
                                    f"or its {SCENE_FILENAME}")
+    _refuse_directory_of_scenes(Path(path))
     path = require_file(_scene_path(path), "scene file")
     try:
         d = json.loads(path.read_text(encoding="utf-8"))

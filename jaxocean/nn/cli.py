@@ -92,7 +92,7 @@ def register(sub, *, add_camera_options, camera_from_args) -> dict:
                                    "accurate, ~2.5x the time per frame)")
     p.add_argument("--split", default="test", help="split to score (default test)")
     p.add_argument("--max-frames", type=positive_int, help="score at most this many frames")
-    p.add_argument("--out", help="JSON file for the scores (with per-scene rows)")
+    p.add_argument("--out", help="JSON file for the scores (with per-scene rows), e.g. scores.json")
 
     from jaxocean.nn.waves_train import CONFIGS as WAVE_CONFIGS
     from jaxocean.nn.waves_train import LOSS_TERMS as WAVE_LOSS_TERMS
@@ -256,7 +256,7 @@ def _eval(args) -> int:
     from jaxocean.nn import geometry_train as gt
 
     if args.out:
-        check_out_file(args.out)
+        check_out_file(args.out, "scores.json")
     model = geo.load(args.model)
     rows = {"flat normal": gt.evaluate(gt.flat_method, args.dataset, args.split, max_frames=args.max_frames),
             "model": gt.evaluate(model, args.dataset, args.split, max_frames=args.max_frames)}
