@@ -141,6 +141,7 @@ def _wave_chart(path: Path, truth, fitted) -> Path:
     for w, marker, label in ((truth, "o", "true"), (fitted, "x", "fitted")):
         ax.scatter(np.asarray(w.theta), np.asarray(w.omega), s=200 * np.asarray(w.amplitude) / scale + 8,
                    marker=marker, label=label, alpha=0.8)
+    plots.polar_room(ax, np.concatenate([np.asarray(truth.omega), np.asarray(fitted.omega)]))
     ax.set_title("direction (angle) and omega [rad/s] (radius);\nsize ~ amplitude", fontsize=9)
     ax.legend(fontsize=8, loc="lower left")
     ax = fig.add_subplot(1, 2, 2)

@@ -49,17 +49,19 @@ is :mod:`jaxocean.camera`'s frame for ``yaw = pi/2 - heading`` (:func:`yaw_from_
 
 Undistortion
 ------------
-:func:`undistort` inverts :func:`distort` by Newton's method from ``x = x_d``. It converges
-wherever the distortion is one-to-one on the way from ``x_d`` to the answer: for the radial
-model while ``1 + 3 k1 r^2 + 5 k2 r^4 > 0``. For ``k1 = -0.21, k2 = 0.062`` (strong barrel
-distortion) that holds for every radius: over a 640 x 480 image (fx = 376 px, corners at
-undistorted radius 1.3) 2 iterations leave 0.05 px, 4 reach 1.1e-13 px in float64 (round-off;
-``tests/test_lens.py`` checks < 1e-9 px after the default 16, for stronger barrel and
-pincushion lenses too); in float32 the round trip is exact to 6.1e-5 px, one rounding step
-of a coordinate near 640. Where the radial slope nearly vanishes on the way (``k1 = -0.4,
-k2 = 0.1``: a minimum of 0.28) the first steps are short and more are needed: 10 at fx =
-300 (:data:`UNDISTORT_ITERATIONS` has margin). Beyond the one-to-one range
-of a lens (e.g. ``k2 = 0``, ``k1 < 0`` at ``r^2 > 1 / (-3 k1)``) the Brown--Conrady polynomial
+:func:`undistort` inverts :func:`distort` in two stages of fixed length (so eager and traced
+calls agree). The radial part ``r (1 + k1 r^2 + k2 r^4) = |x_d|`` is solved on its one-to-one
+branch ``[0, fold radius]`` (where ``1 + 3 k1 r^2 + 5 k2 r^4`` first reaches 0) by Newton's
+method kept in a bracket (bisection where a step would leave it): plain Newton from
+``x = x_d`` diverged for pincushion lenses with ``k2 < 0`` (``k1 = 0.6, k2 = -0.25`` at
+fx = 250, 640 x 480: up to 1e18 px), whose ``x_d`` lies beyond the fold radius. Then damped
+Newton steps on the full map add the tangential terms. For ``k1 = -0.21, k2 = 0.062`` over a
+640 x 480 image (fx = 376 px) the float64 round trip is exact to 1e-13 px (``tests/test_lens.py``
+checks < 1e-9 px, and < 1e-3 px over random lenses that :func:`fold_problem` accepts); in
+float32 to 6.1e-5 px, one rounding step of a coordinate near 640. Tangential terms can fold
+the full map (Jacobian determinant <= 0) where the radial part alone is one-to-one, which
+:func:`fold_problem` does not check: there the result is the damped iteration's best point.
+Beyond the one-to-one range of a lens (e.g. ``k2 = 0``, ``k1 < 0`` at ``r^2 > 1 / (-3 k1)``) the Brown--Conrady polynomial
 folds back and points far outside the field of view project *into* the image; callers that
 project arbitrary points must limit the undistorted radius (:func:`max_radius`), and a lens
 that folds back inside its own image has pixels with no ray: :func:`fold_problem` (host
@@ -96,14 +98,15 @@ __all__ = [
     "pose_of",
 ]
 
-# Newton iterations of undistort: a fixed count (jit-safe, the same values traced or not).
-# Convergence is quadratic only once near the answer: where the radial slope
-# 1 + 3 k1 r^2 + 5 k2 r^4 dips towards 0 on the way (strong barrel) the first steps are
-# short. Measured on 640 x 480 frames in float64: k1 = -0.21, k2 = 0.062 (fx 376) reaches
-# round-off in 4; k1 = -0.4, k2 = 0.1 (fx 300, slope minimum 0.28) left 0.02 px after 6 and
-# k1 = -0.3, k2 = 0.05 5.6 px, both round-off after 10; the slowest of 300 random one-to-one
-# lenses (|k1| < 0.8, with tangential terms) needed 16.
-UNDISTORT_ITERATIONS = 16
+# Newton iterations of undistort on the full map, from the radial inverse: quadratic
+# convergence for the tangential terms; 4 reach float64 round-off at the corners of the
+# strongly distorted 640 x 480 lens of the tests (r ~ 1.3), 2 more are margin.
+UNDISTORT_ITERATIONS = 6
+# Halvings a damped Newton step of undistort may try (a near-singular Jacobian near a fold).
+_DAMPING = 4
+# Safeguarded Newton steps of the radial inverse: bisection halves the bracket [0, fold
+# radius] where Newton would leave it; 40 are float64 round-off from any start.
+_RADIAL_STEPS = 40
 
 
 class Intrinsics(NamedTuple):
@@ -227,15 +230,64 @@ def _distort_jacobian(xy, k1, k2, p1, p2):
     return a, b, c, d
 
 
+def _fold_radius(k1, k2):
+    """The undistorted radius where ``d r_d / d r = 1 + 3 k1 r^2 + 5 k2 r^4`` first drops to 0
+    (its smallest positive root in ``s = r^2``, ``2 / (-3 k1 + sqrt(9 k1^2 - 20 k2))``, a form
+    that is exact for ``k2 = 0`` too), inf where it stays positive."""
+    disc = 9 * k1 * k1 - 20 * k2
+    denominator = -3 * k1 + jnp.sqrt(jnp.maximum(disc, 0))
+    folds = (disc >= 0) & (denominator > 0)
+    return jnp.where(folds, jnp.sqrt(2 / jnp.where(folds, denominator, 1)), jnp.inf)
+
+
+def _radial_inverse(rho, k1, k2, iterations):
+    """The undistorted radius ``r`` with ``r (1 + k1 r^2 + k2 r^4) = rho`` on the one-to-one
+    branch ``[0, fold radius]``: Newton's method kept inside a bracket (a step that leaves it
+    bisects instead), so it converges from any start however strongly the lens bends; a
+    ``rho`` beyond the fold's reach gives the fold radius."""
+    fold = _fold_radius(k1, k2)
+    # without a fold (k1 >= 0, or k2 > 9 k1^2 / 20) r_d = r q(r^2) >= r min q, and
+    # min q = 1 - k1^2 / (4 k2) > 4/9 for k1 < 0: rho / min q brackets the root tightly
+    least_q = jnp.where(k1 < 0, 1 - k1 * k1 / (4 * jnp.where(k2 > 0, k2, 1)), 1.0)
+    hi = jnp.where(jnp.isfinite(fold), fold, rho / jnp.maximum(least_q, 4 / 9))
+    lo = jnp.zeros_like(hi)
+
+    def step(_, state):
+        r, lo, hi, last_step = state
+        s = r * r
+        excess = r * (1 + s * (k1 + k2 * s)) - rho
+        slope = 1 + s * (3 * k1 + 5 * k2 * s)
+        lo, hi = jnp.where(excess < 0, r, lo), jnp.where(excess < 0, hi, r)
+        newton_step = excess / jnp.where(slope > 0, slope, 1)
+        # Newton where it stays in the bracket and at least halves the step before last
+        # (Numerical Recipes' rtsafe), else bisection: Newton alone cycles between the two
+        # ends of the branch for pincushion lenses
+        newton_ok = (slope > 0) & (r - newton_step >= lo) & (r - newton_step <= hi) \
+            & (2 * jnp.abs(newton_step) <= jnp.abs(last_step))
+        return (jnp.where(newton_ok, r - newton_step, (lo + hi) / 2), lo, hi,
+                jnp.where(newton_ok, newton_step, (hi - lo) / 2))
+
+    r0 = jnp.minimum(rho, hi)
+    return jax.lax.fori_loop(0, iterations, step, (r0, lo, hi, 2 * hi))[0]
+
+
 @partial(jax.jit, static_argnames=("iterations",))
 def undistort(xy_distorted, distortion: Distortion, *, iterations: int = UNDISTORT_ITERATIONS) -> jax.Array:
     """Distorted normalised coordinates ``(..., 2)`` -> undistorted ones: :func:`distort`'s
-    inverse by ``iterations`` Newton steps from ``x = x_d`` (module docstring for the range
-    where it converges). Differentiable through the iterations."""
+    inverse. The radial part is solved first on the one-to-one branch (a bracketed Newton
+    iteration on ``r`` in ``[0, fold radius]``), then ``iterations`` damped Newton steps on the
+    full map add the tangential terms (module docstring). A fixed number of steps, so eager
+    and traced calls agree; differentiable through the Newton steps (the radial start
+    carries the gradient of the identity only)."""
     xy_distorted = jnp.asarray(xy_distorted)
     dtype = _dtype(xy_distorted, distortion)
     target = xy_distorted.astype(dtype)
     params = _leaves(distortion, dtype)
+
+    k1, k2 = params[0][..., None], params[1][..., None]
+    rho = jnp.sqrt(jnp.sum(target * target, axis=-1, keepdims=True))
+    r = _radial_inverse(rho, k1, k2, _RADIAL_STEPS)
+    start = jax.lax.stop_gradient(jnp.where(rho > 0, target * (r / jnp.where(rho > 0, rho, 1)), target))
 
     def step(_, xy):
         residual = _distort(xy, *params) - target
@@ -243,9 +295,21 @@ def undistort(xy_distorted, distortion: Distortion, *, iterations: int = UNDISTO
         det = a * d - b * c
         dx = (d * residual[..., 0] - b * residual[..., 1]) / det
         dy = (a * residual[..., 1] - c * residual[..., 0]) / det
-        return xy - jnp.stack([dx, dy], axis=-1)
+        newton = jnp.stack([dx, dy], axis=-1)
+        # damped: the longest of the steps 1, 1/2, ... 1/2^_DAMPING that reduces the residual
+        # (where the Jacobian is nearly singular a full step can throw x far off)
+        size = jnp.sum(residual * residual, axis=-1)
+        best, best_size = xy, size
+        for k in range(_DAMPING, -1, -1):
+            candidate = xy - newton * 0.5 ** k
+            r = _distort(candidate, *params) - target
+            candidate_size = jnp.sum(r * r, axis=-1)
+            better = candidate_size <= best_size if k == 0 else candidate_size < best_size
+            best = jnp.where(better[..., None], candidate, best)
+            best_size = jnp.where(better, candidate_size, best_size)
+        return best
 
-    return jax.lax.fori_loop(0, int(iterations), step, target)
+    return jax.lax.fori_loop(0, int(iterations), step, target + (start - jax.lax.stop_gradient(target)))
 
 
 def max_radius(distortion: Distortion, *, limit: float = 10.0, samples: int = 4096) -> jax.Array:

@@ -3,7 +3,8 @@
 Protocol: functions take linear images / geometry as arrays (numpy or jax) and write PNG
 files atomically; nothing here is differentiable or used inside a model.
 
-* ``normal_to_rgb(normal (H,W,3)) -> uint8 (H,W,3)``: the usual (n + 1) / 2 encoding.
+* ``normal_to_rgb(normal (H,W,3), mask=None) -> uint8 (H,W,3)``: the usual (n + 1) / 2
+  encoding.
 * ``roughness_to_rgb(roughness (H,W), mask=None, vmin=1e-5, vmax=1e-1) -> uint8 (H,W,3)``:
   :func:`log_to_rgb` with the range of sea roughness.
 * ``log_to_rgb(values (H,W), mask=None, vmin, vmax) -> uint8 (H,W,3)``: a log10 colour map
@@ -13,8 +14,11 @@ files atomically; nothing here is differentiable or used inside a model.
 * ``contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_titles=None)``:
   a grid of images (each uint8 or float in [0, 1]) saved as one PNG; ``col_titles`` head the
   columns (above the first row), ``cell_titles`` (lists like ``rows``) name single images.
+* ``polar_room(ax, radii)``: a polar axis from 0 to 15% past the largest radius.
 * ``save_figure(fig, path, dpi=100) -> Path``: a matplotlib figure as PNG, atomically, then
   closed.
+
+The uint8 conversions draw NaN pixels black, as they draw the pixels outside a ``mask``.
 """
 
 from __future__ import annotations
@@ -25,15 +29,26 @@ import numpy as np
 
 from jaxocean.files import atomic_write
 
-__all__ = ["normal_to_rgb", "roughness_to_rgb", "log_to_rgb", "display", "contact_sheet", "save_figure"]
+__all__ = ["normal_to_rgb", "roughness_to_rgb", "log_to_rgb", "display", "contact_sheet", "save_figure",
+           "polar_room"]
+
+
+def _to_uint8(rgb, mask=None):
+    """Colours in [0, 1] ``(..., 3)`` as uint8; pixels outside ``mask`` and pixels with a
+    NaN channel black (a NaN's cast to uint8 is undefined, and a partly NaN normal would
+    show as a colour of its own)."""
+    rgb = np.asarray(rgb)
+    keep = ~np.isnan(rgb).any(-1)
+    if mask is not None:
+        keep &= np.asarray(mask, bool)
+    return (np.where(keep[..., None], rgb, 0.0) * 255 + 0.5).astype(np.uint8)
 
 
 def normal_to_rgb(normal, mask=None):
+    """Unit normals as the usual ``(n + 1) / 2`` colours; pixels outside ``mask`` (and NaN
+    normals) black."""
     n = np.asarray(normal, np.float32)
-    rgb = np.clip((n + 1.0) * 0.5, 0.0, 1.0)
-    if mask is not None:
-        rgb = np.where(np.asarray(mask)[..., None], rgb, 0.0)
-    return (rgb * 255 + 0.5).astype(np.uint8)
+    return _to_uint8(np.clip((n + 1.0) * 0.5, 0.0, 1.0), mask)
 
 
 def roughness_to_rgb(roughness, mask=None, vmin=1e-5, vmax=1e-1):
@@ -43,22 +58,20 @@ def roughness_to_rgb(roughness, mask=None, vmin=1e-5, vmax=1e-1):
 
 def log_to_rgb(values, mask=None, vmin=1e-6, vmax=1e-1):
     """Positive values on a log10 magma colour map: black at ``vmin`` (and below), white at
-    ``vmax`` (and above); pixels outside ``mask`` black."""
+    ``vmax`` (and above); pixels outside ``mask`` (and NaN values) black."""
     import matplotlib
 
     r = np.log10(np.clip(np.asarray(values, np.float64), vmin, vmax))
     s = (r - np.log10(vmin)) / (np.log10(vmax) - np.log10(vmin))
     rgb = matplotlib.colormaps["magma"](s)[..., :3]
-    if mask is not None:
-        rgb = np.where(np.asarray(mask)[..., None], rgb, 0.0)
-    return (rgb * 255 + 0.5).astype(np.uint8)
+    return _to_uint8(np.where(np.isnan(s)[..., None], np.nan, rgb), mask)
 
 
 def display(linear_image, exposure=1.0, mode="bruneton"):
-    """Tone-mapped uint8 image from linear radiance."""
+    """Tone-mapped uint8 image from linear radiance; pixels with a NaN channel black."""
     from jaxocean.shading import tonemap
 
-    return (np.asarray(tonemap(np.asarray(linear_image, np.float32), exposure, mode)) * 255 + 0.5).astype(np.uint8)
+    return _to_uint8(np.asarray(tonemap(np.asarray(linear_image, np.float32), exposure, mode)))
 
 
 def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell_inches=2.6, cell_titles=None):
@@ -93,6 +106,16 @@ def contact_sheet(path, rows, col_titles=None, row_titles=None, title=None, cell
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def polar_room(ax, radii, margin: float = 0.15) -> None:
+    """Set polar ``ax``'s radial axis from 0 to ``1 + margin`` times the largest finite of
+    ``radii``: matplotlib's own limit puts the outermost point on the rim, its marker half
+    clipped. No finite positive radius: the axis is left as it is."""
+    r = np.asarray(radii, np.float64).ravel()
+    r = r[np.isfinite(r)]
+    if r.size and r.max() > 0:
+        ax.set_rlim(0.0, (1.0 + margin) * float(r.max()))
 
 
 def save_figure(fig, path, dpi: int = 100) -> Path:

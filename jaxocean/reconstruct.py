@@ -404,9 +404,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
     where the peak sits at the band's long-wave edge) and the mean direction; success then
     needs the images' dispersion check and the geometry spectrum's own (its off-shell floor
     below half of its shell power)."""
-    from jaxocean import fit, spacetime
-
-    min_frames = spacetime.MIN_FRAMES
+    from jaxocean import fit
 
     def run():
         check = _evidence_of(seq, evidence)
@@ -483,6 +481,7 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
             dispersion_peak_period_s=None if check is None else float(check.peak_period_s),
             dispersion_direction_deg=None if check is None else direction_deg(float(check.peak_direction),
                                                                              seq.compass),
+            dispersion_note=None if check is not None else f"not computed: {_missing_evidence(seq)}",
         )
         # too short a sequence for the space-time check: the evidence is missing, not negative
         ok = sea["spectrum_success"] and (check is None or bool(check.success)) and waves_ok
@@ -499,12 +498,22 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
         elif not sf.success:
             why.append("no single JONSWAP spectrum explains the fitted waves")
         if check is None:
-            why.append(f"no space-time evidence: it needs {min_frames} frames, {len(seq.times)} given")
+            why.append(f"no space-time evidence: {_missing_evidence(seq)}")
         elif not check.success:
             why.append(f"the images show little energy on the dispersion shell ({check.message})")
         return (sea, check, sf), ok, "; ".join(why), sea
 
     return timed("spectrum", run)
+
+
+def _missing_evidence(seq: Sequence) -> str:
+    """Why :func:`sea_stage` has no space-time check (``dispersion_note`` in ``result.json``
+    says it, so that the check's null fields are not read as a failed check)."""
+    from jaxocean import spacetime
+
+    if len(seq.times) < spacetime.MIN_FRAMES:
+        return f"it needs {spacetime.MIN_FRAMES} frames, {len(seq.times)} given"
+    return "none was given"
 
 
 def geometry_sea_spectrum(seq: Sequence, geometry, check=None):

@@ -143,6 +143,7 @@ def _sea_figure(path, result):
         pa.set_theta_zero_location("N")
         pa.set_theta_direction(-1)
     pa.scatter(angles, 2 * np.pi / w, s=20 + 400 * h / max(h.max(initial=0.0), 1e-9), alpha=0.6)
+    plots.polar_room(pa, 2 * np.pi / w)
     if not real.any() and geo.get("direction_deg") is not None:
         # the geometry spectrum's mean direction (report convention) and its 1-sigma wedge
         mean = np.radians(geo["direction_deg"])
@@ -150,6 +151,7 @@ def _sea_figure(path, result):
         period = geo["peak_period_s"]
         pa.plot([mean, mean], [0.0, period], "C2", lw=2)
         pa.fill_between(np.linspace(mean - sigma, mean + sigma, 30), 0.0, period, color="C2", alpha=0.2)
+        plots.polar_room(pa, [period])
     pa.set_title("direction of travel (radius: period [s])" + (", from north" if compass else ", from +x"))
     fig.tight_layout()
     return plots.save_figure(fig, path)
@@ -219,9 +221,12 @@ def _html(data, figures) -> str:
                 + (f"<li>the geometry's space-time spectrum: {html.escape(geo['message'])}; mean direction "
                    f"{num(geo.get('direction_deg'), '{:.0f}')} &plusmn; {num(geo.get('direction_std_deg'), '{:.0f}')} "
                    f"deg</li>" if geo else "") +
-                f"<li>space-time spectrum: {num(disp.get('ratio'))} times more energy on the dispersion shell than "
-                f"without dispersion; its peak period {num(s.get('dispersion_peak_period_s'))} s, direction "
-                f"{num(s.get('dispersion_direction_deg'), '{:.0f}')} deg</li></ul>")
+                (f"<li>space-time spectrum: {num(disp.get('ratio'))} times more energy on the dispersion shell "
+                 f"than without dispersion; its peak period {num(s.get('dispersion_peak_period_s'))} s, direction "
+                 f"{num(s.get('dispersion_direction_deg'), '{:.0f}')} deg</li>" if disp else
+                 # no check (too few frames): say so, not "n/a times more energy"
+                 f"<li>space-time spectrum: {html.escape(s.get('dispersion_note') or 'not computed')}</li>")
+                + "</ul>")
     imgs = "".join(f'<h2>{html.escape(t)}</h2><img src="{html.escape(p.name)}">' for t, p in figures)
     return f"""<!doctype html><html><head><meta charset="utf-8"><title>jaxocean reconstruction</title>
 <style>body{{font-family:sans-serif;max-width:1400px;margin:2em}} .ok{{color:#060}} .bad{{color:#a00}}

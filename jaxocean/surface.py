@@ -12,6 +12,9 @@ Per wave, with k = w^2/g, k^ = (cos theta, sin theta) and phase psi = w t - k k^
 * ``displacement(waves, xy, t, weights=None) -> (..., 3)``: p - (X, 0).
 * ``normal(waves, xy, t, weights=None) -> (..., 3)``: unit normal, the normalised cross
   product of the Jacobian columns dp/dx and dp/dy (exact, not a finite difference).
+* ``fold_determinant(waves, xy, t) -> (...)``: det of the horizontal Jacobian
+  d(p_x, p_y)/d(x, y); the surface folds over (overhangs) where it is <= 0 (defined in
+  :mod:`jaxocean.waves`, with ``phase``, and re-exported here).
 * ``slope_variance(waves, weights=None) -> (sigma_x^2, sigma_y^2)`` of the waves the weights
   send to roughness: sigma_x^2 = sum cos^2 theta (1 - sqrt(1 - k^2 h^2)).
 * ``on_grid(waves, x (W,), y (H,), times (T,), weights=None) -> GridSurface``: the same on a
@@ -40,7 +43,7 @@ import numpy as np
 from jaxocean._math import inv_sqrt, materialize, safe_normalize, sincos, tiny
 from jaxocean._roughness import wave_slope_variance
 from jaxocean.hierarchy import WaveWeights
-from jaxocean.waves import Waves, validate, wavenumber
+from jaxocean.waves import Waves, fold_determinant, phase, validate, wavenumber  # re-exported
 
 __all__ = [
     "displacement",
@@ -52,6 +55,7 @@ __all__ = [
     "GridSurface",
     "phase",
     "normal_from_sums",
+    "fold_determinant",
 ]
 
 
@@ -78,14 +82,6 @@ def _check(waves: Waves, xy=None, t=None, weights=None, level: str | None = None
     n = waves.omega.shape[-1]
     if w is not None and jnp.ndim(w) > 0 and jnp.shape(w)[-1] not in (1, n):
         raise ValueError(f"{level} weights must be per wave (..., N) with N = {n}; got shape {jnp.shape(w)}")
-
-
-def phase(waves: Waves, xy, t):
-    """psi = w t - k.X + phi, shape ``(..., N)`` for ``xy (..., 2)``."""
-    k = wavenumber(waves)
-    kx, ky = k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)
-    kvec = jnp.stack([kx, ky], axis=0)  # (2, N): X.k as one dot
-    return waves.omega * t + waves.phase - jnp.dot(xy, kvec)
 
 
 def _displacement_coeffs(waves: Waves):

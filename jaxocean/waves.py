@@ -12,7 +12,9 @@ come from ``vmap`` or stacking.
 * ``phase``     phi [rad]; the paper's waves have phi = 0
 
 Deep-water dispersion: k = w^2 / g, wave vector k (cos theta, sin theta), wavelength
-2 pi / k, steepness k h (<= 1 for a trochoid without loops).
+2 pi / k, steepness k h (<= 1 for a trochoid without loops). ``phase(waves, xy, t)`` is
+psi = w t - k.X + phi at rest positions ``xy (..., 2)``; ``fold_determinant(waves, xy, t)``
+the trochoid surface's horizontal Jacobian determinant there (<= 0: the sum of waves folds).
 """
 
 from __future__ import annotations
@@ -34,6 +36,8 @@ __all__ = [
     "period",
     "steepness",
     "total_steepness",
+    "phase",
+    "fold_determinant",
     "too_steep",
     "MAX_STEEPNESS",
     "MAX_PHASE_ERROR",
@@ -150,6 +154,27 @@ def steepness(waves: Waves):
 def total_steepness(waves: Waves):
     """Sum of k h over the wave axis: a trochoid sea can fold where this exceeds 1."""
     return jnp.sum(steepness(waves), axis=-1)
+
+
+def phase(waves: Waves, xy, t):
+    """psi = w t - k.X + phi, shape ``(..., N)`` for rest positions ``xy (..., 2)`` [m]."""
+    k = wavenumber(waves)
+    kvec = jnp.stack([k * jnp.cos(waves.theta), k * jnp.sin(waves.theta)], axis=0)  # (2, N): X.k as one dot
+    return waves.omega * t + waves.phase - jnp.dot(xy, kvec)
+
+
+def fold_determinant(waves: Waves, xy, t):
+    """Determinant ``(...)`` of the trochoid surface's horizontal Jacobian d(p_x, p_y)/d(x, y)
+    at rest positions ``xy (..., 2)``: ``(1 - A_xx)(1 - A_yy) - A_xy^2`` with
+    ``A = sum h k cos(psi) k^ k^T`` (the vertical component of the unnormalised normal of
+    :func:`jaxocean.surface.normal`). 1 on a flat sea; <= 0 where the surface folds over itself
+    (neighbouring water particles cross). Its worst case over all phases is
+    ``1 - total_steepness``; its minimum over rest positions and times is how close a sea
+    comes to folding."""
+    hk_cos = steepness(waves) * jnp.cos(phase(waves, xy, t))  # (..., N)
+    c, s = jnp.cos(waves.theta), jnp.sin(waves.theta)
+    a_xx, a_xy, a_yy = jnp.dot(hk_cos, c * c), jnp.dot(hk_cos, c * s), jnp.dot(hk_cos, s * s)
+    return (1.0 - a_xx) * (1.0 - a_yy) - a_xy * a_xy
 
 
 #: the largest rounding error [rad] of the phases ``omega t`` that rendering and forecasts accept

@@ -52,9 +52,8 @@ def test_undistort_inverts_distort_over_the_image(x64):
 @pytest.mark.parametrize("fx, k1, k2", [(300.0, -0.4, 0.1), (250.0, -0.4, 0.1), (300.0, -0.3, 0.05),
                                          (300.0, 0.5, 0.3), (400.0, 1.0, 1.0)])
 def test_undistort_inverts_strong_barrel_and_pincushion_over_the_full_frame(x64, fx, k1, k2):
-    # 6 Newton steps left 0.02 px at k1 = -0.4, k2 = 0.1, fx = 300 (5.6 px at k1 = -0.3,
-    # k2 = 0.05): the radial slope 1 + 3 k1 r^2 + 5 k2 r^4 dips near 0 on the way, where the
-    # first steps are short
+    # plain Newton from x_d left 0.02 px at k1 = -0.4, k2 = 0.1, fx = 300 after 6 steps (5.6 px
+    # at k1 = -0.3, k2 = 0.05): the radial slope 1 + 3 k1 r^2 + 5 k2 r^4 dips near 0 on the way
     intrinsics = Intrinsics(fx, fx, (W_REAL - 1) / 2, (H_REAL - 1) / 2)
     distortion = Distortion(k1, k2)
     assert lens.fold_problem(distortion, intrinsics, (W_REAL, H_REAL)) is None  # a valid lens
@@ -68,10 +67,11 @@ def test_undistort_inverts_strong_barrel_and_pincushion_over_the_full_frame(x64,
     np.testing.assert_array_equal(np.asarray(jitted), np.asarray(xy))
 
 
-def test_undistort_with_two_iterations_is_not_converged(x64):
-    # the convergence check above is real: too few iterations leave a visible error
+def test_undistort_without_newton_steps_leaves_the_tangential_part(x64):
+    # the convergence checks are real: the radial start alone misses the tangential terms
+    D = Distortion(D_REAL.k1, D_REAL.k2, 0.002, -0.003)
     xy_d = lens.normalize_pixels(np.array([[0.0, 0.0], [639.0, 479.0]]), K_REAL)
-    back = lens.denormalize(lens.distort(lens.undistort(xy_d, D_REAL, iterations=1), D_REAL), K_REAL)
+    back = lens.denormalize(lens.distort(lens.undistort(xy_d, D, iterations=0), D), K_REAL)
     assert float(np.abs(np.asarray(back) - [[0.0, 0.0], [639.0, 479.0]]).max()) > 1e-3
 
 
@@ -256,3 +256,58 @@ def test_pixel_rays_gradients(x64):
         return lens.pixel_rays(uv, Pose(12.0, pitch, roll, heading), K_REAL, Distortion(k1, 0.062))
 
     check_grads(rays_of, (0.3, 0.05, 0.6, -0.21), order=1, modes=("fwd", "rev"))
+
+
+def _random_accepted_lenses(count, seed=3):
+    """Seeded lenses that fold_problem accepts over a 640 x 480 frame: strong barrel,
+    pincushion with negative k2 (folding just beyond the corners), tangential terms. Those
+    whose tangential terms fold the full map inside the frame (Jacobian determinant <= 0,
+    which fold_problem does not check) are skipped: they have pixels with no inverse."""
+    rng = np.random.default_rng(seed)
+    found = []
+    while len(found) < count:
+        k1, k2 = rng.uniform(-0.6, 0.7), rng.uniform(-0.3, 0.2)
+        p1, p2 = rng.uniform(-0.003, 0.003, 2) * rng.integers(0, 2)
+        f = rng.uniform(150, 600)
+        K = Intrinsics(f, f * rng.uniform(0.98, 1.02), 319.5 + rng.uniform(-8, 8), 239.5 + rng.uniform(-8, 8))
+        D = Distortion(k1, k2, p1, p2)
+        if lens.fold_problem(D, K, (W_REAL, H_REAL)) is not None:
+            continue
+        grid = np.linspace(-4, 4, 801)
+        xy = np.stack(np.meshgrid(grid, grid), -1)
+        corner = lens.undistort(lens.normalize_pixels(np.array([[-0.5, -0.5], [639.5, 479.5], [-0.5, 479.5],
+                                                                 [639.5, -0.5]]), K), Distortion(k1, k2))
+        inside = np.hypot(xy[..., 0], xy[..., 1]) <= 1.05 * float(jnp.linalg.norm(corner, axis=-1).max())
+        a, b, c, d = lens._distort_jacobian(jnp.asarray(xy), *(jnp.float64(v) for v in D))
+        if float(jnp.min(jnp.where(inside, a * d - b * c, 1.0))) > 0:
+            found.append((D, K))
+    return found
+
+
+def test_undistort_inverts_any_accepted_lens_over_the_frame(x64):
+    # Newton from x = x_d diverged (80-460 px, up to 1e18 px) for pincushion lenses with
+    # negative k2 whose fold lies just beyond the frame, e.g. k1 = 0.6, k2 = -0.25 at fx = 250
+    lenses = [(Distortion(0.6, -0.25), Intrinsics(250.0, 250.0, 319.5, 239.5)),
+              (Distortion(-0.54, 0.135, 0.001, -0.002), Intrinsics(158.0, 158.0, 319.5, 239.5))]
+    lenses += _random_accepted_lenses(12)
+    uv = _pixel_grid(W_REAL, H_REAL)[::4, ::4]
+    uv = np.concatenate([uv.reshape(-1, 2), [[-0.5, -0.5], [639.5, 479.5], [-0.5, 479.5], [639.5, -0.5]]])
+    for D, K in lenses:
+        xy_d = lens.normalize_pixels(uv, K)
+        xy = lens.undistort(xy_d, D)
+        error = float(np.abs(np.asarray(lens.denormalize(lens.distort(xy, D), K)) - uv).max())
+        assert error < 1e-3, (D, K, error)
+        np.testing.assert_array_equal(jax.jit(lens.undistort)(xy_d, D), xy)
+
+
+def test_undistort_gradients_are_finite_near_the_fold(x64):
+    xy_d = jnp.array([[1.6, 0.0], [1.1, -0.9], [0.0, 0.0], [0.3, 0.2]])
+    K_args = (0.6, -0.25, 0.001, -0.002)
+
+    def total(k1, k2, p1, p2, xy_d):
+        return jnp.sum(lens.undistort(xy_d, Distortion(k1, k2, p1, p2)))
+
+    grads = jax.grad(total, argnums=(0, 1, 2, 3, 4))(*K_args, xy_d)
+    assert all(bool(jnp.isfinite(g).all()) for g in grads)
+    check_grads(lambda k1, k2: lens.undistort(xy_d[1:], Distortion(k1, k2, 0.001, -0.002)), (0.6, -0.25),
+                order=1, modes=("fwd", "rev"))

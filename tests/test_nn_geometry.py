@@ -200,6 +200,35 @@ def test_metrics_reference_values():
     assert none["skill_along"] == pytest.approx(0.0, abs=1e-5) and none["skill_across"] == pytest.approx(0.0, abs=1e-5)
 
 
+def test_slope_skill_of_nearly_constant_slopes_matches_a_float64_two_pass_reference():
+    # the skill's denominator was sum s^2 - (sum s)^2 / N of float32 sums: for slopes of mean
+    # 0.3 and spread 1e-3 it cancelled to a skill 2e-3 off; the sums about each batch's
+    # mean, merged by Chan's rule, keep it within 1e-6, in one batch or frame by frame
+    rng = np.random.default_rng(0)
+    # frames whose means differ by their spread: merging them needs the between-frame term
+    true_slope = 0.3 + 1e-3 * np.arange(4)[:, None, None, None] + rng.normal(0, 1e-3, (4, 64, 64, 2))
+    pred_slope = true_slope + rng.normal(0, 5e-4, true_slope.shape)
+
+    def normals(slope):
+        n = np.concatenate([-slope, np.ones(slope.shape[:-1] + (1,))], -1)
+        return (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+
+    pred, true = normals(pred_slope), normals(true_slope)
+    mask = np.ones(true.shape[:-1], bool)
+    t = np.asarray(metrics.slopes(jnp.asarray(true)), np.float64)
+    p = np.asarray(metrics.slopes(jnp.asarray(pred)), np.float64)
+    reference = [1 - np.sum((p[..., 0] - t[..., 0]) ** 2) / np.sum((t[..., 0] - t[..., 0].mean()) ** 2),
+                 1 - np.sum((p[..., 1] - t[..., 1]) ** 2) / np.sum((t[..., 1] - t[..., 1].mean()) ** 2)]
+    whole = metrics.finish(metrics.normal_scores(jnp.asarray(pred), jnp.asarray(true), mask, jnp.zeros(4)))
+    merged = {}
+    for f in range(4):
+        merged = metrics.merge(merged, metrics.normal_scores(jnp.asarray(pred[f:f + 1]), jnp.asarray(true[f:f + 1]),
+                                                             mask[f:f + 1], jnp.zeros(1)))
+    for scores in (whole, metrics.finish(merged)):
+        # yaw 0: along is the x slope, across the y slope (its sign does not change the skill)
+        assert [scores["skill_along"], scores["skill_across"]] == pytest.approx(reference, abs=1e-6)
+
+
 def test_metrics_of_equal_normals_are_exact_and_of_no_pixel_nan():
     # the angle was arccos of the clipped dot product: equal float32 normals scored a mean
     # error of 7e-5 rad (arccos loses half the digits near 1); and a mask with no sea pixel

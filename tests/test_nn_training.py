@@ -74,6 +74,19 @@ def test_a_resume_with_other_settings_names_what_changed(tmp_path):
         _toy(tmp_path, signature={"config": {"epochs": 3, "lr": 0.1}, "dataset": "b"})
 
 
+def test_a_run_directory_of_another_network_is_refused_in_one_line(tmp_path):
+    # `train-geometry` given a `train-waves` run directory listed the settings that differ
+    # (every one of the other network's) instead of saying the directory is another's
+    from jaxocean.nn import CheckpointError
+
+    _toy(tmp_path, signature={"config": {"epochs": 2}}, checkpoint_every=1, stop_after_steps=1, network="waves")
+    with pytest.raises(CheckpointError, match=r"checkpoint\.npz: belongs to the training of a waves network, not of "
+                                              r"a geometry network; use a new --out directory$"):
+        _toy(tmp_path, signature={"config": {"crop": 64}}, network="geometry")
+    # the same network resumes
+    assert _toy(tmp_path, signature={"config": {"epochs": 2}}, network="waves")["steps"] == 12
+
+
 def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path):
     full = _toy(tmp_path / "full")
 

@@ -609,6 +609,26 @@ def test_the_dispersion_check_reports_its_direction_in_degrees(tmp_path):
         assert "peak_direction" not in sea["dispersion"]
         assert sea["dispersion"]["peak_direction_deg"] == pytest.approx(rc.direction_deg(0.5, compass))
         assert sea["dispersion"]["peak_direction_deg"] == sea["dispersion_direction_deg"]
+        assert sea["dispersion_note"] is None
+
+
+def test_a_dispersion_check_without_enough_frames_is_reported_not_computed(tmp_path):
+    # with fewer frames than the space-time check needs, the report's headline read "n/a times
+    # more energy on the dispersion shell" and result.json gave nulls with no reason
+    from jaxocean import report
+
+    files, scene_json, _, times = _scene(tmp_path)
+    seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
+    geo = SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (len(times), 32, 32, 1)),
+                          roughness=np.full((len(times), 32, 32), 1e-3, np.float32),
+                          mask=np.ones((len(times), 32, 32), bool))
+    (sea, check, _), rep = rc.sea_stage(seq, jo.make_waves([0.0], [1.0], [0.0]), geo, waves_ok=False)
+    assert check is None and sea["dispersion"] is None and sea["dispersion_peak_period_s"] is None
+    assert sea["dispersion_note"] == f"not computed: it needs 8 frames, {len(times)} given"
+    assert f"no space-time evidence: it needs 8 frames, {len(times)} given" in rep.message
+    page = report._html({"spectrum": sea, "stages": {}}, [])
+    assert f"space-time spectrum: not computed: it needs 8 frames, {len(times)} given" in page
+    assert "n/a times more energy" not in page
 
 
 

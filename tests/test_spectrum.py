@@ -460,3 +460,24 @@ def test_structural_errors():
         sample_waves(jax.random.key(0), (2.0, 8.0), 10)
     with pytest.raises(ValueError, match="band must be a pair"):
         moments(SEA, 3.0)
+
+
+def test_sample_waves_warns_when_the_sampled_sea_folds():
+    import warnings
+
+    from jaxocean import surface
+    from jaxocean.spectrum import FoldingWarning, SteepnessWarning
+
+    # a steep short sea: each wave is clamped to k h <= 1 but the sum folds the trochoid
+    steep = Spectrum(hs=2.5, tp=3.0, gamma=3.3, theta_mean=0.0, s_max=10.0)
+    with pytest.warns(FoldingWarning, match="fold the trochoid surface"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SteepnessWarning)  # the clamping one; FoldingWarning is caught above
+            warnings.simplefilter("always", FoldingWarning)
+            sea = sample_waves(jax.random.key(0), steep, 60)
+    assert float(sea.total_steepness) > 1
+    xy = np.random.default_rng(0).uniform(0, 200, (20000, 2)).astype(np.float32)
+    assert float(jnp.min(surface.fold_determinant(sea.waves, xy, 0.0))) <= 0
+    # a gentle sea draws no warning (pytest turns warnings into errors)
+    gentle = sample_waves(jax.random.key(0), Spectrum(hs=0.3, tp=8.0, gamma=1.0, theta_mean=0.0, s_max=10.0), 60)
+    assert float(gentle.total_steepness) < 1

@@ -368,3 +368,35 @@ def test_values_and_gradients_finite_over_valid_domain(kh, omega, theta, t, foot
     assert np.isfinite(val)
     for g in grads:
         assert np.all(np.isfinite(g))
+
+
+def _wave_pair(kh, theta2=0.0):
+    """Two waves of k h = ``kh`` each, the second turned by ``theta2``, crests aligned at X = 0, t = 0."""
+    omega = np.array([1.0, 1.3])
+    k = omega**2 / GRAVITY
+    return make_waves(kh / k, omega, np.array([0.0, theta2]), np.array([0.0, 0.0]), dtype=np.float64)
+
+
+def test_fold_determinant_matches_finite_differences_of_surface_points(x64):
+    waves = random_waves(4, 7, np.float64, max_steepness=0.3)
+    xy = np.random.default_rng(5).uniform(-30, 30, (16, 2))
+    t, eps = 1.7, 1e-5
+
+    def horizontal(p):
+        return np.asarray(surface.surface_point(waves, p, t))[..., :2]
+
+    dx = (horizontal(xy + [eps, 0]) - horizontal(xy - [eps, 0])) / (2 * eps)
+    dy = (horizontal(xy + [0, eps]) - horizontal(xy - [0, eps])) / (2 * eps)
+    expected = dx[:, 0] * dy[:, 1] - dx[:, 1] * dy[:, 0]
+    np.testing.assert_allclose(surface.fold_determinant(waves, xy, t), expected, atol=1e-8)
+    assert float(jnp.min(surface.fold_determinant(make_waves([0.0], [1.0], [0.0]), xy, t))) == 1.0  # flat
+
+
+def test_fold_determinant_detects_a_folding_wave_pair(x64):
+    # each wave is within k h <= 1, but aligned crests sum to 1.4 > 1: the surface folds there
+    xy = np.stack(np.meshgrid(np.linspace(-20, 20, 81), np.linspace(-20, 20, 81)), -1)
+    folding = surface.fold_determinant(_wave_pair(0.7, 0.3), xy, 0.0)
+    assert float(jnp.min(folding)) < 0
+    assert float(surface.fold_determinant(_wave_pair(0.7, 0.3), np.zeros(2), 0.0)) < 0  # at the aligned crests
+    gentle = surface.fold_determinant(_wave_pair(0.3, 0.3), xy, 0.0)
+    assert float(jnp.min(gentle)) > 0.3  # 1 - sum k h = 0.4 is the worst case

@@ -384,7 +384,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
                         steps_per_epoch=config.steps_per_epoch, key=jax.random.fold_in(key, 2), signature=signature,
                         patience=config.patience, time_budget_s=budget, on_best=on_best, parallel=parallel,
-                        progress=progress, stop_after_steps=stop_after_steps)
+                        progress=progress, stop_after_steps=stop_after_steps, network="geometry")
     summary = {"config": config.to_json(), "stopped": result["stopped"], "steps": result["steps"],
                "best_val_loss": result["best"], "wall_s_this_call": time.perf_counter() - t0,
                "train_s": result["history"][-1]["wall_s"] if result["history"] else None,
@@ -492,8 +492,7 @@ def _score_frames(method, data: Dataset, windows, per_scene: bool = False, timin
         sums = {k: float(v) for k, v in sums.items()}
         if per_scene:
             scenes[s] = _finish(sums)
-        for k, v in sums.items():
-            total[k] = total.get(k, 0.0) + v
+        total = metrics.merge(total, sums)
     out = _finish(total)
     if per_scene:
         out["scenes"] = scenes

@@ -7,9 +7,14 @@ Inputs have leading axes ``(...)`` (frames, batch) over images ``(H, W)``: ``nor
 ``mask (..., H, W)`` bool (sea pixels; only they are scored), ``yaw (...)`` the camera
 yaw (radians) that defines the along-view direction ``(cos yaw, sin yaw)``.
 
-* :func:`normal_scores` -> dict of sums over sea pixels (add them over batches, then
-  :func:`finish`): angle error, ``1 - cos``, counts within 1/2/5/10/15 degrees, slope
-  errors along and across the view, and the slope sums needed for the skill.
+* :func:`normal_scores` -> dict of sums over sea pixels (combine them over batches with
+  :func:`merge`, then :func:`finish`): angle error, ``1 - cos``, counts within 1/2/5/10/15
+  degrees, slope errors along and across the view, and the true slopes' sum and sum of
+  squares about their mean (``*_m2``) that the skill needs.
+* :func:`merge(a, b)` -> the sums of both batches: added, the ``*_m2`` by Chan et al.'s
+  pairwise rule (in float64), so that the skill's denominator never comes from
+  ``sum s^2 - (sum s)^2 / N``, which cancels catastrophically in float32 for slopes whose
+  mean is large against their spread.
 * :func:`finish(sums)` -> the scores: ``normal_mae`` (mean angle error, radians: the
   paper's "normal MAE"), ``cos_loss`` (mean ``1 - cos``: its "CosSim loss"),
   ``within_{k}deg`` (fraction), ``skill_along`` / ``skill_across`` / ``skill`` (the slope
@@ -37,7 +42,8 @@ import numpy as np
 
 from jaxocean._math import angle_between, slope_from_normal
 
-__all__ = ["THRESHOLDS_DEG", "UNFOLDED_MIN_COS", "slopes", "normal_scores", "roughness_scores", "image_scores", "finish"]
+__all__ = ["THRESHOLDS_DEG", "UNFOLDED_MIN_COS", "slopes", "normal_scores", "roughness_scores", "image_scores", "merge",
+           "finish"]
 
 THRESHOLDS_DEG = (1, 2, 5, 10, 15)
 # the slope -n_xy / n_z diverges as a facet turns vertical (trochoid crests fold where k h
@@ -71,9 +77,13 @@ def normal_scores(pred, true, mask, yaw) -> dict:
     out["unfolded_pixels"] = unfolded.sum()
     for name, p, t in (("along", pa, ta), ("across", pc, tc)):
         for prefix, w in (("", m), ("unfolded_", unfolded)):
+            total = (t * w).sum()
+            mean = total / jnp.maximum(w.sum(), 1.0)
             out[f"{prefix}{name}_err_sq"] = (jnp.square(p - t) * w).sum()
-            out[f"{prefix}{name}_sum"] = (t * w).sum()
-            out[f"{prefix}{name}_sq_sum"] = (jnp.square(t) * w).sum()
+            out[f"{prefix}{name}_sum"] = total
+            # about the batch's mean (two passes): sum t^2 - (sum t)^2 / N loses every digit
+            # in float32 when the slopes' mean is large against their spread
+            out[f"{prefix}{name}_m2"] = (jnp.square(t - mean) * w).sum()
     return out
 
 
@@ -90,6 +100,31 @@ def image_scores(pred_display, true_display, mask) -> dict:
     return {"image_err_sq": (jnp.square(pred_display - true_display).mean(-1) * m).sum()}
 
 
+_COUNTS = {"": "pixels", "unfolded_": "unfolded_pixels"}
+
+
+def merge(a: dict, b: dict) -> dict:
+    """The sums of two batches' :func:`normal_scores` (and the other scores' sums) as one,
+    in float64: every sum added, each ``*_m2`` (sum of squares about the mean) merged by
+    Chan et al.'s rule ``m2_a + m2_b + n_a n_b / (n_a + n_b) (mean_a - mean_b)^2``. An
+    empty ``a`` (``{}``) starts an accumulation."""
+    a = {k: float(np.asarray(v, np.float64)) for k, v in a.items()}
+    b = {k: float(np.asarray(v, np.float64)) for k, v in b.items()}
+    if not a:
+        return b
+    out = {k: a.get(k, 0.0) + b.get(k, 0.0) for k in a.keys() | b.keys()}
+    for key in out:
+        if not key.endswith("_m2"):
+            continue
+        prefix = "unfolded_" if key.startswith("unfolded_") else ""
+        na, nb = a[_COUNTS[prefix]], b[_COUNTS[prefix]]
+        if na > 0 and nb > 0:
+            total = key[:-len("_m2")] + "_sum"
+            delta = a[total] / na - b[total] / nb
+            out[key] += na * nb / (na + nb) * delta ** 2
+    return out
+
+
 def finish(sums: dict) -> dict:
     """Turn accumulated sums into scores (see the module docstring)."""
     s = {k: float(np.asarray(v, np.float64)) for k, v in sums.items()}
@@ -98,12 +133,12 @@ def finish(sums: dict) -> dict:
     out = {"normal_mae": s["angle_sum"] / n, "cos_loss": s["one_minus_cos_sum"] / n}
     for k in THRESHOLDS_DEG:
         out[f"within_{k}deg"] = s[f"within_{k}deg_count"] / n
-    for prefix, count in (("", n), ("unfolded_", max(s.get("unfolded_pixels", 0.0), 1.0))):
-        if f"{prefix}along_sum" not in s:
+    for prefix in _COUNTS:
+        if f"{prefix}along_m2" not in s:
             continue
         err, var = 0.0, 0.0
         for name in ("along", "across"):
-            v = s[f"{prefix}{name}_sq_sum"] - s[f"{prefix}{name}_sum"] ** 2 / count
+            v = s[f"{prefix}{name}_m2"]
             out[f"{prefix}skill_{name}"] = 1.0 - s[f"{prefix}{name}_err_sq"] / v if v > 0 else float("nan")
             err, var = err + s[f"{prefix}{name}_err_sq"], var + v
         out[f"{prefix}skill"] = 1.0 - err / var if var > 0 else float("nan")

@@ -20,7 +20,8 @@ step, history, best score, epochs without improvement), written atomically every
 the same arguments continues from it -- the batches already consumed in the current epoch
 are skipped -- so a killed run, rerun, ends where an uninterrupted run ends (tested
 bit-for-bit on the CPU). A checkpoint written with other settings (``signature``) is an
-error, not silently mixed.
+error, not silently mixed; one written for another network (``network``, e.g. a wave
+network's run given to the geometry network's training) is refused as such in one line.
 
 Data parallel. With more than one local device (GPUs, or CPU devices made with
 ``XLA_FLAGS=--xla_force_host_platform_device_count=N``) :func:`data_parallel` puts the
@@ -134,7 +135,7 @@ def loss_terms(spec: str, allowed: tuple) -> tuple:
 def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: Callable, epochs: int,
                steps_per_epoch: int, key, signature: dict, checkpoint_every: int = 200, patience: int = 5,
                time_budget_s: float | None = None, on_best: Callable | None = None, parallel: DataParallel | None = None,
-               progress: bool = True, stop_after_steps: int | None = None) -> dict:
+               progress: bool = True, stop_after_steps: int | None = None, network: str | None = None) -> dict:
     """Run (or resume) training; returns ``{"state", "history", "best", "stopped", "steps"}``.
 
     ``stopped`` says why it ended: ``"epochs"``, ``"early_stopping"``, ``"time_budget"`` (read
@@ -142,6 +143,10 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
     ``"step_limit"`` (``stop_after_steps``: end the process after that many steps of this
     call, as a crash would -- used to test resuming). Ctrl-C saves the checkpoint after the
     step in progress and raises ``KeyboardInterrupt``. Counts below 1 are a ``ValueError``.
+    ``network`` names what is trained (``"geometry"``, ``"waves"``), kept in the checkpoint:
+    a run directory of another network is a :class:`CheckpointError` that says so, not a
+    list of every setting that differs (a checkpoint without one is compared by its settings
+    alone).
     """
     for name, value in (("epochs", epochs), ("steps_per_epoch", steps_per_epoch), ("patience", patience),
                         ("checkpoint_every", checkpoint_every)):
@@ -157,6 +162,9 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
            "epoch_logs": {}}
     if ckpt.exists():
         meta = load_tree(ckpt, None, meta_only=True)
+        if network is not None and meta.get("network") not in (None, network):
+            raise CheckpointError(ckpt, f"belongs to the training of a {meta['network']} network, not of a "
+                                  f"{network} network; use a new --out directory")
         if meta.get("signature") != signature:
             changed = _differences(meta.get("signature"), signature)
             raise CheckpointError(ckpt, f"was written by a run with other settings ({'; '.join(changed[:4])}"
@@ -168,7 +176,7 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
     state = parallel.state(state)
 
     def save():
-        save_tree(ckpt, state, {"signature": signature, "position": pos})
+        save_tree(ckpt, state, {"signature": signature, "position": pos, "network": network})
 
     bar = None
     if progress:

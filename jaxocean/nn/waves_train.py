@@ -291,7 +291,8 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
                         signature={"config": config.to_json(), "dataset": data.settings, "devices": parallel.size},
                         patience=config.patience,
                         time_budget_s=None if config.time_budget_minutes is None else 60 * config.time_budget_minutes,
-                        on_best=on_best, parallel=parallel, progress=progress, stop_after_steps=stop_after_steps)
+                        on_best=on_best, parallel=parallel, progress=progress, stop_after_steps=stop_after_steps,
+                        network="waves")
     hist = result["history"]
     summary = {"config": config.to_json(), "dataset": str(data.root), "stopped": result["stopped"],
                "steps": result["steps"], "best_val_loss": result["best"],
