@@ -530,6 +530,13 @@ def test_the_sea_figure_of_no_wave_draws_no_wave(tmp_path):
     assert Path(path).stat().st_size > Path(tmp_path / "sea.png").stat().st_size
 
 
+def _flat_geometry(n_frames, size=32):
+    """A stage-2 geometry stand-in: a flat, smooth sea over the whole view."""
+    return SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (n_frames, size, size, 1)),
+                           roughness=np.full((n_frames, size, size), 1e-3, np.float32),
+                           mask=np.ones((n_frames, size, size), bool))
+
+
 def _figure_titles(monkeypatch, draw):
     """The axes titles and texts of the figure ``draw()`` saves (captured before it closes)."""
     from jaxocean import plots
@@ -597,9 +604,7 @@ def test_the_dispersion_check_reports_its_direction_in_degrees(tmp_path):
     # dispersion check too, not its library azimuth in radians
     files, scene_json, _, times = _scene(tmp_path)
     seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
-    geo = SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (len(times), 32, 32, 1)),
-                          roughness=np.full((len(times), 32, 32), 1e-3, np.float32),
-                          mask=np.ones((len(times), 32, 32), bool))
+    geo = _flat_geometry(len(times))
     check = SimpleNamespace(success=False, message="stub", ratio=1.0, shell_fraction=0.1, null_fraction=0.1,
                             peak_period_s=2.0, peak_direction=0.5, peak_wavelength_m=6.0, peak_at_band_edge=False,
                             current=np.zeros(2))
@@ -619,9 +624,7 @@ def test_a_dispersion_check_without_enough_frames_is_reported_not_computed(tmp_p
 
     files, scene_json, _, times = _scene(tmp_path)
     seq, _ = rc.load_sequence(files, scene_json, width=32, response="bruneton")
-    geo = SimpleNamespace(normal=np.tile(np.asarray([0.0, 0.0, 1.0], np.float32), (len(times), 32, 32, 1)),
-                          roughness=np.full((len(times), 32, 32), 1e-3, np.float32),
-                          mask=np.ones((len(times), 32, 32), bool))
+    geo = _flat_geometry(len(times))
     (sea, check, _), rep = rc.sea_stage(seq, jo.make_waves([0.0], [1.0], [0.0]), geo, waves_ok=False)
     assert check is None and sea["dispersion"] is None and sea["dispersion_peak_period_s"] is None
     assert sea["dispersion_note"] == f"not computed: it needs 8 frames, {len(times)} given"
