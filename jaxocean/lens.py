@@ -59,8 +59,9 @@ Newton steps on the full map add the tangential terms. For ``k1 = -0.21, k2 = 0.
 640 x 480 image (fx = 376 px) the float64 round trip is exact to 1e-13 px (``tests/test_lens.py``
 checks < 1e-9 px, and < 1e-3 px over random lenses that :func:`fold_problem` accepts); in
 float32 to 6.1e-5 px, one rounding step of a coordinate near 640. Tangential terms can fold
-the full map (Jacobian determinant <= 0) where the radial part alone is one-to-one, which
-:func:`fold_problem` does not check: there the result is the damped iteration's best point.
+the full map (Jacobian determinant <= 0) where the radial part alone is one-to-one
+(:func:`fold_problem` refuses such a lens for an image it folds): there the result is the
+damped iteration's best point.
 Beyond the one-to-one range of a lens (e.g. ``k2 = 0``, ``k1 < 0`` at ``r^2 > 1 / (-3 k1)``) the Brown--Conrady polynomial
 folds back and points far outside the field of view project *into* the image; callers that
 project arbitrary points must limit the undistorted radius (:func:`max_radius`), and a lens
@@ -334,24 +335,48 @@ def max_radius(distortion: Distortion, *, limit: float = 10.0, samples: int = 40
 def fold_problem(distortion: Distortion, intrinsics: Intrinsics, image_size) -> str | None:
     """None when every pixel of an image of ``image_size = (W, H)`` has a ray; else what is
     wrong, in words that name the lens. The radial distortion ``r (1 + k1 r^2 + k2 r^4)``
-    must not fold back (:func:`max_radius`; tangential terms aside) before it reaches the
-    image's farthest corner, or the pixels beyond the fold (the view's lowest rays, the
-    horizon's ends) undistort to meaningless rays. Host side: concrete scalar leaves."""
+    must not fold back (:func:`max_radius`) before it reaches the image's farthest corner, or
+    the pixels beyond the fold (the view's lowest rays, the horizon's ends) undistort to
+    meaningless rays; nor may the tangential terms fold the full map inside that range (its
+    Jacobian determinant <= 0: measured, k1 = -0.54, k2 = 0.132, p = (0.001, -0.002) at
+    fx = 158 on 640 x 480 passes the radial test and folds). Host side: concrete scalar leaves."""
     limit = 10.0
     r = float(max_radius(Distortion(*(np.float64(v) for v in distortion)), limit=limit))
-    if r >= limit:
-        return None
-    k1, k2 = float(distortion.k1), float(distortion.k2)
-    reach = r * (1 + k1 * r * r + k2 * r ** 4)
     (W, H), (fx, fy, cx, cy) = image_size, (float(v) for v in intrinsics)
     corner = max(math.hypot((u - cx) / fx, (v - cy) / fy) for u in (-0.5, W - 0.5) for v in (-0.5, H - 0.5))
+    if r >= limit:
+        return _tangential_fold(distortion, r, corner)
+    k1, k2 = float(distortion.k1), float(distortion.k2)
+    reach = r * (1 + k1 * r * r + k2 * r ** 4)
     if corner <= reach:
-        return None
+        return _tangential_fold(distortion, r, corner)
     return (f"k1 = {k1:g}, k2 = {k2:g} is not one-to-one over the image: the distortion folds back "
             f"at the undistorted radius {r:.3g}, where it reaches {reach:.3g}, and the "
             f"image's farthest corner lies at {corner:.3g} (normalised, (u - cx) / fx): the pixels "
             f"beyond have no ray (check the coefficients' signs, and that they belong to these "
             f"intrinsics)")
+
+
+def _tangential_fold(distortion: Distortion, fold_radius: float, corner: float) -> str | None:
+    """What is wrong when the full map (tangential terms included) folds within the undistorted
+    radius the image reaches (its radial inverse of ``corner``, 5% beyond, at most
+    ``fold_radius``): its Jacobian determinant sampled on a polar grid; None where it stays > 0."""
+    k1, k2, p1, p2 = (float(v) for v in distortion)
+    if p1 == 0 and p2 == 0:
+        return None  # the radial test above is exact for a radial lens
+    r = np.linspace(0.0, fold_radius, 4096)
+    reach = r * (1 + k1 * r * r + k2 * r ** 4)  # increasing up to the fold radius
+    r_image = min(1.05 * r[min(int(np.searchsorted(reach, corner)), r.size - 1)], fold_radius)
+    radius, angle = np.meshgrid(np.linspace(0.0, r_image, 256), np.linspace(0.0, 2 * np.pi, 512, endpoint=False))
+    xy = np.stack([radius * np.cos(angle), radius * np.sin(angle)], -1)
+    a, b, c, d = _distort_jacobian(xy, k1, k2, p1, p2)
+    least = float(np.min(a * d - b * c))
+    if least > 0:
+        return None
+    return (f"p1 = {p1:g}, p2 = {p2:g} with k1 = {k1:g}, k2 = {k2:g} is not one-to-one over the image: "
+            f"the tangential terms fold the distortion (Jacobian determinant down to {least:.3g}) within "
+            f"the undistorted radius {r_image:.3g} the image reaches: some pixels have no ray (check the "
+            f"coefficients' signs, and that they belong to these intrinsics)")
 
 
 # --------------------------------------------------------------------------- projection

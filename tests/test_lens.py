@@ -260,9 +260,8 @@ def test_pixel_rays_gradients(x64):
 
 def _random_accepted_lenses(count, seed=3):
     """Seeded lenses that fold_problem accepts over a 640 x 480 frame: strong barrel,
-    pincushion with negative k2 (folding just beyond the corners), tangential terms. Those
-    whose tangential terms fold the full map inside the frame (Jacobian determinant <= 0,
-    which fold_problem does not check) are skipped: they have pixels with no inverse."""
+    pincushion with negative k2 (folding just beyond the corners), tangential terms; each
+    checked here too for a full-map Jacobian determinant > 0 inside the frame."""
     rng = np.random.default_rng(seed)
     found = []
     while len(found) < count:
@@ -279,9 +278,19 @@ def _random_accepted_lenses(count, seed=3):
                                                                  [639.5, -0.5]]), K), Distortion(k1, k2))
         inside = np.hypot(xy[..., 0], xy[..., 1]) <= 1.05 * float(jnp.linalg.norm(corner, axis=-1).max())
         a, b, c, d = lens._distort_jacobian(jnp.asarray(xy), *(jnp.float64(v) for v in D))
-        if float(jnp.min(jnp.where(inside, a * d - b * c, 1.0))) > 0:
-            found.append((D, K))
+        assert float(jnp.min(jnp.where(inside, a * d - b * c, 1.0))) > 0, (D, K)  # fold_problem's promise
+        found.append((D, K))
     return found
+
+
+def test_fold_problem_names_tangential_terms_that_fold_the_frame(x64):
+    # the radial test alone passed this lens, whose full map folds inside the frame (Jacobian
+    # determinant -0.0048): pixels with no inverse; 0.135 for k2 is one-to-one
+    K = Intrinsics(158.0, 158.0, 319.5, 239.5)
+    problem = lens.fold_problem(Distortion(-0.54, 0.132, 0.001, -0.002), K, (W_REAL, H_REAL))
+    assert problem is not None and "p1 = 0.001, p2 = -0.002" in problem and "tangential" in problem
+    assert lens.fold_problem(Distortion(-0.54, 0.132), K, (W_REAL, H_REAL)) is None
+    assert lens.fold_problem(Distortion(-0.54, 0.135, 0.001, -0.002), K, (W_REAL, H_REAL)) is None
 
 
 def test_undistort_inverts_any_accepted_lens_over_the_frame(x64):
