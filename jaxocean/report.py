@@ -23,6 +23,7 @@ Every file is written atomically (:func:`jaxocean.files.atomic_write`).
 from __future__ import annotations
 
 import html
+import math
 from pathlib import Path
 
 import numpy as np
@@ -197,8 +198,8 @@ def _stage_note(stage) -> str:
 def _html(data, figures) -> str:
     s = data["spectrum"]
 
-    def num(v, fmt="{:.3g}"):
-        return "n/a" if v is None else fmt.format(v)
+    def num(v, fmt="{:.3g}"):  # a NaN (an unconfirmed estimate) reads as missing, not "nan"
+        return "n/a" if v is None or math.isnan(v) else fmt.format(v)
 
     rows = "".join(
         f"<tr><td>{html.escape(n)}</td><td class={'ok' if st['success'] else 'bad'}>"

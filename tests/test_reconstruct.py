@@ -617,6 +617,17 @@ def test_the_dispersion_check_reports_its_direction_in_degrees(tmp_path):
         assert sea["dispersion_note"] is None
 
 
+def test_the_report_headline_shows_nan_numbers_as_missing():
+    # an estimate the run could not make (NaN in the result) printed as "Hs = nan m"
+    from jaxocean import report
+
+    sea = {"hs_m": float("nan"), "hs_std_m": None, "tp_s": 6.0, "tp_std_s": float("nan"),
+           "direction_deg": float("nan"), "success": False}
+    page = report._html({"spectrum": sea, "stages": {}}, [])
+    assert "nan" not in page.lower()
+    assert "Hs = n/a m" in page and "Tp = 6 s &plusmn; n/a" in page
+
+
 def test_a_dispersion_check_without_enough_frames_is_reported_not_computed(tmp_path):
     # with fewer frames than the space-time check needs, the report's headline read "n/a times
     # more energy on the dispersion shell" and result.json gave nulls with no reason
