@@ -270,15 +270,6 @@ def _sun_start(y_cam, args, st: _Static):
     return ph.starts(data, init_pq, fixed, ph.COLOR_FIELDS, grid=st.grid, n_starts=1)[0]
 
 
-def _lighting_at(y, args, st: _Static, level: int):
-    """The lighting of parameters ``y``: the known one, or the fitted sun with its projected
-    colours at that level's geometry."""
-    if not st.fit_lighting:
-        return args[6]
-    data = _data(y, args, st.fit, st.plans[level], st.levels[level])
-    return ph.finish(data, y[len(st.fit):], _sun_and_colors(y, data, args[6], st.fit, True)[1])
-
-
 def _score(fn, y, args):
     r = fn(y, args)
     loss = jnp.sum(r * r)
@@ -319,7 +310,12 @@ def _core(image, weight, waves, t, init, hg, light, noise, time_noise, st: _Stat
             hists.append(jnp.pad(out.history, (0, st.max_steps - limit), mode="edge"))
     y = out.params
     c = _unpack(y[: len(st.fit)], init, st.fit)
-    light = _lighting_at(y, args, st, len(st.levels) - 1)
+    if st.fit_lighting:  # the fitted sun with its projected colours at the finest level's geometry
+        data = _data(y, args, st.fit, st.plans[-1], st.levels[-1])
+        direction, colors = _sun_and_colors(y, data, args[6], st.fit, True)
+        light = ph.finish(data, y[len(st.fit):], colors)
+    else:
+        light = args[6]
     loss = 2 * out.loss
     hist = None if out.history is None else 2 * jnp.stack(hists)
     success = out.success & jnp.isfinite(loss) & (c.height > 0) & (jnp.abs(c.pitch) < jnp.pi / 2)
@@ -328,9 +324,8 @@ def _core(image, weight, waves, t, init, hg, light, noise, time_noise, st: _Stat
     success = success & (loss <= bound)
     if st.fit_lighting:
         success = success & (light.sun_elevation > 0)
-    if st.fit_lighting:
-        std["sun_direction"], determined["sun_direction"] = _sun_uncertainty(y, args, st, std.pop("_pq"))
-        colors_std, colors_determined = _color_uncertainty(y, args, st, image, weight, noise)
+        std["sun_direction"], determined["sun_direction"] = _sun_uncertainty(data, direction, colors, std.pop("_pq"))
+        colors_std, colors_determined = _color_uncertainty(y, args, st, colors, image, weight, noise)
         std.update(colors_std)
         determined.update(colors_determined)
     else:
@@ -368,28 +363,26 @@ def _uncertainty(fn, y, args, camera_at, fit, image, weight, noise, time_noise):
     return std, determined, time_loss
 
 
-def _sun_uncertainty(y, args, st: _Static, sd_pq):
+def _sun_uncertainty(data: ph.Data, direction, colors, sd_pq):
     """``(std, determined)`` of a jointly fitted sun direction, as :func:`jaxocean.fit.lighting.lighting`
     reports it: ``std`` [rad] the RMS of the standard deviations ``sd_pq (2,)`` of its ``(p, q)``,
     determined below ``DETERMINED_SUN_DEG`` and where its glitter is seen (above ``SUN_SEEN``
-    of the weighted image energy, at the finest level). An image that shows no glitter (a sun
-    behind the camera) is explained as well with the sun anywhere, or with no sun at all."""
-    data = _data(y, args, st.fit, st.plans[-1], st.levels[-1])
-    direction, colors = _sun_and_colors(y, data, args[6], st.fit, True)
+    of the weighted image energy in ``data``, the finest level's, with the fitted ``direction``
+    and ``colors``). An image that shows no glitter (a sun behind the camera) is explained as
+    well with the sun anywhere, or with no sun at all."""
     glitter = lf.glitter_share(data, ph.columns(data, direction)["sun_color"], colors["sun_color"])
     std = jnp.sqrt(jnp.sum(sd_pq * sd_pq))
     return std, (std < math.radians(lf.DETERMINED_SUN_DEG)) & (glitter > lf.SUN_SEEN)
 
 
-def _color_uncertainty(y, args, st: _Static, image, weight, noise):
+def _color_uncertainty(y, args, st: _Static, colors, image, weight, noise):
     """``(std, determined)`` of the jointly fitted colours, ``{name: (3,)}`` and ``{name: ()
     bool}``: Gauss-Newton standard deviations from ``J^T J`` of the residual in the camera
     fields, the sun's ``(p, q)`` and the nine colour channels (all marginalised; the colours
     are solved in closed form inside the fit, so the fit's own Jacobian has no column for
     them), determined as :func:`jaxocean.fit.lighting.lighting` determines a colour. A colour
-    the image does not show (the sea's under a bright sky reflection, say) is no measurement."""
-    data = _data(y, args, st.fit, st.plans[-1], st.levels[-1])
-    _, colors = _sun_and_colors(y, data, args[6], st.fit, True)
+    the image does not show (the sea's under a bright sky reflection, say) is no measurement.
+    ``colors``: the fitted ones at ``y``."""
     n = y.shape[0]
 
     def residual(p):
