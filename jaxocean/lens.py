@@ -313,23 +313,17 @@ def undistort(xy_distorted, distortion: Distortion, *, iterations: int = UNDISTO
     return jax.lax.fori_loop(0, int(iterations), step, target + (start - jax.lax.stop_gradient(target)))
 
 
-def max_radius(distortion: Distortion, *, limit: float = 10.0, samples: int = 4096) -> jax.Array:
+def max_radius(distortion: Distortion, *, limit: float = 10.0) -> jax.Array:
     """The undistorted radius up to which the radial distortion is one-to-one.
 
-    The smallest ``r`` in ``(0, limit]`` where ``d r_d / d r = 1 + 3 k1 r^2 + 5 k2 r^4`` drops
-    to 0, or ``limit`` when it stays positive (searched on a grid of ``samples`` radii, so the
-    result is a slight under-estimate). Points beyond it are outside any image this lens
-    makes, though :func:`project` may put them inside; tangential terms are ignored.
+    The smallest ``r > 0`` where ``d r_d / d r = 1 + 3 k1 r^2 + 5 k2 r^4`` drops to 0 (a closed
+    form, the one :func:`undistort` solves within), capped at ``limit``. Points beyond it are
+    outside any image this lens makes, though :func:`project` may put them inside; tangential
+    terms are ignored.
     """
     dtype = _dtype(distortion)
     k1, k2, _, _ = _leaves(distortion, dtype)
-    r = jnp.linspace(0, limit, samples, dtype=dtype)[1:]
-    r2 = r * r
-    slope = 1 + 3 * k1[..., None] * r2 + 5 * k2[..., None] * r2 * r2
-    bad = slope <= 0
-    first_bad = jnp.argmax(bad, axis=-1)
-    # the last good radius before the first bad one
-    return jnp.where(bad.any(axis=-1), r[jnp.maximum(first_bad - 1, 0)], jnp.asarray(limit, dtype))
+    return jnp.minimum(_fold_radius(k1, k2), jnp.asarray(limit, dtype))
 
 
 def fold_problem(distortion: Distortion, intrinsics: Intrinsics, image_size) -> str | None:

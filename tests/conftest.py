@@ -4,8 +4,8 @@
   warning is filtered.
 * ``key`` gives a fresh PRNG key per test; ``x64`` switches 64-bit floats on for one test
   (gradient checks run there).
-* The command line's persistent XLA compilation cache is off (``make test`` gives its
-  workers one fresh cache of its own for the run, through ``JAX_COMPILATION_CACHE_DIR``).
+* The command line's persistent XLA compilation cache is off: every worker compiles its own
+  programs (hermetic runs).
 * hypothesis: a small deterministic profile so `make test` stays fast and reproducible.
 """
 

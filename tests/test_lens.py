@@ -92,8 +92,13 @@ def test_distort_matches_opencv_formula_with_tangential_terms(x64):
 
 def test_max_radius():
     # k2 = 0, k1 < 0: r_d(r) = r (1 + k1 r^2) turns back at r = 1 / sqrt(-3 k1)
-    assert float(lens.max_radius(Distortion(-0.21))) == pytest.approx(1 / math.sqrt(0.63), abs=3e-3)
+    assert float(lens.max_radius(Distortion(-0.21))) == pytest.approx(1 / math.sqrt(0.63), rel=1e-6)
     assert float(lens.max_radius(D_REAL)) == 10.0  # monotonic for every radius
+    # pincushion with k2 < 0: the slope 1 + 3 k1 s + 5 k2 s^2 (s = r^2) vanishes at its positive root
+    k1, k2 = 0.6, -0.25
+    s = (-3 * k1 - math.sqrt(9 * k1 * k1 - 20 * k2)) / (10 * k2)
+    assert float(lens.max_radius(Distortion(k1, k2))) == pytest.approx(math.sqrt(s), rel=1e-6)
+    assert float(lens.max_radius(Distortion(k1, k2), limit=1.0)) == 1.0
 
 
 def test_float32_follows_inputs():
