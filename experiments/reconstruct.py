@@ -175,28 +175,39 @@ def main(argv=None):
     ap.add_argument("--variants", default="clean,noise01,noise03,jpeg")
     ap.add_argument("--frames", type=int, default=32)
     ap.add_argument("--dt", type=float, default=0.25)
-    ap.add_argument("--work", default="out/reconstruct_experiment")
+    ap.add_argument("--work", default=None, help="folder for the frames and each run's outputs (default "
+                    "out/reconstruct_experiment/NAME, so runs under other names never overwrite each other)")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--name", default="reconstruct", help="results file stem (finished runs in it are kept)")
+    ap.add_argument("--name", default="reconstruct", help="results file stem (finished runs in it are kept when "
+                    "they were made with the same settings; --fresh redoes them)")
+    ap.add_argument("--fresh", action="store_true", help="ignore the finished runs in the results file")
     ap.add_argument("--geometry-model", default=None, help="stage 2's network: a shipped model's name (cpu, gpu) or "
                     "a model file (default: reconstruct's default, cpu)")
     args = ap.parse_args(argv)
     splits = json.loads((Path(args.dataset) / "splits.json").read_text())
     scenes = splits["test"][: args.scenes]
     out_json = RESULTS / f"{args.name}.json"
+    work = Path(args.work or f"out/reconstruct_experiment/{args.name}")
+    settings = dict(dataset=str(args.dataset), frames=args.frames, dt=args.dt, seed=args.seed,
+                    geometry_model=args.geometry_model)
     rows = []
-    if out_json.exists():  # resume: keep finished runs
-        rows = json.loads(out_json.read_text()).get("rows", [])
+    if out_json.exists() and not args.fresh:  # resume: keep the finished runs made with these settings
+        previous = json.loads(out_json.read_text())
+        if previous.get("settings") != settings:
+            sys.exit(f"{out_json} holds runs made with other settings ({previous.get('settings')}, now {settings}): "
+                     f"pass --fresh to redo them, or another --name")
+        rows = previous.get("rows", [])
+        print(f"keeping {len(rows)} finished run(s) from {out_json} (--fresh redoes them)", flush=True)
     done = {(r["scene"], r["variant"]) for r in rows}
     for index in scenes:
         for variant in args.variants.split(","):
             if (index, variant) in done:
                 continue
             print(f"--- scene {index} {variant}", flush=True)
-            rows.append(run_one(args.dataset, index, variant, Path(args.work), frames=args.frames, dt=args.dt,
+            rows.append(run_one(args.dataset, index, variant, work, frames=args.frames, dt=args.dt,
                                 seed=args.seed, geometry_model=args.geometry_model))
             RESULTS.mkdir(exist_ok=True)
-            out_json.write_text(json.dumps(dict(paper_table2=PAPER_TABLE2, rows=rows), indent=1))
+            out_json.write_text(json.dumps(dict(settings=settings, paper_table2=PAPER_TABLE2, rows=rows), indent=1))
     _chart(rows, RESULTS / f"{args.name}.png")
     print(json.dumps(rows, indent=1))
 

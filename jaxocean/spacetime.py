@@ -404,7 +404,8 @@ def sea_spectrum(normals, camera, times, *, mask=None, grid: int | None = None, 
     period = 2 * math.pi / math.sqrt(GRAVITY * k_peak)
     summary = (f"band {band_m[0]:.1f}-{band_m[1]:.1f} m: Hs of the band {hs:.3g} +- {hs_std:.2g} m, peak period "
                f"{period:.2f} s" + (" (at the band's long-wave edge: the sea's Tp is longer)" if at_edge else "")
-               + f", floor {noise_fraction:.0%} of the shell's power")
+               + f", floor {noise_fraction:.0%} of the shell's power"
+               + (" (the shell holds no power above the floor)" if noise_fraction >= 1 else ""))
     message = (("sea spectrum: " if success else f"sea spectrum dominated by its floor (more than "
                 f"{max_noise_fraction:.0%}): ") + summary)
     return SeaSpectrum(hs, hs_std, period, bool(at_edge), direction, direction_std, spread, tail_alpha,

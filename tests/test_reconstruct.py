@@ -432,6 +432,11 @@ def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_pat
         return SimpleNamespace(success=True, message="dispersive", peak_period_s=period, peak_at_band_edge=edge)
 
     assert rc.waves_stage(seq, stack, frames=None, evidence=images(1.2 * tp, False))[1].success
+    # the images peak at the slopes' period, shorter than the sea's: 2.5 times shorter is
+    # within 2 x 1.5, 3.5 times is not
+    assert rc.waves_stage(seq, stack, frames=None, evidence=images(tp / 2.5, False))[1].success
+    _, rep = rc.waves_stage(seq, stack, frames=None, evidence=images(tp / 3.5, False))
+    assert not rep.success and "is not the images'" in rep.message
     _, rep = rc.waves_stage(seq, stack, frames=None, evidence=images(3.0 * tp, False))
     assert not rep.success and "is not the images'" in rep.message
     assert rep.details["peak_period_s"] == pytest.approx(tp)

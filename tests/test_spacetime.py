@@ -172,6 +172,8 @@ def test_sea_spectrum_removes_noise_that_is_white_in_time(normals_sequence):
     # the frames in random order: no dispersion, the floor is everything
     shuffled = spacetime.sea_spectrum(normals_sequence[rng.permutation(len(LONG_TIMES))], camera, LONG_TIMES)
     assert not shuffled.success and "dominated by its floor" in shuffled.message
+    # a floor at or above the shell's power is said in words, not only as a share over 100%
+    assert ("holds no power above the floor" in shuffled.message) == (shuffled.noise_fraction >= 1)
 
 
 def test_grid_must_be_a_whole_number_of_points():
