@@ -190,7 +190,8 @@ def build_parser():
                                    "with --real); on request, fit the lighting of its first frame from a random "
                                    "start and re-edit it (lighting_fit.png), and fit the waves of a small swell "
                                    "from its geometry and forecast it (wave_fit.png, forecast_strip.png). Summary "
-                                   "in summary.json.")
+                                   "in summary.json. The demo's frames are 1/3 s apart unless --dt is given (24 "
+                                   "frames: 8 s, long enough to separate the waves from a still pattern).")
     p.add_argument("--out", default="out/demo", help="output directory (default out/demo)")
     p.add_argument("--stages", default="render,reconstruct,real",
                    help="comma-separated stages: render (always), reconstruct (the rendered frames as 8-bit PNG, "
@@ -428,6 +429,12 @@ _DEMO_FIGURES = {"lighting": ("lighting_fit.png",), "waves": ("wave_fit.png", "f
                  "reconstruct": ("reconstruct_vs_truth.png",)}
 
 
+#: the demo's frame step [s] unless --dt is given: its 24 frames span 8 s, long enough for the
+#: images' space-time evidence and the geometry's spectrum to separate waves of a 5.5 s sea
+#: from a still pattern (0.1 s, the other commands' default, spans 2.4 s: too short for either)
+DEMO_DT = 1 / 3
+
+
 def cmd_demo(args):
     import imageio.v3 as iio
     import jax
@@ -435,6 +442,8 @@ def cmd_demo(args):
     from jaxocean import plots
     from jaxocean.io.dataset import render_scene
 
+    if args.dt is None:
+        args.dt = DEMO_DT
     _scene_option_values(args)
     stages = {s.strip() for s in args.stages.split(",") if s.strip()}
     unknown = stages - {"render", "lighting", "waves", "reconstruct", "real"}

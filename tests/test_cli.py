@@ -457,6 +457,9 @@ def test_demo_render_stage_and_bad_stage(tmp_path, capsys):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == 2 and "lighting_fit" not in summary
     assert (out / "contact_sheet.png").exists() and (out / "animation.gif").exists()
+    # the demo's own frame step (its 24 frames span 8 s), not the other commands' 0.1 s
+    from jaxocean.io.scene import read_scene
+    assert np.diff(np.asarray(read_scene(out / "render" / "scene.json").times)) == pytest.approx(cli.DEMO_DT)
     assert cli.main(["demo", "--out", str(tmp_path / "d2"), "--stages", "render,paint", "--frames", "1",
                      "--res", "8", "--waves", "4"]) == 2
     assert "unknown demo stages ['paint']" in capsys.readouterr().err
