@@ -18,7 +18,8 @@ Compiled programs are kept between runs in XLA's persistent cache (``~/.cache/ja
 
 Exit codes: 0 success, 1 a check found problems or a fit did not succeed (its JSON is
 still written, with ``success: false``), 2 bad input (the message names it), 130
-interrupted (the message says what was kept; only ``simulate`` resumes). Errors print
+interrupted (the message says what was kept; ``simulate``, ``train-geometry`` and
+``train-waves`` resume). Errors print
 ``jaxocean: error: ...`` on stderr, not a traceback. Every file is written atomically
 (:func:`jaxocean.files.atomic_write`).
 

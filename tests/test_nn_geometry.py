@@ -274,6 +274,21 @@ def test_training_resumes_to_the_uninterrupted_result(tiny_dataset, tmp_path):
     assert model.config == TINY
 
 
+def test_an_epoch_longer_than_the_train_split_trains_as_the_split_allows(tiny_dataset, tmp_path, capsys):
+    # 20 train frames hold 2 batches of 8: asking for 50 steps an epoch takes the same 2 steps,
+    # and the cosine decay spans the 4 steps taken (it spanned 100 and never decayed; the
+    # progress bar counted 4 of 100 steps and its ETA with them)
+    config = TINY_TRAIN._replace(batch_size=8, epochs=2, steps_per_epoch=2)
+    exact = gt.train(tiny_dataset, tmp_path / "exact", config, progress=False)
+    capsys.readouterr()
+    longer = gt.train(tiny_dataset, tmp_path / "longer", config._replace(steps_per_epoch=50), progress=True)
+    assert exact["steps"] == longer["steps"] == 4
+    for a, b in zip(jax.tree.leaves(exact["state"]), jax.tree.leaves(longer["state"])):
+        np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
+    bar = capsys.readouterr().err
+    assert "4/4" in bar and "/100" not in bar
+
+
 @pytest.mark.slow  # compiles the four discriminators' alternating step
 def test_gan_step_updates_networks_and_discriminators(tiny_dataset):
     config = TINY_TRAIN._replace(losses="image+gan")

@@ -104,6 +104,27 @@ def test_ctrl_c_keeps_the_step_in_progress_and_resumes_to_the_same_end(tmp_path)
         np.testing.assert_array_equal(np.asarray(a), np.asarray(b))
 
 
+def test_a_run_killed_after_its_last_epoch_keeps_that_epoch_in_its_history(tmp_path, monkeypatch):
+    import json
+
+    from jaxocean.nn import training
+
+    write_json = training.write_json
+
+    def killed_at_the_last_epoch(path, history):
+        if len(history) == 3:
+            raise KeyboardInterrupt  # as a kill between the epoch's checkpoint and its history
+        write_json(path, history)
+
+    monkeypatch.setattr(training, "write_json", killed_at_the_last_epoch)
+    with pytest.raises(KeyboardInterrupt):
+        _toy(tmp_path)
+    monkeypatch.setattr(training, "write_json", write_json)
+    again = _toy(tmp_path)
+    assert len(again["history"]) == 3
+    assert json.loads((tmp_path / "history.json").read_text()) == again["history"]
+
+
 def test_a_crop_longer_than_one_side_takes_that_whole_side():
     frames = jnp.arange(8 * 24, dtype=jnp.float32).reshape(1, 8, 24, 1)
     (window,) = gt._crop(jax.random.key(0), [frames], 16, 8, 24)  # a gather out of range before

@@ -325,3 +325,31 @@ def test_predict_refuses_a_model_with_nan_parameters(tiny_model):
     params["mlp"] = params["mlp"][:-1] + ({**params["mlp"][-1], "b": params["mlp"][-1]["b"].at[0].set(np.nan)},)
     with pytest.raises(ValueError, match="outputs are not finite"):
         wn.predict(tiny_model._replace(params=params), normals, rough, CAMERA, TIMES)
+
+
+def test_an_epoch_spans_at_most_the_train_split_in_the_loop_and_the_schedule(tmp_path, monkeypatch):
+    # three train scenes hold three batches of one: an epoch of 100 steps takes 3, and the
+    # cosine decay must span the 2 x 3 steps taken (it spanned 200 and never decayed)
+    from jaxocean.io.dataset import Dataset
+
+    data = object.__new__(Dataset)  # the settings train reads before its loop, no files
+    data.root, data.settings, data.resolution, data.n_frames = tmp_path, {"toy": 1}, (16, 16), 4
+    data.splits = {"train": [0, 1, 2], "val": [3], "test": []}
+    seen = {}
+    make_step = wt.make_step
+
+    def step_of(config, total_steps=None):
+        seen["total_steps"] = total_steps
+        return make_step(config, total_steps)
+
+    def loop(out, **kwargs):
+        seen["steps_per_epoch"] = kwargs["steps_per_epoch"]
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(wt, "make_step", step_of)
+    monkeypatch.setattr(wt, "train_loop", loop)
+    config = wt.TrainConfig(name="tiny", model=TINY, losses="geometry", epochs=2, steps_per_epoch=100, batch_size=1,
+                            time_budget_minutes=None)
+    with pytest.raises(KeyboardInterrupt):
+        wt.train(data, tmp_path / "run", config, progress=False)
+    assert seen == {"steps_per_epoch": 3, "total_steps": 6}

@@ -51,7 +51,7 @@ from jaxocean.nn import augment as aug
 from jaxocean.nn import discriminators as disc
 from jaxocean.nn import geometry as geo
 from jaxocean.nn import metrics
-from jaxocean.nn.training import check_split_holds_batch, data_parallel, loss_terms, train_loop
+from jaxocean.nn.training import check_split_holds_batch, data_parallel, epoch_steps, loss_terms, train_loop
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "variant", "train", "evaluate", "flat_method", "model_method",
            "augmented_method", "pixel_method"]
@@ -245,11 +245,12 @@ def init_state(config: TrainConfig, key):
 
 
 @functools.lru_cache(maxsize=8)
-def make_step(config: TrainConfig):
+def make_step(config: TrainConfig, total_steps: int | None = None):
     """The jitted ``step(state, batch, key) -> (state, logs)`` of ``config`` (one compiled
-    function per config)."""
+    function per config); the learning rate decays over ``total_steps`` (default: every
+    epoch's ``steps_per_epoch``)."""
     terms = config.terms()
-    total = config.epochs * config.steps_per_epoch
+    total = config.epochs * config.steps_per_epoch if total_steps is None else total_steps
     g_opt = _optimizer(config, total)
     d_opt = optax.adam(config.learning_rate, b1=0.5, b2=0.999, eps=1e-8)
 
@@ -351,7 +352,6 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
         raise ValueError(f"the 'gan' loss needs at least 2 frames per scene (its temporal discriminators compare "
                          f"consecutive frames); {data.root} has {data.n_frames} (simulate with --frames 2 or more, "
                          f"or train without gan)")
-    step = make_step(config)
 
     def batches(epoch):
         for b in data.batches(jax.random.fold_in(key, 1000 + epoch), "train", config.batch_size, sequence):
@@ -361,8 +361,11 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     if not val_windows or not data.windows("train"):
         raise ValueError(f"{data.root}: the dataset's train or validation split is empty "
                          f"({len(data.splits['train'])} / {len(data.splits['val'])} scenes); simulate at least 7 scenes")
-    check_split_holds_batch(data.root, "train", len(data.windows("train", sequence)),
-                            "frames" if sequence == 1 else f"runs of {sequence} frames", config.batch_size)
+    n_windows = len(data.windows("train", sequence))
+    check_split_holds_batch(data.root, "train", n_windows, "frames" if sequence == 1 else f"runs of {sequence} frames",
+                            config.batch_size)
+    steps_per_epoch = epoch_steps(config.steps_per_epoch, n_windows, config.batch_size)
+    step = make_step(config, config.epochs * steps_per_epoch)
 
     def validate(state):
         model = geo.GeometryModel(config.model, state["g"])
@@ -382,7 +385,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     budget = None if config.time_budget_minutes is None else 60.0 * config.time_budget_minutes
     t0 = time.perf_counter()
     result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
-                        steps_per_epoch=config.steps_per_epoch, key=jax.random.fold_in(key, 2), signature=signature,
+                        steps_per_epoch=steps_per_epoch, key=jax.random.fold_in(key, 2), signature=signature,
                         patience=config.patience, time_budget_s=budget, on_best=on_best, parallel=parallel,
                         progress=progress, stop_after_steps=stop_after_steps, network="geometry")
     summary = {"config": config.to_json(), "stopped": result["stopped"], "steps": result["steps"],

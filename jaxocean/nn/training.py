@@ -54,7 +54,7 @@ from jaxocean.errors import is_integer
 from jaxocean.files import write_json
 from jaxocean.nn.checkpoint import CheckpointError, load_tree, save_tree
 
-__all__ = ["data_parallel", "train_loop", "loss_terms", "CHECKPOINT", "HISTORY", "CURVES"]
+__all__ = ["data_parallel", "train_loop", "loss_terms", "epoch_steps", "CHECKPOINT", "HISTORY", "CURVES"]
 
 CHECKPOINT = "checkpoint.npz"
 HISTORY = "history.json"
@@ -241,9 +241,12 @@ def train_loop(run_dir, *, state, step: Callable, batches: Callable, validate: C
                     pos["stopped"] = "early_stopping"
                 elif time_budget_s is not None and pos["train_s"] >= time_budget_s:
                     pos["stopped"] = "time_budget"
-                save()
+                # the history before the checkpoint: a run killed between the two redoes the
+                # epoch and writes it again; the other way round an ended run kept a history
+                # (and curves) without its last epoch, the rerun having nothing left to do
                 write_json(run_dir / HISTORY, pos["history"])
                 _plot_curves(run_dir / CURVES, pos["history"])
+                save()
                 if bar is not None:
                     bar.write(f"epoch {pos['epoch']}: " + ", ".join(f"{k} {v:.4g}" for k, v in scores.items()))
     finally:
@@ -275,6 +278,14 @@ def check_split_holds_batch(root, split: str, count: int, unit: str, batch_size:
                 if unit == "scenes" else "more scenes or frames")
         raise ValueError(f"{root}: the {split} split ({count} {unit}) must hold a batch ({batch_size}); simulate "
                          f"{more}, or train with a smaller batch")
+
+
+def epoch_steps(steps_per_epoch: int, items: int, batch_size: int) -> int:
+    """The steps an epoch takes: ``steps_per_epoch`` at most, fewer when the train split's
+    ``items`` run out first (the last, incomplete batch is dropped). What the progress bar
+    counts and the learning-rate schedule spans: a schedule over steps that are never taken
+    would not decay (a 25 x 200-step cosine on 15 batches an epoch ended at 99% of its rate)."""
+    return max(1, min(steps_per_epoch, items // batch_size))
 
 
 def scenes_for_train_split(train_scenes: int) -> int:

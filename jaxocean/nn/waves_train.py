@@ -49,7 +49,7 @@ import optax
 from jaxocean.files import write_json
 from jaxocean.io.dataset import Dataset
 from jaxocean.nn import waves as wn
-from jaxocean.nn.training import check_split_holds_batch, data_parallel, loss_terms, train_loop
+from jaxocean.nn.training import check_split_holds_batch, data_parallel, epoch_steps, loss_terms, train_loop
 from jaxocean.waves import GRAVITY, Waves
 
 __all__ = ["TrainConfig", "CONFIGS", "LOSS_TERMS", "geometry_loss", "supervised_loss", "make_step", "init_state",
@@ -163,9 +163,10 @@ def _losses(config: TrainConfig, params, batch, key, train: bool):
 
 
 @functools.lru_cache(maxsize=8)
-def make_step(config: TrainConfig):
-    """The jitted ``step(state, batch, key) -> (state, logs)`` of ``config``."""
-    opt = _optimizer(config, config.epochs * config.steps_per_epoch)
+def make_step(config: TrainConfig, total_steps: int | None = None):
+    """The jitted ``step(state, batch, key) -> (state, logs)`` of ``config``; the learning
+    rate decays over ``total_steps`` (default: every epoch's ``steps_per_epoch``)."""
+    opt = _optimizer(config, config.epochs * config.steps_per_epoch if total_steps is None else total_steps)
 
     @jax.jit
     def step(state, batch, key):
@@ -266,7 +267,8 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     out = Path(out)
     key = jax.random.key(config.seed)
     state = init_state(config, key)
-    step = make_step(config)
+    steps_per_epoch = epoch_steps(config.steps_per_epoch, len(train_ids), config.batch_size)
+    step = make_step(config, config.epochs * steps_per_epoch)
 
     def batches(epoch):
         order = np.asarray(jax.random.permutation(jax.random.fold_in(key, 1000 + epoch), len(train_ids)))
@@ -285,7 +287,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
                 {"train_config": config.to_json(), "dataset": str(data.root), "best": best_meta})
 
     result = train_loop(out, state=state, step=step, batches=batches, validate=validate, epochs=config.epochs,
-                        steps_per_epoch=config.steps_per_epoch, key=key,
+                        steps_per_epoch=steps_per_epoch, key=key,
                         # as train-geometry: the sharded step's rounding depends on the device count, so a
                         # resume on another count would not end where the uninterrupted run ends
                         signature={"config": config.to_json(), "dataset": data.settings, "devices": parallel.size},
