@@ -106,9 +106,19 @@ _SCENE_OPTION_DEFAULTS = {
 }
 
 
-def _add_scene_options(p):
+#: the demo's frame step [s] unless --dt is given: its 24 frames span 8 s, long enough for the
+#: images' space-time evidence and the geometry's spectrum to separate waves of a 5.5 s sea
+#: from a still pattern (0.1 s, the other commands' default, spans 2.4 s: too short for either)
+DEMO_DT = 1 / 3
+
+
+def _add_scene_options(p, **defaults):
+    """The scene options of command ``p``; ``defaults`` replace :data:`_SCENE_OPTION_DEFAULTS`'
+    for this command (its help says them)."""
     # defaults are filled in by _scene_option_values, so that an option given beside a SCENE
     # file (which sets every one of them) is seen and refused, not silently ignored
+    defaults = {**_SCENE_OPTION_DEFAULTS, **defaults}
+    p.set_defaults(scene_option_defaults=defaults)
     g = p.add_argument_group("scene (used when no SCENE file is given)")
     g.add_argument("--hs", type=float, default=None, help="significant wave height [m] (default 1.2)")
     g.add_argument("--tp", type=float, default=None, help="peak period [s] (default 5.5)")
@@ -132,19 +142,20 @@ def _add_scene_options(p):
                    "along +x unless --camera-yaw-deg turns it")
     g.add_argument("--sun-elevation", type=inputs.sun_elevation_degrees, default=None,
                    help="sun elevation [deg]")
-    g.add_argument("--frames", type=inputs.positive_int, default=None, help="number of frames (default 24)")
-    g.add_argument("--dt", type=inputs.positive_float, default=None, help="time between frames [s] (default 0.1)")
+    g.add_argument("--frames", type=inputs.positive_int, default=None, help=f"number of frames (default {defaults['frames']})")
+    g.add_argument("--dt", type=inputs.positive_float, default=None, help=f"time between frames [s] (default {defaults['dt']:.4g})")
 
 
 def _scene_option_values(args, scene_file=None) -> None:
-    """Fill the scene options' defaults into ``args``; with a ``scene_file``, refuse any that
-    was given (the file sets them all)."""
-    given = [name for name in _SCENE_OPTION_DEFAULTS if getattr(args, name) is not None]
+    """Fill the scene options' defaults (the command's, :func:`_add_scene_options`) into
+    ``args``; with a ``scene_file``, refuse any that was given (the file sets them all)."""
+    defaults = args.scene_option_defaults
+    given = [name for name in defaults if getattr(args, name) is not None]
     if scene_file and given:
         options = ", ".join("--" + name.replace("_", "-") for name in given)
         raise ValueError(f"{options}: scene options apply only without a SCENE; {scene_file} sets the scene "
                          f"(edit it, or use reedit to change its camera or light)")
-    for name, default in _SCENE_OPTION_DEFAULTS.items():
+    for name, default in defaults.items():
         if getattr(args, name) is None:
             setattr(args, name, default)
 
@@ -203,7 +214,7 @@ def build_parser():
                         "views), waves (wave fit of a small swell from its true geometry -> forecast strip); "
                         "default render,reconstruct,real")
     p.add_argument("--real", help="directory with a camera.json and its frames (real footage) for the real stage")
-    _add_scene_options(p)
+    _add_scene_options(p, dt=DEMO_DT)
 
     p = sub.add_parser("fit-lighting", help="fit sun direction and colours to one EXR frame",
                        description="Fit the sun direction and the sun, sky and sea colours to one EXR frame with "
@@ -430,12 +441,6 @@ _DEMO_FIGURES = {"lighting": ("lighting_fit.png",), "waves": ("wave_fit.png", "f
                  "reconstruct": ("reconstruct_vs_truth.png",)}
 
 
-#: the demo's frame step [s] unless --dt is given: its 24 frames span 8 s, long enough for the
-#: images' space-time evidence and the geometry's spectrum to separate waves of a 5.5 s sea
-#: from a still pattern (0.1 s, the other commands' default, spans 2.4 s: too short for either)
-DEMO_DT = 1 / 3
-
-
 def cmd_demo(args):
     import imageio.v3 as iio
     import jax
@@ -443,8 +448,6 @@ def cmd_demo(args):
     from jaxocean import plots
     from jaxocean.io.dataset import render_scene
 
-    if args.dt is None:
-        args.dt = DEMO_DT
     _scene_option_values(args)
     stages = {s.strip() for s in args.stages.split(",") if s.strip()}
     unknown = stages - {"render", "lighting", "waves", "reconstruct", "real"}

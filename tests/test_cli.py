@@ -800,6 +800,8 @@ def test_demo_help_names_what_its_default_stages_write(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "(by default reconstruct and real)" in out and "reconstruct_vs_truth.png" in out
     assert "on request, fit the lighting" in out
+    # its --dt help says the demo's own default step, not the other commands' 0.1 s
+    assert "time between frames [s] (default 0.3333)" in out and "(default 0.1)" not in out
 
 
 def test_demo_rerun_with_fewer_stages_leaves_no_old_figure(tmp_path, capsys):
