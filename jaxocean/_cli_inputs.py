@@ -7,7 +7,8 @@
   input: :func:`check_memory` (a render's estimated peak memory, :func:`render_bytes`,
   against :func:`available_memory`), :func:`check_out_dir`, :func:`check_out_file`,
   :func:`refuse_other_json` (a JSON file of another kind than the command takes, named by
-  :func:`jaxocean.io.scene.json_kind`), :func:`check_frames`, :func:`check_increasing`.
+  :func:`jaxocean.io.scene.json_kind`), :func:`refuse_out_over_source`, :func:`check_frames`,
+  :func:`check_increasing`.
 * Readers: :func:`scene_from_args` / :func:`scene_from_file` (a ``SceneSample``; the file's with its seed),
   :func:`lighting_from_file`, :func:`camera_from_args` and
   :func:`lighting_from_args` (``--camera-*``, ``--res``, ``--lighting``, ``--sun-*``).
@@ -32,6 +33,7 @@ from jaxocean.io.scene import refuse_other_kind
 __all__ = ["resolution_arg", "parse_list", "index_list", "number_list", "positive_int", "positive_float",
            "fov_degrees", "pitch_degrees", "sun_elevation_degrees",
            "DeprecatedAlias", "render_bytes", "available_memory", "check_memory", "check_out_dir", "check_out_file",
+           "refuse_out_over_source",
            "refuse_other_json", "scene_from_args", "scene_from_file", "lighting_from_file",
            "radians_or_none", "camera_from_args", "lighting_from_args", "check_frames", "check_increasing",
            "gigabytes"]
@@ -238,6 +240,19 @@ def check_out_dir(path) -> Path:
         raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory there)")
     _check_out_parents(path)
     return path
+
+
+def refuse_out_over_source(out, source, command: str) -> None:
+    """ValueError when ``--out`` is the directory whose scene.json ``source`` (a scene file or
+    its directory) is: the scene written there would replace the frames and scene it is made
+    from, which are then lost (an output directory holds one scene)."""
+    from jaxocean.io.scene import SCENE_FILENAME
+
+    source = Path(source)
+    source_file = source / SCENE_FILENAME if source.is_dir() else source
+    if source_file.resolve() == (Path(out) / SCENE_FILENAME).resolve():
+        raise ValueError(f"--out {out}: holds the scene {command} reads ({source_file}); writing there would "
+                         f"replace the frames it is made from. Give another directory")
 
 
 def check_out_file(path, example: str) -> Path:

@@ -25,7 +25,8 @@ interrupted (the message says what was kept; ``simulate``, ``train-geometry`` an
 
 Bad input refused before any work: a resolution and frame count whose render would not fit
 in memory (estimated from ``H x W x frames``, compared with the available memory), counts
-below 1, an ``--out`` directory that is an existing file, a dataset directory that does
+below 1, an ``--out`` directory that is an existing file, the directory of the scene that
+``reedit`` or ``forecast`` reads (its frames would be replaced), a dataset directory that does
 not exist, a file of another kind than the command takes (a PNG for an EXR frame, a
 lighting fit for a scene: the message says which it is), the waves of a fit that reported
 failure (``forecast``, unless ``--allow-failed``).
@@ -605,6 +606,7 @@ def cmd_reedit(args):
     from jaxocean.io import read_scene
 
     inputs.check_out_dir(args.out)
+    inputs.refuse_out_over_source(args.out, args.scene, "reedit")
     inputs.refuse_other_json(args.scene, "reedit needs a scene: a scene directory or scene.json with waves, camera, "
                                    "lighting and times")
     scene = read_scene(args.scene)
@@ -786,6 +788,7 @@ def cmd_forecast(args):
     from jaxocean.waves import Waves
 
     inputs.check_out_dir(args.out)
+    inputs.refuse_out_over_source(args.out, args.waves, "forecast")
     inputs.refuse_other_json(args.waves, "forecast needs waves (a fit-waves result or a scene.json)")
     scene = read_scene(args.waves)
     if scene.waves is None:

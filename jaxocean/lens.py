@@ -353,14 +353,12 @@ def fold_problem(distortion: Distortion, intrinsics: Intrinsics, image_size) -> 
 
 def _tangential_fold(distortion: Distortion, fold_radius: float, corner: float) -> str | None:
     """What is wrong when the full map (tangential terms included) folds within the undistorted
-    radius the image reaches (its radial inverse of ``corner``, 5% beyond, at most
+    radius the image reaches (:func:`_radial_inverse` of ``corner``, 5% beyond, at most
     ``fold_radius``): its Jacobian determinant sampled on a polar grid; None where it stays > 0."""
     k1, k2, p1, p2 = (float(v) for v in distortion)
     if p1 == 0 and p2 == 0:
         return None  # the radial test above is exact for a radial lens
-    r = np.linspace(0.0, fold_radius, 4096)
-    reach = r * (1 + k1 * r * r + k2 * r ** 4)  # increasing up to the fold radius
-    r_image = min(1.05 * r[min(int(np.searchsorted(reach, corner)), r.size - 1)], fold_radius)
+    r_image = min(1.05 * float(_radial_inverse(np.float64(corner), k1, k2, _RADIAL_STEPS)), fold_radius)
     radius, angle = np.meshgrid(np.linspace(0.0, r_image, 256), np.linspace(0.0, 2 * np.pi, 512, endpoint=False))
     xy = np.stack([radius * np.cos(angle), radius * np.sin(angle)], -1)
     a, b, c, d = _distort_jacobian(xy, k1, k2, p1, p2)

@@ -314,6 +314,22 @@ def test_forecast_renders_requested_frames(tiny_scene, tmp_path, capsys):
     assert "frame_00002.exr/png: frame 500, t = 75 s" in capsys.readouterr().out
 
 
+def test_reedit_and_forecast_refuse_to_write_over_the_scene_they_read(tiny_scene, tmp_path, capsys):
+    # reedit SCENE --out SCENE --frames 1 replaced the source's frames by one re-edited frame
+    # (frames 0 and 2 lost) and its scene.json by one "reedited_from" itself
+    import shutil
+
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene, scene)
+    before = {p.name: p.read_bytes() for p in scene.iterdir()}
+    for argv in (["reedit", str(scene), "--frames", "1", "--out", str(scene)],
+                 ["reedit", str(scene / "scene.json"), "--out", str(scene / ".")],
+                 ["forecast", str(scene), "--frames", "0,5", "--out", str(scene)]):
+        assert cli.main(argv) == 2
+        assert "holds the scene" in capsys.readouterr().err
+    assert {p.name: p.read_bytes() for p in scene.iterdir()} == before
+
+
 def test_forecast_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     from jaxocean import io
 

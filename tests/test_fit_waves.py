@@ -1110,6 +1110,62 @@ def test_spectrum_tail_waves_and_errors(sampled_sea):
 
 
 
+def test_spectrum_names_waves_without_a_spectral_shape(sampled_sea):
+    # all at one frequency, or every amplitude 0, ended in "no admissible starting point";
+    # gamma = inf likewise, and a negative roughness_weight in a math domain error
+    _, waves = sampled_sea
+    one_frequency = waves._replace(omega=jnp.full_like(waves.omega, 1.2))
+    with pytest.raises(InvalidValueError, match="3 or more distinct frequencies.*got 1"):
+        fit_spectrum.spectrum(one_frequency)
+    with pytest.raises(InvalidValueError, match="carry no energy"):
+        fit_spectrum.spectrum(waves._replace(amplitude=jnp.zeros_like(waves.amplitude)))
+    with pytest.raises(InvalidValueError, match="gamma must be finite"):
+        fit_spectrum.spectrum(waves, gamma=float("inf"))
+    with pytest.raises(InvalidValueError, match="roughness_weight must be finite and >= 0"):
+        fit_spectrum.spectrum(waves, roughness_weight=-1.0)
+
+
+def test_correct_amplitudes_refuses_a_mask_or_waves_of_another_shape(sampled_sea):
+    # a (2, N) mask returned Waves whose amplitude was (2, N), a (1,) mask was broadcast over
+    # every wave, and no waves raised an IndexError
+    truth, waves = sampled_sea
+    for mask in (np.ones((2, 60), bool), np.ones(1, bool), np.ones(3, bool)):
+        with pytest.raises(ValueError, match=r"reliable must be a bool mask \(N,\) = \(60,\)"):
+            fit_spectrum.correct_amplitudes(waves, truth, reliable=mask)
+    with pytest.raises(InvalidValueError, match="at least one wave"):
+        fit_spectrum.correct_amplitudes(jax.tree.map(lambda leaf: leaf[:0], waves), truth)
+    with pytest.raises(ValueError, match=r"leaves \(N,\)"):
+        fit_spectrum.correct_amplitudes(jax.tree.map(lambda leaf: jnp.stack([leaf, leaf]), waves), truth)
+
+
+def test_correct_amplitudes_shares_a_frequency_bin_among_tied_waves(sampled_sea):
+    # tied frequencies got zero-width bins: waves all of one frequency all came back with
+    # amplitude 0, a spectrum's energy silently lost
+    truth, waves = sampled_sea
+    energy = lambda w: np.asarray(w.amplitude, np.float64) ** 2 / 2  # noqa: E731
+    peak = int(np.argmax(np.asarray(waves.amplitude)))  # a wave whose bin holds energy
+    lone = fit_spectrum.correct_amplitudes(jax.tree.map(lambda leaf: leaf[peak:peak + 1], waves), truth)
+    tied = fit_spectrum.correct_amplitudes(jax.tree.map(lambda leaf: jnp.repeat(leaf[peak:peak + 1], 4), waves),
+                                           truth)
+    np.testing.assert_allclose(energy(tied), energy(lone)[0] / 4, rtol=1e-5)
+    assert energy(lone)[0] > 1e-4
+    # one wave doubled: the pair shares the single wave's bin, every other wave keeps its own
+    doubled = jax.tree.map(lambda leaf: jnp.concatenate([leaf, leaf[5:6]]), waves)
+    single, pair = energy(fit_spectrum.correct_amplitudes(waves, truth)), energy(
+        fit_spectrum.correct_amplitudes(doubled, truth))
+    np.testing.assert_allclose(pair[[5, 60]], single[5] / 2, rtol=1e-5)
+    np.testing.assert_allclose(np.delete(pair[:60], 5), np.delete(single, 5), rtol=1e-5)
+
+
+def test_the_eager_spectrum_functions_say_so_under_jit(sampled_sea):
+    # under jit they failed inside NumPy with a TracerArrayConversionError
+    truth, waves = sampled_sea
+    for name, f in (("fit.spectrum", fit_spectrum.spectrum), ("fit.sea_state", fit_spectrum.sea_state),
+                    ("fit.correct_amplitudes", lambda w: fit_spectrum.correct_amplitudes(w, truth))):
+        with pytest.raises(ValueError, match=f"{name} runs eagerly"):
+            jax.jit(f)(waves)
+
+
 def test_spectrum_rejects_a_roughness_map_that_is_not_the_cameras(sampled_sea):
     # a map of the wrong size failed inside NumPy broadcasting (or, one image row, was
     # broadcast over the rows); a negative map was skipped as uninformative and the fit

@@ -222,12 +222,31 @@ def test_train_writes_a_loadable_model_and_resumes(tmp_path, monkeypatch):
     dataset.simulate(root, 12, 4, (16, 16), seed=2, progress=False)
     config = wt.TrainConfig(name="tiny", model=TINY, losses="geometry+supervised", epochs=2, steps_per_epoch=2,
                             batch_size=2, time_budget_minutes=None)
+    step_keys = []
+    make_step = wt.make_step
+
+    def recording_make_step(*args):
+        step = make_step(*args)
+
+        def recording_step(state, batch, key):
+            step_keys.append(jax.random.key_data(key))
+            return step(state, batch, key)
+        return recording_step
+
+    monkeypatch.setattr(wt, "make_step", recording_make_step)
     first = wt.train(root, tmp_path / "run", config, progress=False, stop_after_steps=3)
     assert first["stopped"] == "step_limit"
     # resumed with the same dataset given by a relative path: the same run, not "other settings"
     monkeypatch.chdir(tmp_path)
     summary = wt.train("data", tmp_path / "run", config, progress=False)
     assert summary["stopped"] == "epochs" and summary["steps"] == 4
+    # the step (dropout) keys are a stream apart from the seed key's fold_in stream, whose
+    # 1000 + e is epoch e's shuffle: step 1000 + e would otherwise reuse it
+    # (the resume redoes step 3, taken after the last checkpoint: 4 distinct keys)
+    seed_key = jax.random.key(config.seed)
+    seed_stream = {jax.random.key_data(jax.random.fold_in(seed_key, s)).tobytes() for s in range(4)}
+    assert len({k.tobytes() for k in step_keys}) == 4
+    assert not seed_stream & {k.tobytes() for k in step_keys}
     model = wn.load(tmp_path / "run" / "model.npz")
     assert model.config == TINY
     assert (tmp_path / "run" / "curves.png").exists()

@@ -104,7 +104,7 @@ from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean import spectrum as spec
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
-from jaxocean.errors import InvalidValueError, check_values
+from jaxocean.errors import InvalidValueError, check_values, is_concrete
 from jaxocean.waves import GRAVITY, Waves, validate
 
 __all__ = ["SpectrumFit", "spectrum", "correct_amplitudes", "tail_waves", "sea_state", "SeaState", "NOISE_FACTOR",
@@ -298,6 +298,7 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
 
 def sea_state(waves: Waves) -> SeaState:
     """Bulk parameters of a set of waves (eager, NumPy): see :class:`SeaState`."""
+    _require_eager("fit.sea_state", waves)
     validate(waves, max_steepness=None)
     if np.size(waves.omega) == 0:
         raise InvalidValueError("sea_state needs at least one wave; got none")
@@ -352,6 +353,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     from jaxocean.fit.waves import resolvable
 
     t0 = time.perf_counter()
+    _require_eager("fit.spectrum", waves, camera, roughness, reliable, determined)
     validate(waves, max_steepness=None)
     if waves.omega.ndim != 1:
         raise ValueError(f"fit.spectrum takes Waves with leaves (N,); got {waves.omega.shape}")
@@ -379,8 +381,18 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     determined = _wave_mask(np.ones(n, bool) if determined is None else determined, "determined", n)
     if reliable.sum() < MIN_WAVES:
         raise InvalidValueError(f"fit.spectrum needs at least {MIN_WAVES} reliable waves; got {int(reliable.sum())}")
+    # bins are set by distinct frequencies, and the energies are relative to their total: waves
+    # at fewer frequencies, or without energy, have no spectral shape (no starting point either)
+    n_freq = np.unique(np.asarray(waves.omega, np.float64)[reliable]).size
+    if n_freq < MIN_WAVES:
+        raise InvalidValueError(f"fit.spectrum needs reliable waves at {MIN_WAVES} or more distinct frequencies "
+                                f"(a peak, its width and a level); got {n_freq}")
+    if not np.any(np.asarray(waves.amplitude)[reliable] > 0):
+        raise InvalidValueError("fit.spectrum: the reliable waves carry no energy (every amplitude is 0)")
     if gamma is not None:
-        check_values(np.asarray(gamma) >= 1, "gamma must be >= 1", gamma)
+        check_values(np.isfinite(gamma) & (np.asarray(gamma) >= 1), "gamma must be finite and >= 1", gamma)
+    check_values(np.isfinite(roughness_weight) & (np.asarray(roughness_weight) >= 0),
+                 "roughness_weight must be finite and >= 0", roughness_weight)
     for name, value in (("noise", noise), ("roughness_noise", roughness_noise)):
         if value is not None:
             check_values(np.asarray(value) >= 0, f"{name} must be >= 0", value)
@@ -574,6 +586,13 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
                        edge_peak_misfit=edge_misfit)
 
 
+def _require_eager(name: str, *xs) -> None:
+    """ValueError for a NumPy (eager) function called under jit / vmap: its inputs are
+    tracers, which would fail deep inside NumPy."""
+    if not is_concrete(*xs):
+        raise ValueError(f"{name} runs eagerly (NumPy, data-dependent selections); call it outside jit/vmap")
+
+
 def _wave_mask(mask, name: str, n: int) -> np.ndarray:
     """``mask`` as a bool array ``(n,)``, one entry per wave (a clear error otherwise)."""
     mask = np.asarray(mask, bool)
@@ -763,19 +782,26 @@ def _lgamma(x):
 def correct_amplitudes(waves: Waves, spectrum_: spec.Spectrum, *, reliable=None) -> Waves:
     """The spectrum correction: waves not marked ``reliable`` (bool ``(N,)``; default none)
     get ``h = sqrt(2 int_bin S)`` of the fitted spectrum over their frequency bin
-    (geometric midpoints between neighbours); reliable waves keep their amplitude. Order
-    of the waves is kept. Steepness is capped at k h = 0.9 (no looping crests)."""
+    (geometric midpoints between neighbouring frequencies; waves at one frequency share
+    its bin's energy equally); reliable waves keep their amplitude. Order of the waves is
+    kept. Steepness is capped at k h = 0.9 (no looping crests). Eager (NumPy)."""
+    _require_eager("fit.correct_amplitudes", waves, spectrum_, reliable)
     validate(waves, max_steepness=None)
     spec.validate_spectrum(spectrum_)
+    if waves.omega.ndim != 1:
+        raise ValueError(f"correct_amplitudes takes Waves with leaves (N,); got {waves.omega.shape}")
     n = waves.omega.shape[0]
-    reliable = np.zeros(n, bool) if reliable is None else np.asarray(reliable, bool)
+    if n == 0:
+        raise InvalidValueError("correct_amplitudes needs at least one wave; got none")
+    reliable = np.zeros(n, bool) if reliable is None else _wave_mask(reliable, "reliable", n)
     om = np.asarray(waves.omega, np.float64)
-    order = np.argsort(om)
-    edges = _bin_edges(om[order])
+    # one bin per distinct frequency: a bin per wave would give tied waves zero-width bins
+    # (all of one frequency: every amplitude 0)
+    freqs, group, count = np.unique(om, return_inverse=True, return_counts=True)
+    edges = _bin_edges(freqs)
     params = jnp.asarray([math.log(float(spectrum_.hs)), math.log(float(spectrum_.tp)), float(spectrum_.gamma)])
     e = np.asarray(_bin_energy(params, jnp.asarray(edges, params.dtype)), np.float64)
-    h_spec = np.empty(n)
-    h_spec[order] = np.sqrt(2.0 * np.maximum(e, 0.0))
+    h_spec = np.sqrt(2.0 * np.maximum(e, 0.0)[group] / count[group])
     k = om * om / GRAVITY
     h_spec = np.minimum(h_spec, 0.9 / k)
     h = np.where(reliable, np.asarray(waves.amplitude, np.float64), h_spec)
