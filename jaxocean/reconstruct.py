@@ -474,6 +474,9 @@ def sea_stage(seq: Sequence, waves: Waves, geometry, *, std: Waves | None = None
                         "did not succeed) and the geometry's own spectrum, with the images' dispersion check, "
                         "gives none" if unconfirmed
                    else None if observed
+                   else f"Hs and Tp are not estimates: no JONSWAP spectrum explains the waves' energies (misfit "
+                        f"{sf.misfit:.3g} above its bound {sf.misfit_bound:.3g}); they are the closest one's"
+                   if sf is not None and not sf.misfit <= sf.misfit_bound
                    else "Hs and Tp are bounds, not estimates: the waves the fit determined do not show the "
                         "spectral peak (it lies outside their band, or one beyond it explains them as well)"
                    if sf is not None else "no wave was found: no sea state" if no_waves

@@ -1066,6 +1066,8 @@ def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
     both = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), wind, far)
     bad = fit_spectrum.spectrum(both)
     assert not bad.success and bad.misfit > 2 * bad.misfit_bound
+    # nor does it observe a peak: every edge spectrum misfits too, which passed the edge test
+    assert fit.peak_observed and not bad.peak_observed
     assert abs(fit.direction_misfit) <= fit_spectrum.DIRECTION_Z_MAX
     # two systems of one period from directions 3 rad apart: the frequency spectrum is one
     # JONSWAP's, and a broad spreading between them was reported a success

@@ -129,10 +129,11 @@ class SpectrumFit(NamedTuple):
     * ``steps``          solver steps.
     * ``n_waves``        number of waves the frequency and direction fits used.
     * ``omega_band``     ``(lo, hi)`` [rad/s] of the reliable waves' bins.
-    * ``peak_observed``  the fitted peak frequency lies inside ``omega_band`` (with
-      ``determined``: inside the measured bins' band) and the measured energies rule out
-      a peak at or beyond either edge: the best such spectrum's misfit
-      (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Hs and Tp are bounds: a
+    * ``peak_observed``  the fitted spectrum explains the energies (``misfit <=
+      misfit_bound``: no peak is observed by a spectrum that does not), its peak frequency
+      lies inside ``omega_band`` (with ``determined``: inside the measured bins' band) and
+      the measured energies rule out a peak at or beyond either edge: the best such
+      spectrum's misfit (``edge_peak_misfit``) exceeds ``misfit_bound``. If not, Hs and Tp are bounds: a
       peak fitted outside the band is pinned to its nearer edge and Hs refitted; one inside
       is kept (module docstring).
     * ``edge_peak_misfit`` the least ``misfit`` of a spectrum whose peak lies at or beyond
@@ -579,7 +580,10 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     return SpectrumFit(spectrum=fitted, loss=float(out.loss),
                        success=bool(out.success) and explained and directions_determined and one_spreading,
                        steps=int(out.steps), n_waves=int(len(om)), omega_band=(float(edges[0]), float(edges[-1])),
-                       peak_observed=peak_observed, alpha=float(alpha), time_s=time.perf_counter() - t0,
+                       # energies no spectrum of this family explains show no peak of it: the
+                       # edge test above is passed by every spectrum then, the one fitted too
+                       peak_observed=peak_observed and misfit <= bound, alpha=float(alpha),
+                       time_s=time.perf_counter() - t0,
                        misfit=misfit, misfit_bound=bound, roughness_misfit=rough_misfit, roughness_bound=rough_bound,
                        hs_std=float(hs_std), tp_std=float(tp_std), gamma_std=float(gamma_std),
                        theta_std=theta_std, s_max_std=s_max_std, direction_misfit=dir_misfit,
