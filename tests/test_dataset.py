@@ -151,6 +151,22 @@ def test_check_names_corrupt_and_missing_files(clean, tmp_path):
     assert len(problems) == 3
 
 
+def test_check_names_a_directory_where_the_manifest_has_a_file(clean, tmp_path):
+    # a directory of the recorded size in a frame's place stopped check with "[Errno 21] Is
+    # a directory" (exit code 2, "not a dataset") instead of reporting the problem
+    import shutil
+
+    copy = tmp_path / "copy"
+    shutil.copytree(clean[0], copy)
+    frame = copy / "scene_00001" / "frame_00000.exr"
+    frame.unlink()
+    frame.mkdir()
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["files"]["scene_00001/frame_00000.exr"]["bytes"] = frame.stat().st_size
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    assert dataset.check(copy, read_frames=False) == [f"{frame}: not a file"]
+
+
 def _copy(root, tmp_path):
     import shutil
 

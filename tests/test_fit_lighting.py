@@ -604,6 +604,51 @@ def test_camera_fit_rejects_bad_search_settings_before_work():
         fit.camera(image, waves, 0.0, true_cam, search=(np.int64(0), 1), **kw)
 
 
+def test_camera_fit_refuses_a_nonfinite_frame_time():
+    # a NaN time rendered NaN at every candidate and came back as some other camera
+    # (8.6 m / 0.37 rad from the true 10 m / 0.35 rad start) without a word
+    waves = _sea(n=2, seed=3, scale=0.15)
+    true_cam = cam.make_camera(height=6.0, pitch=0.25, fov=0.7, resolution=(4, 4))
+    image = jnp.ones((4, 4, 3), jnp.float32)
+    for t in (float("nan"), float("inf")):
+        with pytest.raises(InvalidValueError, match="frame time"):
+            fit.camera(image, waves, t, true_cam, lighting=shading.make_lighting(**TRUTHS[0]), plan=None, throw=False)
+
+
+def test_camera_fit_from_a_start_that_sees_no_sea_names_the_camera_fields():
+    # the message named the sun ("cannot fit ['sun_direction']") of a fit of height and pitch
+    waves = _sea(n=2, seed=3, scale=0.15)
+    above = cam.make_camera(height=6.0, pitch=-0.5, fov=0.7, resolution=(4, 4))  # looking up: sky alone
+    with pytest.raises(InvalidValueError, match=r"no selected pixel sees the sea: cannot fit \['height', 'pitch'\]$"):
+        fit.camera(jnp.ones((4, 4, 3)), waves, 0.0, above, lighting=shading.make_lighting(**TRUTHS[0]), plan=None,
+                   throw=False)
+
+
+@pytest.mark.slow  # a camera and a lighting fit, each traced twice
+def test_float32_fits_run_under_x64_as_without_it():
+    # float32 images (what load_image returns) with jax_enable_x64 on crashed every
+    # optimistix solver: its float64 step size against float32 parameters
+    waves = _sea(n=3, seed=1, scale=0.15)
+    camera = cam.make_camera(height=6.0, pitch=0.25, fov=0.7, resolution=(8, 10))
+    light = shading.make_lighting(**TRUTHS[0])
+    image, geo = render.render(waves, camera, light, 0.0, plan=None, with_geometry=True)
+    start = light._replace(sun_elevation=light.sun_elevation + 0.05)
+
+    def fits():
+        lit = fit.lighting(image, geo, camera, init=start, throw=False)
+        seen = fit.camera(image, waves, 0.0, _start(camera, 6.2, 0.26), lighting=light, plan=None, levels=(1,),
+                          search=(1, 1), n_starts=1, throw=False)
+        return lit.lighting, lit.loss, seen.camera, seen.loss, seen.success
+
+    plain = fits()
+    with jax.enable_x64(True):
+        wide = fits()
+    assert bool(plain[-1]) and float(plain[2].height) == pytest.approx(6.0, rel=1e-4)
+    for a, b in zip(jax.tree.leaves(plain), jax.tree.leaves(wide)):
+        assert np.asarray(b).dtype == np.asarray(a).dtype
+        np.testing.assert_array_equal(np.asarray(b), np.asarray(a))
+
+
 @pytest.mark.slow
 def test_camera_fit_under_jit_and_vmap(x64):
     # throw=False and an explicit plan: arrays only, one flag per start

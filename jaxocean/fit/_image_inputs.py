@@ -141,7 +141,8 @@ def validate_values(image, weight, geo_mask, camera, fit, used=None):
         if n:
             raise InvalidValueError(f"geometry.mask disagrees with the camera's sea mask on {n} pixel(s): "
                                     f"was the geometry made with another camera?")
-    needs_sea = [f for f in fit if f in ("sun_direction", "sun_color", "sea_color")]
+    # the lighting fields the sea shows, and the camera fields (seen through the waves)
+    needs_sea = [f for f in fit if f in ("sun_direction", "sun_color", "sea_color", "height", "pitch", "fov")]
     if needs_sea and not (np.any(w > 0, axis=-1) & sea).any():
         raise InvalidValueError(f"no selected pixel sees the sea: cannot fit {needs_sea}")
 

@@ -106,7 +106,7 @@ import numpy as np
 
 from jaxocean import camera as cam
 from jaxocean import hierarchy, render, shading
-from jaxocean.errors import check_nonnegative_number, is_concrete, is_integer
+from jaxocean.errors import check_finite, check_nonnegative_number, is_concrete, is_integer
 from jaxocean.fit import _plausibility
 from jaxocean.fit import _image_inputs as inp
 from jaxocean.fit import _photometry as ph
@@ -255,7 +255,7 @@ def _candidates(init, st: _Static, dtype):
         if "height" in st.fit:
             y = y.at[st.fit.index("height")].add(math.log(a))
         if "pitch" in st.fit:
-            y = y.at[st.fit.index("pitch")].add(b)
+            y = y.at[st.fit.index("pitch")].add(float(b))  # a Python float keeps a float32 y float32 under x64
         out.append(y)
     return jnp.stack(out).astype(dtype)
 
@@ -455,6 +455,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
         raise ValueError(f"fit= must be a non-empty subset of {CAMERA_FIELDS}; got {tuple(fit)}")
     fit = tuple(f for f in CAMERA_FIELDS if f in fit)
     validate(waves)
+    check_finite(t, "t (the frame time [s])")  # a NaN time rendered NaN at every candidate: a garbage camera
     if waves.omega.ndim != 1:
         raise ValueError(f"waves must have leaves (N,); got {waves.omega.shape}")
     spec = solvers.get_solver(solver)
@@ -485,7 +486,7 @@ def camera(image, waves: Waves, t, init: cam.Camera, *, lighting: Lighting | Non
     traced = not is_concrete(image, weight, waves, init, lighting, t)
     inp.check_tracing("fit.camera", traced, throw, spec, solver)
     used = inp.pixel_weights("uniform", mask, image.shape[:2], dtype)
-    inp.validate_values(image, weight, None, init, ("sun_direction",), used)
+    inp.validate_values(image, weight, None, init, fit + (("sun_direction",) if fit_lighting else ()), used)
     image = jnp.where(used > 0, image, 0.0)  # excluded NaN pixels stay out of the sums, traced or not
     if isinstance(plan, str):
         if plan != "auto":

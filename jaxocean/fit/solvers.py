@@ -214,9 +214,13 @@ def _optx_runner(name: str, kind: str):
         if unknown:  # optimistix takes no other option: a typo would be ignored
             raise ValueError(f"solver {name!r} takes the option 'norm' only; got {unknown}")
         solver = _optx_solver(name, rtol, atol, options)
-        if history:
-            return _optx_with_history(solver, kind, residual_fn, y0, args, max_steps)
-        sol = optx.least_squares(residual_fn, solver, y0, args, max_steps=max_steps, throw=False)
+        # optimistix starts its trust region / step size at jnp.array(1.0): float64 under
+        # jax_enable_x64, which a float32 problem's linear solve refuses ("structures do not
+        # match"); traced in the parameters' precision, a float32 fit runs as without x64
+        with jax.enable_x64(y0.dtype == jnp.float64):
+            if history:
+                return _optx_with_history(solver, kind, residual_fn, y0, args, max_steps)
+            sol = optx.least_squares(residual_fn, solver, y0, args, max_steps=max_steps, throw=False)
         loss = _final_loss(sol, kind, residual_fn, args)
         success = (sol.result == optx.RESULTS.successful) & jnp.isfinite(loss) & _finite(sol.value)
         steps = jnp.asarray(sol.stats["num_steps"], jnp.int32)

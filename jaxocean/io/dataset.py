@@ -504,8 +504,8 @@ def check(directory, *, read_frames: bool = True, progress: bool = False) -> lis
         items = tqdm(items, unit="file", desc="check")
     for rel, entry in items:
         path = directory / rel
-        if not path.exists():
-            problems.append(f"{path}: missing")
+        if not path.is_file():  # a directory there failed the hashing with "Is a directory", as no dataset
+            problems.append(f"{path}: missing" if not path.exists() else f"{path}: not a file")
             continue
         if path.stat().st_size != entry["bytes"]:
             problems.append(f"{path}: size {path.stat().st_size} differs from the manifest's {entry['bytes']}")
