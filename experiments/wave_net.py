@@ -3,6 +3,10 @@
 On the test split of a `jaxocean simulate` dataset (scenes the network never saw), each
 scene's first ``T`` frames (``T = model.config.frames``) of noise-free geometry are given to:
 
+* **spectral peaks (no network)** -- the baseline every row must beat, as the flat normal
+  is the geometry networks': the ``slots`` strongest peaks of the space-time periodogram
+  (:func:`jaxocean.fit.waves.spectral_init`: one shot, no training, no greedy subtraction)
+  with their amplitudes and phases from one least-squares solve;
 * **net** -- :func:`jaxocean.nn.waves.predict` (slots with presence > 0.5);
 * **net + spectrum** -- the net's waves with every amplitude replaced by its frequency
   bin's energy under the spectrum fitted to them (:func:`jaxocean.fit.spectrum` with the
@@ -19,8 +23,9 @@ pooled over the matched pairs of every scene; waves found (matched / resolvable)
 returned; the geometry error of the re-synthesised sequence (mean normal angle to the
 input over valid sea pixel-frames [deg], and the normalised eq. 5-7 loss of
 :func:`jaxocean.nn.waves_train.geometry_loss`); wall time per scene (after a warm-up
-scene that compiles every path; timings are host wall clock on a shared machine). The net
-rows are scored on ``--scenes`` test scenes, every row on the first ``--fit-scenes`` of them.
+scene that compiles every path; timings are host wall clock on a shared machine). The
+spectral and net rows are scored on ``--scenes`` test scenes, every row on the first
+``--fit-scenes`` of them.
 
 Writes ``experiments/results/wave_net.json``, ``wave_net.png`` (speed-accuracy chart) and
 ``wave_net_fig7.png`` (predicted against true amplitude, frequency and direction of the
@@ -48,7 +53,7 @@ import benchutil  # noqa: E402
 from jaxocean import camera as cam  # noqa: E402
 from jaxocean import fit  # noqa: E402
 from jaxocean._math import angle_between  # noqa: E402
-from jaxocean.fit.waves import match, resolvable  # noqa: E402
+from jaxocean.fit.waves import match, resolvable, spectral_init  # noqa: E402
 from jaxocean.fit.waves import predict as render_waves  # noqa: E402
 from jaxocean.io.dataset import Dataset  # noqa: E402
 from jaxocean.nn import waves as wn  # noqa: E402
@@ -57,7 +62,8 @@ from jaxocean.waves import Waves  # noqa: E402
 
 PAPER = {"mse_amplitude": 4e-5, "mse_omega": 0.0352, "mse_theta": 0.0843,
          "mae_amplitude": 0.00518, "mae_omega": 0.131, "mae_theta": 0.227}
-ROWS = ("net", "net + spectrum", "fit.waves (default)", "fit.waves (net start)")
+ROWS = ("spectral peaks (no network)", "net", "net + spectrum", "fit.waves (default)", "fit.waves (net start)")
+FAST_ROWS = ROWS[:3]  # scored on every --scenes scene; the fit rows on the first --fit-scenes
 FIELDS = ("amplitude", "omega", "theta")
 
 
@@ -110,7 +116,9 @@ def run_scene(model, data, s, T, methods) -> dict:
     for name in methods:
         t0 = time.perf_counter()
         try:
-            if name == "net":
+            if name == "spectral peaks (no network)":
+                w = spectral_init(jnp.asarray(normals), sc.camera, jnp.asarray(times), model.config.slots)
+            elif name == "net":
                 w = wn.predict(model, normals, rough, sc.camera, times)
             elif name == "net + spectrum":
                 w = wn.predict(model, normals, rough, sc.camera, times)
@@ -177,7 +185,7 @@ def print_summary(summary) -> None:
 def plot_speed(summary, fname="wave_net"):
     plt = benchutil.pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    colors = dict(zip(ROWS, ("tab:blue", "tab:cyan", "tab:red", "tab:green")))
+    colors = dict(zip(ROWS, ("tab:gray", "tab:blue", "tab:cyan", "tab:red", "tab:green")))
     for ax, f in zip(axes, FIELDS):
         for name, s in summary.items():
             if name == "paper":
@@ -200,7 +208,7 @@ def plot_fig7(row, methods, fname="wave_net_fig7"):
     plt = benchutil.pyplot()
     fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
     truth = row["truth"]
-    marks = dict(zip(ROWS, ("o", "s", "x", "+")))
+    marks = dict(zip(ROWS, ("^", "o", "s", "x", "+")))
     for ax, f in zip(axes, FIELDS):
         tv = np.asarray(truth[f])
         lo, hi = (float(tv.min()), float(tv.max())) if tv.size else (0.0, 1.0)
@@ -225,7 +233,7 @@ def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--data", default="out/waves32big")
     p.add_argument("--model", help="wave network file (default: the shipped model)")
-    p.add_argument("--scenes", type=int, default=48, help="test scenes for the net rows (the first of the split)")
+    p.add_argument("--scenes", type=int, default=48, help="test scenes for the spectral and net rows (the first of the split)")
     p.add_argument("--fit-scenes", type=int, default=8,
                    help="of those, the first scenes that also get the two fit.waves rows (minutes each)")
     p.add_argument("--prune", action="store_true",
@@ -240,20 +248,20 @@ def main(argv=None):
     scenes = data.splits["test"][: args.scenes]
     # warm-up: compile every path on a validation scene (not scored)
     t0 = time.perf_counter()
-    run_scene(model, data, data.splits["val"][0], T, ROWS if args.fit_scenes else ROWS[:2])
+    run_scene(model, data, data.splits["val"][0], T, ROWS if args.fit_scenes else FAST_ROWS)
     warm = time.perf_counter() - t0
     print(f"warm-up (compilation) {warm:.0f} s", flush=True)
     rows = []
     for i, s in enumerate(scenes):
-        methods = ROWS if i < args.fit_scenes else ROWS[:2]
+        methods = ROWS if i < args.fit_scenes else FAST_ROWS
         rows.append(run_scene(model, data, s, T, methods))
         r = rows[-1]
         print(f"scene {s}: resolvable {r['n_resolvable']}; " + "; ".join(
             f"{m} {r[m]['matched']}/{r[m]['returned']} in {r[m]['time_s']:.2f} s" for m in methods), flush=True)
     n_fit = min(args.fit_scenes, len(rows))
-    summary_all = summarise(rows, ROWS[:2])
+    summary_all = summarise(rows, FAST_ROWS)
     summary_fit = summarise(rows[:n_fit], ROWS) if n_fit else {}
-    print(f"net rows, {len(rows)} test scenes:")
+    print(f"fast rows, {len(rows)} test scenes:")
     print_summary(summary_all)
     t = targets(summary_all)
     if n_fit:
@@ -263,7 +271,7 @@ def main(argv=None):
         t["net_beats_paper_mae_fit_scenes"] = targets(summary_fit)["net_beats_paper_mae"]
     print(t)
     meta = {"data": args.data, "model": str(args.model or wn.PRETRAINED_PATH), "model_info": wn.model_info(args.model),
-            "frames": T, "warmup_s": warm, "summary_net_rows": summary_all, "net_scenes": len(rows),
+            "frames": T, "warmup_s": warm, "summary_fast_rows": summary_all, "net_scenes": len(rows),
             "summary_every_row": summary_fit, "fit_scenes": n_fit, "targets": t,
             "load_avg": list(os.getloadavg())}
     benchutil.save(name, rows, meta | {"prune": args.prune})
