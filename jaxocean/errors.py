@@ -19,8 +19,8 @@ import math
 import jax
 import numpy as np
 
-__all__ = ["InvalidValueError", "MissingDependencyError", "is_concrete", "is_integer", "check_values",
-           "check_finite", "check_number", "check_nonnegative_number"]
+__all__ = ["InvalidValueError", "MissingDependencyError", "is_concrete", "require_eager", "is_integer",
+           "check_values", "check_finite", "check_number", "check_nonnegative_number"]
 
 
 class InvalidValueError(ValueError):
@@ -35,6 +35,13 @@ class MissingDependencyError(ImportError):
 def is_concrete(*xs) -> bool:
     """True when no leaf of ``xs`` is a tracer (values can be inspected)."""
     return not any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree_util.tree_leaves(xs))
+
+
+def require_eager(name: str, why: str, *xs) -> None:
+    """``ValueError`` when a function that runs on the host (``why``: what it does there) is
+    given tracers: under jit / vmap it would fail deep inside NumPy or a host loop."""
+    if not is_concrete(*xs):
+        raise ValueError(f"{name} runs eagerly ({why}); call it outside jit/vmap")
 
 
 def check_values(ok, message: str, value=None) -> None:

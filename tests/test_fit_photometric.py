@@ -257,6 +257,8 @@ def test_bad_inputs_raise_clear_errors(scene):
             ph.photometric(*args, fit=("waves",), per_frame_exposure=True)
         with pytest.raises(ValueError, match="one per frame"):
             ph.residual(*args, exposure=jnp.ones(N_FRAMES + 1))
+        with pytest.raises(ValueError, match=r"fit.photometric runs eagerly \(a host loop over IRLS rounds\)"):
+            jax.jit(lambda images: ph.photometric(images, *args[1:]))(s["images"])
 
 
 def test_per_frame_exposure_is_recovered_where_one_exposure_cannot_explain(scene):

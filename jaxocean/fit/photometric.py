@@ -141,7 +141,7 @@ import numpy as np
 from jaxocean import camera as cam
 from jaxocean import render, shading
 from jaxocean._sea_scale import compress, sea_median
-from jaxocean.errors import InvalidValueError, check_nonnegative_number, is_concrete
+from jaxocean.errors import InvalidValueError, check_nonnegative_number, is_concrete, require_eager
 from jaxocean.fit._image_inputs import fit_dtype
 from jaxocean.fit._photometry import sun_to_pq
 from jaxocean.fit._photometric_model import (COLOR_NAMES, Data, Static, all_residuals, frame_jacobian, layout,
@@ -480,8 +480,7 @@ def photometric(images, camera, times, waves: Waves, lighting: Lighting, *, fit=
         raise ValueError(f"refine must be an int >= 0; got {refine!r}")
     if per_frame_exposure and "exposure" not in fit:
         raise ValueError("per_frame_exposure=True fits the exposure: include 'exposure' in fit")
-    if not is_concrete(images, times, waves, lighting, camera):
-        raise ValueError("fit.photometric runs eagerly (a host loop over IRLS rounds); call it outside jit/vmap")
+    require_eager("fit.photometric", "a host loop over IRLS rounds", images, times, waves, lighting, camera)
 
     used = _used_pixels(images, camera, mask, sky)
     img = np.asarray(images)

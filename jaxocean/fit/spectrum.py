@@ -104,7 +104,7 @@ from jaxocean import camera as cam
 from jaxocean import hierarchy, shading
 from jaxocean import spectrum as spec
 from jaxocean._roughness import normal_weight, observed_rows, row_roughness
-from jaxocean.errors import InvalidValueError, check_values, is_concrete
+from jaxocean.errors import InvalidValueError, check_values, require_eager
 from jaxocean.waves import GRAVITY, Waves, validate
 
 __all__ = ["SpectrumFit", "spectrum", "correct_amplitudes", "tail_waves", "sea_state", "SeaState", "NOISE_FACTOR",
@@ -199,6 +199,9 @@ class SeaState(NamedTuple):
 
 
 _GL = np.polynomial.legendre.leggauss(8)
+
+#: what the eager functions of this module do on the host (their error under jit says it)
+_EAGER = "NumPy, data-dependent selections"
 
 #: how far past an edge of the band (a factor on its period) the alternative peaks of the
 #: ``peak_observed`` test reach: at 4x the band sees the spectrum's ``omega^-5`` tail alone
@@ -299,7 +302,7 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
 
 def sea_state(waves: Waves) -> SeaState:
     """Bulk parameters of a set of waves (eager, NumPy): see :class:`SeaState`."""
-    _require_eager("fit.sea_state", waves)
+    require_eager("fit.sea_state", _EAGER, waves)
     validate(waves, max_steepness=None)
     if np.size(waves.omega) == 0:
         raise InvalidValueError("sea_state needs at least one wave; got none")
@@ -354,7 +357,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     from jaxocean.fit.waves import resolvable
 
     t0 = time.perf_counter()
-    _require_eager("fit.spectrum", waves, camera, roughness, reliable, determined)
+    require_eager("fit.spectrum", _EAGER, waves, camera, roughness, reliable, determined)
     validate(waves, max_steepness=None)
     if waves.omega.ndim != 1:
         raise ValueError(f"fit.spectrum takes Waves with leaves (N,); got {waves.omega.shape}")
@@ -590,13 +593,6 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
                        edge_peak_misfit=edge_misfit)
 
 
-def _require_eager(name: str, *xs) -> None:
-    """ValueError for a NumPy (eager) function called under jit / vmap: its inputs are
-    tracers, which would fail deep inside NumPy."""
-    if not is_concrete(*xs):
-        raise ValueError(f"{name} runs eagerly (NumPy, data-dependent selections); call it outside jit/vmap")
-
-
 def _wave_mask(mask, name: str, n: int) -> np.ndarray:
     """``mask`` as a bool array ``(n,)``, one entry per wave (a clear error otherwise)."""
     mask = np.asarray(mask, bool)
@@ -789,7 +785,7 @@ def correct_amplitudes(waves: Waves, spectrum_: spec.Spectrum, *, reliable=None)
     (geometric midpoints between neighbouring frequencies; waves at one frequency share
     its bin's energy equally); reliable waves keep their amplitude. Order of the waves is
     kept. Steepness is capped at k h = 0.9 (no looping crests). Eager (NumPy)."""
-    _require_eager("fit.correct_amplitudes", waves, spectrum_, reliable)
+    require_eager("fit.correct_amplitudes", _EAGER, waves, spectrum_, reliable)
     validate(waves, max_steepness=None)
     spec.validate_spectrum(spectrum_)
     if waves.omega.ndim != 1:
