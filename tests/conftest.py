@@ -7,8 +7,13 @@
 * The command line's persistent XLA compilation cache is off: every worker compiles its own
   programs (hermetic runs).
 * hypothesis: a small deterministic profile so `make test` stays fast and reproducible.
+* JAX's compilation caches are cleared after every test module. Each compiled XLA:CPU
+  program holds memory mappings of its own; a worker that keeps every program of a tier
+  reaches the kernel's limit on mappings (``vm.max_map_count``, 65,530 by default) and
+  XLA then aborts or segfaults inside the next compilation.
 """
 
+import gc
 import os
 
 import jax
@@ -37,3 +42,10 @@ def key():
 def x64():
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _release_compiled_programs():
+    yield
+    jax.clear_caches()
+    gc.collect()
