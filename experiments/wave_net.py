@@ -238,10 +238,11 @@ def main(argv=None):
                    help="of those, the first scenes that also get the two fit.waves rows (minutes each)")
     p.add_argument("--prune", action="store_true",
                    help="both fit rows with prune=True (results as wave_net_prune.json / .png)")
+    p.add_argument("--name", help="results name (default wave_net, or wave_net_prune with --prune)")
     args = p.parse_args(argv)
     global PRUNE
     PRUNE = True if args.prune else None
-    name = "wave_net_prune" if args.prune else "wave_net"
+    name = args.name or ("wave_net_prune" if args.prune else "wave_net")
     data = Dataset(args.data)
     model = wn.load(args.model)
     T = model.config.frames

@@ -2,6 +2,8 @@
 bad inputs, the shipped model and the net-started wave fit."""
 
 import json
+import tempfile
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -280,6 +282,39 @@ def test_apply_jits_with_the_model_as_an_argument(tiny_model):
     for a, c in zip(jax.tree.leaves(eager), jax.tree.leaves(jitted)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(c), rtol=1e-4, atol=1e-6)
     assert jax.tree.leaves(TINY) == []
+
+
+def test_anchored_slots_move_their_periodogram_peak_by_a_bounded_step():
+    config = TINY._replace(anchors=True)
+    model = wn.init(jax.random.key(2), config)
+    normals, rough = _scene()
+    anchors = wn.slot_anchors(config, jnp.asarray(normals), CAMERA, jnp.asarray(TIMES))
+    # the anchors hold the swell's resolvable wave, within 10% of its wave vector
+    ok = np.asarray(resolvable(SWELL, CAMERA))
+    assert ok.sum() == 1
+    k = lambda om, th: (om ** 2 / GRAVITY)[:, None] * np.stack([np.cos(th), np.sin(th)], -1)  # noqa: E731
+    ka = k(np.asarray(anchors.omega), np.asarray(anchors.theta))
+    kt = k(np.asarray(SWELL.omega)[ok], np.asarray(SWELL.theta)[ok])
+    assert np.min(np.linalg.norm(ka - kt, axis=-1)) < 0.1 * np.linalg.norm(kt)
+    # untrained, every slot sits (nearly) on its anchor
+    _, slots = wn.predict(model, normals, rough, CAMERA, TIMES, return_slots=True)
+    np.testing.assert_allclose(np.asarray(slots.waves.omega), np.asarray(anchors.omega), rtol=0.01)
+    # for any parameters, within the bounded step (d log omega <= 0.15, d theta <= 0.25)
+    for scale in (30.0, -30.0):
+        params = jax.tree.map(lambda p: p * scale + 1.0, model.params)
+        _, far = wn.predict(model._replace(params=params), normals, rough, CAMERA, TIMES, return_slots=True)
+        step_om = np.abs(np.log(np.asarray(far.waves.omega) / np.asarray(anchors.omega)))
+        step_th = np.abs(np.angle(np.exp(1j * (np.asarray(far.waves.theta) - np.asarray(anchors.theta)))))
+        assert np.all(step_om <= 0.15 + 1e-5) and np.all(step_th <= 0.25 + 1e-5)
+        assert step_om.max() > 0.1  # the network does move them
+        np.testing.assert_array_equal(np.asarray(far.presence)[~np.asarray(anchors.on)], 0.0)
+    # eager apply equals predict's jitted one (the anchors computed inside either way)
+    b = _batch(normals, rough)
+    eager = wn.apply(model, b["normal"], b["roughness"], b["camera"], b["times"])
+    for a, c in zip(jax.tree.leaves(eager), jax.tree.leaves(slots)):
+        np.testing.assert_allclose(np.asarray(a)[0], np.asarray(c), rtol=1e-4, atol=1e-6)
+    # the config round-trips through a saved model
+    assert wn.load(wn.save(Path(tempfile.mkdtemp()) / "a.npz", model)).config == config
 
 
 def test_predict_refuses_a_negative_roughness(tiny_model):

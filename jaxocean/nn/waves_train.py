@@ -4,9 +4,9 @@ Protocol
 --------
 * :class:`TrainConfig` -- the model architecture (:class:`~jaxocean.nn.waves.WaveNetConfig`),
   the losses and the schedule. :data:`CONFIGS` holds ``"cpu"`` (32 x 32 frames, 6 frames,
-  32 slots, geometry + supervised losses, 6,000 steps within a 40-minute budget on two CPU
-  cores) and ``"paper"``
-  (the paper's setting: 128 x 128, 10 frames, 60 slots, for a GPU).
+  32 slots anchored on the periodogram's peaks, geometry + supervised losses, 6,000 steps
+  within a 40-minute budget on two CPU cores) and ``"paper"`` (the paper's setting: 128 x
+  128, 10 frames, 60 free slots, for a GPU).
 * Losses (``TrainConfig.losses``, "+"-joined terms):
 
   - ``geometry`` -- the paper's eq. 5-7 through the library's differentiable geometry:
@@ -32,7 +32,9 @@ Protocol
 * :func:`evaluate_loss(model, dataset, split)` -- the mean normalised geometry loss and mean
   number of waves (presence > 0.5) of a split.
 
-Every batch item is a scene's first ``frames`` frames (one window per scene).
+Every batch item is a scene's first ``frames`` frames (one window per scene); an anchored
+model's anchors (:func:`jaxocean.nn.waves.slot_anchors`) are computed once per scene, when it
+is first loaded.
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ LOSS_TERMS = ("geometry", "supervised")
 
 class TrainConfig(NamedTuple):
     name: str = "cpu"
-    model: wn.WaveNetConfig = wn.WaveNetConfig(slots=32)
+    model: wn.WaveNetConfig = wn.WaveNetConfig(slots=32, anchors=True)
     losses: str = "geometry+supervised"
     epochs: int = 60
     steps_per_epoch: int = 100
@@ -83,8 +85,9 @@ class TrainConfig(NamedTuple):
 
 
 CONFIGS = {
-    # two CPU cores: 32^2 frames, 6 frames, 32 slots; the cosine decay spans the steps that
-    # fit the 40-minute budget (6,000 took 32 min here beside other jobs), so it ends decayed
+    # two CPU cores: 32^2 frames, 6 frames, 32 slots anchored on the periodogram's peaks; the
+    # cosine decay spans the steps that fit the 40-minute budget (0.25 s a step here), so it
+    # ends decayed
     "cpu": TrainConfig(),
     # the paper: 60 waves from 10 frames of 128^2 geometry, 100 epochs (a GPU)
     "paper": TrainConfig(name="paper", model=wn.WaveNetConfig(frames=10, slots=60, widths=(32, 64, 128, 256),
@@ -146,8 +149,8 @@ def init_state(config: TrainConfig, key):
 def _losses(config: TrainConfig, params, batch, key, train: bool):
     terms = config.terms()
     model = wn.WaveNetModel(config.model, params)
-    slots = wn.apply(model, batch["normal"], batch["roughness"], batch["camera"], batch["times"], key=key,
-                     train=train)
+    slots = wn.apply(model, batch["normal"], batch["roughness"], batch["camera"], batch["times"],
+                     anchors=batch.get("anchors"), key=key, train=train)
     geo = jax.vmap(lambda w, n, r, c, t: geometry_loss(w, n, r, c, t, config.roughness_weight))(
         slots.waves, batch["normal"], batch["roughness"], batch["camera"], batch["times"])
     presence = jnp.mean(slots.presence)
@@ -188,10 +191,11 @@ class _Scenes:
     """Per-scene arrays of a dataset split: the first ``frames`` frames' normals and
     roughness, times, camera, true waves and their resolvable flags (cached)."""
 
-    def __init__(self, data: Dataset, frames: int):
+    def __init__(self, data: Dataset, model: wn.WaveNetConfig):
+        frames = model.frames
         if data.n_frames < frames:
             raise ValueError(f"{data.root}: scenes have {data.n_frames} frames; the network takes {frames}")
-        self.data, self.frames = data, frames
+        self.data, self.frames, self.model = data, frames, model
         self._cache: dict = {}
 
     def item(self, s: int) -> dict:
@@ -206,11 +210,20 @@ class _Scenes:
                               "camera": sc.camera,
                               "waves": Waves(*[np.asarray(x, np.float32) for x in sc.waves]),
                               "resolvable": resolvable(sc.waves, sc.camera).astype(np.float32)}
+            if self.model.anchors:  # a function of the input: once per scene, not once per step
+                item = self._cache[s]
+                self._cache[s]["anchors"] = jax.device_get(_anchors_jit(self.model, item["normal"], sc.camera,
+                                                                        item["times"]))
         return self._cache[s]
 
     def batch(self, scenes) -> dict:
         items = [self.item(s) for s in scenes]
         return jax.tree.map(lambda *a: np.stack([np.asarray(x) for x in a]), *items)
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _anchors_jit(model: wn.WaveNetConfig, normals, camera, times):
+    return wn.slot_anchors(model, normals, camera, times)
 
 
 def _resolve(config) -> TrainConfig:
@@ -231,7 +244,7 @@ def evaluate_loss(model: wn.WaveNetModel, dataset, split: str = "val", *, config
     if not len(scenes):
         raise ValueError(f"{data.root}: no scene to evaluate (scenes per split: "
                          f"{', '.join(f'{k} {len(v)}' for k, v in data.splits.items())})")
-    return _mean_logs(config, model.params, _Scenes(data, model.config.frames), scenes, batch_size)
+    return _mean_logs(config, model.params, _Scenes(data, model.config), scenes, batch_size)
 
 
 def _mean_logs(config, params, scenes: _Scenes, indices, batch_size):
@@ -257,7 +270,7 @@ def train(dataset, out, config: TrainConfig | str = "cpu", *, progress: bool = T
     if any(r % config.model.size_multiple for r in data.resolution):
         raise ValueError(f"{data.root}: resolution {data.resolution} is not a multiple of "
                          f"{config.model.size_multiple} (the network's UNet)")
-    scenes = _Scenes(data, config.model.frames)
+    scenes = _Scenes(data, config.model)
     train_ids, val_ids = list(data.splits["train"]), list(data.splits["val"])
     check_split_holds_batch(data.root, "train", len(train_ids), "scenes", config.batch_size)
     if not val_ids:

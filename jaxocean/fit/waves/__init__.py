@@ -122,7 +122,8 @@ from jaxocean.fit.waves._match import (WaveMatch, alias_separation, forecast_mod
                                        match, noise_cells, rayleigh_separation, resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
 from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
-from jaxocean.fit.waves._spectral import SpectralEstimate, solve_amplitudes, spectral_estimate, spectral_init
+from jaxocean.fit.waves._spectral import (SpectralEstimate, SpectralPeaks, solve_amplitudes, spectral_estimate,
+                                         spectral_init, spectral_peaks)
 
 __all__ = [
     "WaveFit",
@@ -140,6 +141,8 @@ __all__ = [
     "refine",
     "spectral_estimate",
     "spectral_init",
+    "spectral_peaks",
+    "SpectralPeaks",
     "solve_amplitudes",
     "loss",
     "predict",

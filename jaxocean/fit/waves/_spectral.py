@@ -29,7 +29,9 @@ class SpectralEstimate(NamedTuple):
     ``power (S, K, K)`` dispersion-shell power, ``kx, ky (S, K, K)`` world wave vectors of
     the bins [rad/m], ``spacing (S,)`` grid spacings [m], ``extent (S,)`` grid sides [m];
     ``peaks``: ``omega, theta, power (S, n_peaks)`` of the strongest local maxima in each
-    grid's usable band (power 0 marks an empty slot).
+    grid's usable band (power 0 marks an empty slot), and ``peak_offset (S, n_peaks, 2)``
+    the sub-bin position of each maximum from a parabola through the log power of its four
+    neighbours, as ``(d log omega, d theta)`` [-, rad] to add to ``omega, theta``.
     """
 
     power: jax.Array
@@ -40,18 +42,21 @@ class SpectralEstimate(NamedTuple):
     peak_omega: jax.Array
     peak_theta: jax.Array
     peak_power: jax.Array
+    peak_offset: jax.Array
 
 
 # =============================================================================== linear amplitudes
 
 
 def solve_amplitudes(normals, camera, times, omega, theta, *, n_min=hierarchy.DEFAULT_N_MIN,
-                     n_max=hierarchy.DEFAULT_N_MAX, ridge=1e-6) -> Waves:
+                     n_max=hierarchy.DEFAULT_N_MAX, ridge=1e-6, active=None) -> Waves:
     """Amplitudes and phases of waves of known ``omega, theta (N,)`` by one linear solve.
 
     To first order in the steepness the slope field is linear in ``(a_i, b_i) = h_i (cos
     phi_i, sin phi_i)`` (:mod:`jaxocean.fit.waves`, step 2); the ``2N`` unknowns are solved jointly by
     least squares over every valid pixel-frame (normal equations, relative ``ridge``).
+    ``active (N,)`` bool (default all): the waves to solve; the others take no part and get
+    amplitude 0 (a subset solved at a fixed shape, without a compilation per subset).
     """
     normals, _, times = check_inputs(normals, None, camera, times)
     dtype = normals.dtype
@@ -60,12 +65,14 @@ def solve_amplitudes(normals, camera, times, omega, theta, *, n_min=hierarchy.DE
     if omega.shape != theta.shape or omega.ndim != 1:
         raise ValueError(f"omega and theta must be (N,) of one shape; got {omega.shape}, {theta.shape}")
     check_values(omega > 0, "omega must be > 0 rad/s", omega)
-    a, b = _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge)
+    if active is not None and jnp.shape(active) != omega.shape:
+        raise ValueError(f"active must be (N,) = {omega.shape}; got {jnp.shape(active)}")
+    a, b = _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge, active)
     return Waves(safe_sqrt(a * a + b * b), omega, wrap_angle(theta), phase_of(a, b))
 
 
 @functools.partial(jax.jit, static_argnums=(5, 6))
-def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
+def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge, active=None):
     weight = valid_weights(normals, camera)
     normals, _ = clean_inputs(normals, None, weight)
     s = slope_field(normals)
@@ -76,6 +83,8 @@ def _solve_ab(normals, camera, times, omega, theta, n_min, n_max, ridge):
     k = omega * omega / GRAVITY
     khat = jnp.stack([jnp.cos(theta), jnp.sin(theta)], -1)  # (N, 2)
     amp = smoothstep(n_min, n_max, (2 * jnp.pi / k)[None, :] / fp_row[:, None]) * k  # (H, N)
+    if active is not None:  # an inactive wave's columns are zero: it gets 0 and moves no other
+        amp = amp * jnp.asarray(active, amp.dtype)[None, :]
 
     def frame(carry, inp):
         gram, rhs = carry
@@ -127,6 +136,29 @@ def _power_one_scale(slopes, weight, times, camera, anchor, e_u, e_v, d, level, 
     return power.astype(dtype), kx, ky, kk, jnp.sum(wmap > 0)
 
 
+def _sub_bin_offset(power, idx, kxp, kyp, e_u, e_v, d):
+    """``(d log omega, d theta) (n, 2)`` of the peaks at flat indices ``idx``: the vertex of a
+    parabola through the log power of each peak and its neighbours along both grid axes
+    (at most half a bin), as a change of the wave vector ``(kxp, kyp)``."""
+    K = power.shape[0]
+    i, j = idx // K, idx % K
+    logp = jnp.log(jnp.maximum(power, 1e-30))
+
+    def vertex(lm, l0, lp):
+        curv = lm - 2 * l0 + lp  # < 0 at a strict maximum
+        return jnp.clip(0.5 * (lm - lp) / jnp.where(curv < 0, curv, -1.0), -0.5, 0.5) * (curv < 0)
+
+    l0 = logp[i, j]
+    du = vertex(logp[(i - 1) % K, j], l0, logp[(i + 1) % K, j])
+    dv = vertex(logp[i, (j - 1) % K], l0, logp[i, (j + 1) % K])
+    bin_k = 2 * jnp.pi / (K * d)
+    dkx = bin_k * (du * e_u[0] + dv * e_v[0])
+    dky = bin_k * (du * e_u[1] + dv * e_v[1])
+    k2 = jnp.maximum(kxp * kxp + kyp * kyp, 1e-24)
+    # omega = sqrt(g k): d log omega = d k / (2 k); d theta = (k x dk) / k^2
+    return jnp.stack([0.5 * (kxp * dkx + kyp * dky) / k2, (kxp * dky - kyp * dkx) / k2], -1)
+
+
 def _peaks(power, kk, k_lo, k_hi, n_peaks):
     nb = [jnp.roll(jnp.roll(power, di, 0), dj, 1) for di in (-1, 0, 1) for dj in (-1, 0, 1) if (di, dj) != (0, 0)]
     is_max = jnp.all(jnp.stack([power > q for q in nb]), axis=0)
@@ -152,10 +184,11 @@ def spectral_pyramid(slopes, weight, times, camera, *, scales, grid, n_peaks, su
         kxp, kyp = kx.ravel()[idx], ky.ravel()[idx]
         kp = jnp.sqrt(kxp * kxp + kyp * kyp)
         om = jnp.sqrt(GRAVITY * jnp.maximum(kp, 1e-12))
-        out.append((power, kx, ky, om, jnp.arctan2(kyp, kxp), top))
-    stack = [jnp.stack([o[i] for o in out]) for i in range(6)]
+        offset = _sub_bin_offset(power, idx, kxp, kyp, e_u, e_v, d)
+        out.append((power, kx, ky, om, jnp.arctan2(kyp, kxp), top, offset))
+    stack = [jnp.stack([o[i] for o in out]) for i in range(7)]
     return SpectralEstimate(power=stack[0], kx=stack[1], ky=stack[2], spacing=spacing, extent=spacing * grid,
-                            peak_omega=stack[3], peak_theta=stack[4], peak_power=stack[5])
+                            peak_omega=stack[3], peak_theta=stack[4], peak_power=stack[5], peak_offset=stack[6])
 
 
 def spectral_estimate(normals, camera, times, *, scales: int | None = None, grid: int = 64,
@@ -191,16 +224,38 @@ def spectral_init(normals, camera, times, n_waves: int, *, scales: int | None = 
     if scales is None:
         scales = 1 if camera.projection == "orthographic" else 4
     est = _spectral_from_normals(normals, times, camera, scales, grid, max(n_waves, 8))
-    om, th = _pool_peaks(est, n_waves)
+    om, th = _pool_peaks(est, n_waves)[:2]
     a, b = _solve_ab(normals, camera, times, om, th, n_min, n_max, 1e-6)
     return Waves(safe_sqrt(a * a + b * b), om, wrap_angle(th), phase_of(a, b))
 
 
+class SpectralPeaks(NamedTuple):
+    """The ``n`` strongest distinct peaks of a :class:`SpectralEstimate`, every scale
+    pooled: ``omega, theta, power (n,)`` (power 0: no peak) and ``offset (n, 2)`` their
+    sub-bin ``(d log omega, d theta)``."""
+
+    omega: jax.Array
+    theta: jax.Array
+    power: jax.Array
+    offset: jax.Array
+
+
+def spectral_peaks(normals, camera, times, n: int, *, scales: int | None = None, grid: int = 64) -> SpectralPeaks:
+    """The ``n`` peaks :func:`spectral_init` starts from, with their powers and sub-bin
+    offsets (traceable; static ``n``, ``scales``, ``grid``)."""
+    normals, _, times = check_inputs(normals, None, camera, times)
+    if scales is None:
+        scales = 1 if camera.projection == "orthographic" else 4
+    return SpectralPeaks(*_pool_peaks(_spectral_from_normals(normals, times, camera, scales, grid, max(n, 8)), n))
+
+
 def _pool_peaks(est: SpectralEstimate, n):
-    """Top ``n`` peaks over all scales, suppressing repeats of one wave vector."""
+    """Top ``n`` peaks over all scales, suppressing repeats of one wave vector:
+    ``omega, theta, power (n,)`` and ``offset (n, 2)``."""
     om = est.peak_omega.ravel()
     th = est.peak_theta.ravel()
     pw = est.peak_power.ravel()
+    offset = est.peak_offset.reshape(-1, 2)
     # the scales' powers compete as they are (not normalised per scale)
     k = om * om / GRAVITY
     kx, ky = k * jnp.cos(th), k * jnp.sin(th)
@@ -217,5 +272,5 @@ def _pool_peaks(est: SpectralEstimate, n):
     keep = jax.lax.fori_loop(0, pw.shape[0], body, keep)
     score = jnp.where(keep, pw, -1.0)
     _, idx = jax.lax.top_k(score, n)
-    return om[idx], th[idx]
+    return om[idx], th[idx], jnp.maximum(score[idx], 0.0), offset[idx]
 
