@@ -407,3 +407,18 @@ def test_an_epoch_spans_at_most_the_train_split_in_the_loop_and_the_schedule(tmp
     with pytest.raises(KeyboardInterrupt):
         wt.train(data, tmp_path / "run", config, progress=False)
     assert seen == {"steps_per_epoch": 3, "total_steps": 6}
+
+
+def test_training_curves_show_the_wave_network_validation_scores(tmp_path, monkeypatch):
+    # the second panel held the geometry networks' slope skills only: empty for a wave run
+    import jaxocean.plots
+    from jaxocean.nn import training
+
+    figs = []
+    monkeypatch.setattr(jaxocean.plots, "save_figure", lambda fig, path, **kw: figs.append(fig))
+    history = [{"epoch": e, "train": {"loss": 1.0 - 0.1 * e, "geometry": 0.6},
+                "val": {"loss": 1.1 - 0.1 * e, "geometry": 0.62, "waves": 16.0 + e}} for e in range(3)]
+    training._plot_curves(tmp_path / "curves.png", history)
+    panel = figs[0].axes[1]
+    assert sorted(line.get_label() for line in panel.get_lines()) == ["val geometry", "val waves"]
+    assert panel.get_ylabel() == "validation scores"

@@ -102,7 +102,9 @@ def _plot_curves(path: Path, history: list) -> None:
     from jaxocean.plots import save_figure
 
     keys = sorted({k for h in history for k in h.get("train", {})})
-    skill_keys = sorted({k for h in history for k in h.get("val", {}) if k.startswith("skill")})
+    val_keys = sorted({k for h in history for k in h.get("val", {}) if k != "loss"})
+    # the geometry networks' panel shows their slope skills; another network its other scores
+    skill_keys = [k for k in val_keys if k.startswith("skill")] or val_keys
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     ep = [h["epoch"] + 1 for h in history]
     for k in keys:
@@ -115,7 +117,10 @@ def _plot_curves(path: Path, history: list) -> None:
     for k in skill_keys:
         axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
     axes[1].set_xlabel("epoch")
-    axes[1].set_ylabel("slope skill")
+    is_skill = any(k.startswith("skill") for k in skill_keys)
+    axes[1].set_ylabel("slope skill" if is_skill else "validation scores")
+    if skill_keys and not is_skill:
+        axes[1].set_yscale("log")
     if skill_keys:
         axes[1].legend(fontsize=7)
     fig.tight_layout()
