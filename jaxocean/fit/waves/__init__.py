@@ -39,6 +39,9 @@ Pipeline of :func:`waves`:
    ``P(K) = |sum_t e^{-i omega(K) t} K_hat . F_t(K)|^2``. A wave travelling along ``K``
    lights up one bin (the opposite direction stays dark), so local maxima of ``P`` give
    frequencies, directions and -- through the linear solve -- phases.
+   :func:`spectral_peaks` pools the strongest distinct maxima of every scale with their
+   power and the sub-bin vertex of a parabola through their neighbours' log power (the
+   wave network's anchors); :func:`spectral_init` solves their amplitudes.
 2. **Linear amplitudes and phases** (:func:`solve_amplitudes`): to first order in the
    steepness the slope field is ``sum_i w_i k_i k_hat_i (a_i sin psi0_i + b_i cos psi0_i)``
    with ``psi0 = omega t - k.X``, linear in ``(a, b) = h (cos phi, sin phi)`` once

@@ -3,7 +3,9 @@
 Protocol: :func:`spectral_estimate` turns a scene's normals into the dispersion-shell power
 on a pyramid of ground grids (:class:`SpectralEstimate`); :func:`solve_amplitudes` solves
 the amplitudes and phases of waves of known ``omega, theta (N,)`` linearly;
-:func:`spectral_init` combines both into ``N`` starting waves.
+:func:`spectral_peaks` pools the ``N`` strongest distinct peaks of every scale (with their
+power and sub-bin offset); :func:`spectral_init` solves their amplitudes into ``N`` starting
+waves.
 """
 
 from __future__ import annotations
