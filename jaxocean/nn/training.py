@@ -104,7 +104,7 @@ def _plot_curves(path: Path, history: list) -> None:
     keys = sorted({k for h in history for k in h.get("train", {})})
     val_keys = sorted({k for h in history for k in h.get("val", {}) if k != "loss"})
     # the geometry networks' panel shows their slope skills; another network its other scores
-    skill_keys = [k for k in val_keys if k.startswith("skill")] or val_keys
+    panel_keys = [k for k in val_keys if k.startswith("skill")] or val_keys
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
     ep = [h["epoch"] + 1 for h in history]
     for k in keys:
@@ -114,14 +114,14 @@ def _plot_curves(path: Path, history: list) -> None:
     axes[0].set_yscale("log")
     axes[0].set_xlabel("epoch")
     axes[0].legend(fontsize=7)
-    for k in skill_keys:
+    for k in panel_keys:
         axes[1].plot(ep, [h["val"].get(k, np.nan) for h in history], label=f"val {k}")
     axes[1].set_xlabel("epoch")
-    is_skill = any(k.startswith("skill") for k in skill_keys)
+    is_skill = any(k.startswith("skill") for k in panel_keys)
     axes[1].set_ylabel("slope skill" if is_skill else "validation scores")
-    if skill_keys and not is_skill:
+    if panel_keys and not is_skill:
         axes[1].set_yscale("log")
-    if skill_keys:
+    if panel_keys:
         axes[1].legend(fontsize=7)
     fig.tight_layout()
     save_figure(fig, path, dpi=90)

@@ -343,28 +343,19 @@ def _anchored_outputs(raw, anchors: SlotAnchors):
     return omega, theta, jax.nn.sigmoid(raw[:, 2]) * anchors.on
 
 
-def _amplitudes(config: WaveNetConfig, normals, camera, times, omega, theta, presence):
-    """Amplitude (physical, presence-weighted) and phase by the linear solve."""
+def _amplitudes(config: WaveNetConfig, normals, camera, times, omega, theta, active=None):
+    """Amplitude and phase by the linear solve (of the ``active`` slots; default all), the
+    amplitude made physical: ``(s / k) tanh(k h / s)``, so ``k h < s`` always."""
     from jaxocean.fit.waves import solve_amplitudes
 
-    w = solve_amplitudes(normals, camera, times, omega, theta, ridge=config.ridge)
-    return presence * _below_max_steepness(config, w.amplitude, omega), w.phase
-
-
-def _below_max_steepness(config: WaveNetConfig, amplitude, omega):
-    """``(s / k) tanh(k h / s)``: ``k h < s`` always, ``h`` unchanged where ``k h << s``."""
+    w = solve_amplitudes(normals, camera, times, omega, theta, ridge=config.ridge, active=active)
     k = omega * omega / GRAVITY
     s = config.max_steepness
-    return (s / k) * jnp.tanh(k * amplitude / s)
+    return (s / k) * jnp.tanh(k * w.amplitude / s), w.phase
 
 
-@functools.partial(jax.jit, static_argnums=0)
-def _kept_amplitudes(config: WaveNetConfig, normals, camera, times, omega, theta, keep):
-    """Amplitudes and phases of the kept slots solved jointly, the others 0 (:func:`predict`)."""
-    from jaxocean.fit.waves import solve_amplitudes
-
-    w = solve_amplitudes(normals, camera, times, omega, theta, ridge=config.ridge, active=keep)
-    return _below_max_steepness(config, w.amplitude, omega), w.phase
+# predict's solve of the kept slots alone (fixed shape: one compilation for every subset)
+_kept_amplitudes = jax.jit(_amplitudes, static_argnums=0)
 
 
 def apply(model: WaveNetModel, normals, roughness, camera, times, *, anchors: SlotAnchors | None = None, key=None,
@@ -398,22 +389,16 @@ def apply(model: WaveNetModel, normals, roughness, camera, times, *, anchors: Sl
         B, N = g.shape[0], config.slots
         per_slot = jnp.concatenate([jnp.broadcast_to(g[:, None], (B, N, g.shape[-1])), anchors.features], -1)
         raw = mlp.apply(model.params["mlp"], per_slot.reshape(B * N, -1), key=k2, train=train).reshape(B, N, 3)
+        omega, theta, presence = jax.vmap(_anchored_outputs)(raw, anchors)
+    else:
+        raw = mlp.apply(model.params["mlp"], g, key=k2, train=train).reshape(-1, config.slots, 4)
+        omega, theta, presence = jax.vmap(lambda r, c: _slot_outputs(config, r, *_omega_band(config, c)))(raw, camera)
 
-        def per_scene(raw_i, anchor_i, n_i, cam_i, t_i):
-            omega, theta, presence = _anchored_outputs(raw_i, anchor_i)
-            h, phase = _amplitudes(config, n_i, cam_i, t_i, omega, theta, presence)
-            return WaveSlots(Waves(h, omega, theta, phase), presence)
+    def per_scene(n_i, cam_i, t_i, omega_i, theta_i, presence_i):
+        h, phase = _amplitudes(config, n_i, cam_i, t_i, omega_i, theta_i)
+        return WaveSlots(Waves(presence_i * h, omega_i, theta_i, phase), presence_i)
 
-        return jax.vmap(per_scene)(raw, anchors, normals, camera, times)
-    raw = mlp.apply(model.params["mlp"], g, key=k2, train=train).reshape(-1, config.slots, 4)
-
-    def per_scene(raw_i, n_i, cam_i, t_i):
-        lo, hi = _omega_band(config, cam_i)
-        omega, theta, presence = _slot_outputs(config, raw_i, lo, hi)
-        h, phase = _amplitudes(config, n_i, cam_i, t_i, omega, theta, presence)
-        return WaveSlots(Waves(h, omega, theta, phase), presence)
-
-    return jax.vmap(per_scene)(raw, normals, camera, times)
+    return jax.vmap(per_scene)(normals, camera, times, omega, theta, presence)
 
 
 def slots_to_waves(slots: WaveSlots, threshold: float = 0.5) -> Waves:

@@ -212,8 +212,7 @@ class _Scenes:
                               "resolvable": resolvable(sc.waves, sc.camera).astype(np.float32)}
             if self.model.anchors:  # a function of the input: once per scene, not once per step
                 item = self._cache[s]
-                self._cache[s]["anchors"] = jax.device_get(_anchors_jit(self.model, item["normal"], sc.camera,
-                                                                        item["times"]))
+                item["anchors"] = jax.device_get(_anchors_jit(self.model, item["normal"], sc.camera, item["times"]))
         return self._cache[s]
 
     def batch(self, scenes) -> dict:

@@ -223,10 +223,7 @@ def spectral_init(normals, camera, times, n_waves: int, *, scales: int | None = 
     One shot and traceable: no greedy subtraction (use :func:`waves` for that).
     """
     normals, _, times = check_inputs(normals, None, camera, times)
-    if scales is None:
-        scales = 1 if camera.projection == "orthographic" else 4
-    est = _spectral_from_normals(normals, times, camera, scales, grid, max(n_waves, 8))
-    om, th = _pool_peaks(est, n_waves)[:2]
+    om, th = _strongest_peaks(normals, camera, times, n_waves, scales, grid)[:2]
     a, b = _solve_ab(normals, camera, times, om, th, n_min, n_max, 1e-6)
     return Waves(safe_sqrt(a * a + b * b), om, wrap_angle(th), phase_of(a, b))
 
@@ -246,9 +243,14 @@ def spectral_peaks(normals, camera, times, n: int, *, scales: int | None = None,
     """The ``n`` peaks :func:`spectral_init` starts from, with their powers and sub-bin
     offsets (traceable; static ``n``, ``scales``, ``grid``)."""
     normals, _, times = check_inputs(normals, None, camera, times)
+    return SpectralPeaks(*_strongest_peaks(normals, camera, times, n, scales, grid))
+
+
+def _strongest_peaks(normals, camera, times, n, scales, grid):
+    """:func:`_pool_peaks` of the estimate of checked inputs (``scales`` None: the default)."""
     if scales is None:
         scales = 1 if camera.projection == "orthographic" else 4
-    return SpectralPeaks(*_pool_peaks(_spectral_from_normals(normals, times, camera, scales, grid, max(n, 8)), n))
+    return _pool_peaks(_spectral_from_normals(normals, times, camera, scales, grid, max(n, 8)), n)
 
 
 def _pool_peaks(est: SpectralEstimate, n):
