@@ -264,8 +264,8 @@ def build_parser():
     p.add_argument("--verbose", action="store_true", help="print the fit's order-selection steps")
     p.add_argument("--init", choices=("spectral", "net"), default="spectral",
                    help="start: spectral (default: greedy detection from the space-time spectrum) or net (the "
-                        "wave network's waves from the first frames as candidates of the first round beside the "
-                        "spectral ones, then the same selection and refinement, with pruning)")
+                        "wave network's waves from the first frames as the first trial model, admitted and tested "
+                        "as the selection's first batch; then the same selection and refinement)")
     p.add_argument("--net-model", help="wave network file for --init net (default: the shipped model)")
     p.add_argument("--no-heights", dest="heights", action="store_false",
                    help="fit the slopes alone, without the normals' integrated heights (fit.heights), which by "

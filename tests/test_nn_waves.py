@@ -183,9 +183,8 @@ def test_net_started_fit_recovers_a_clean_four_wave_swell():
     default = fit_waves_fn(normals, rough, camera, times, prune=True)
     m_default = match(default.waves, truth)
     assert bool(default.success) and int(default.n_waves) == 4 and m_default.true_index.size == 4
-    # the net's start must do as well: the same waves, at least as accurately (its spurious
-    # slots are candidates that pay no penalty, or the weaker of a pair the window does not
-    # separate, merged by the pruning that init="net" turns on)
+    # the net's start must do as well: the same waves, at least as accurately, without pruning
+    # (the network keeps 6 slots here; admitted untested, 2 of them stayed as waves of 3 mm)
     fit = fit_waves_fn(normals, rough, camera, times, init="net", net=model)
     m = match(fit.waves, truth)
     assert bool(fit.success) and int(fit.n_waves) == 4
@@ -193,6 +192,9 @@ def test_net_started_fit_recovers_a_clean_four_wave_swell():
     for name in ("amplitude", "omega", "theta"):
         err, ref = (np.max(np.abs(getattr(x.abs_error, name))) for x in (m, m_default))
         assert err <= max(1e-3, 1.5 * ref), (name, err, ref)
+    # a fixed count smaller than the network's start: that many of its waves, each a true one
+    two = fit_waves_fn(normals, rough, camera, times, init="net", net=model, n_waves=2)
+    assert int(two.n_waves) == 2 and match(two.waves, truth).true_index.size == 2
 
 
 def test_cli_train_waves_and_fit_waves_init_options(tmp_path, capsys):

@@ -147,7 +147,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           noise_floor=None, noise_correlation: float = 0.0, batch: int = 12, inner_steps: int = 8,
           max_steps: int = 100, rtol=1e-6, atol=None,
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
-          score_samples: int = 32768, prune: bool | None = None, long_waves: bool = True, separation: float = 0.5,
+          score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
           surface: str = "auto", heights: bool | None = None, n_min=hierarchy.DEFAULT_N_MIN,
           n_max=hierarchy.DEFAULT_N_MAX, throw: bool = False, history: bool = False, return_selection: bool = False,
           verbose: bool = False):
@@ -177,18 +177,18 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     * ``init``: starting waves; then no spectral initialisation, and waves are added only
       if ``n_waves`` asks for more. ``init="net"``: the waves of the wave network
       (:func:`jaxocean.nn.waves.predict` on the first ``config.frames`` frames: the slots
-      with presence above ``net_threshold``) join the spectral candidates of the first
-      round of selection; each becomes a wave only as any candidate does (refined on the
-      residual, paying the criterion's penalty, separated from the others), and the fit
-      goes on as from the default start. ``net``: a
+      with presence above ``net_threshold``, their amplitudes and phases solved on the
+      data) are the first trial model: refined like any batch and kept if the criterion
+      improves on the flat sea; the selection then goes on as from the default start, on
+      the residual they leave. ``net``: a
       :class:`~jaxocean.nn.waves.WaveNetModel` or a model file; None is the shipped model.
     * ``prune``: after the greedy stage, drop waves whose Wald statistic is below the
       criterion's penalty, refit, and keep the smaller model only if the criterion does not
       get worse; then the same for the weaker wave of each pair the window does not separate
       (:func:`rayleigh_separation` below 1), which the Wald statistic, a second-order
-      estimate, keeps. ``None`` (default): on with ``init="net"`` (the network's candidates
-      leave such pairs), off otherwise (with correlated long waves a refit can land in a
-      worse optimum, and each step costs a final refit).
+      estimate, keeps. Off by default: with correlated long waves a refit can land in a
+      worse optimum, and each step costs a final refit (on six 32² dataset scenes
+      started from the network it kept 3 of 12 prunings and cost half again the fit's time).
     * ``long_waves``: model the part of the sea the view cannot separate into waves -- waves
       longer than the view -- by the long-wave band of :mod:`jaxocean.fit.waves._band`
       (nuisance waves of fixed wave vector, 6 wavelengths x 12 directions by default, whose
@@ -407,6 +407,53 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
+    def admissible(w: Waves) -> np.ndarray:
+        """Indices of ``w`` the selection would admit together, steepest (largest slope
+        amplitude k h) first: resolved by the image and ``separation`` Rayleigh limits from
+        every steeper admitted wave (with the long-wave band; all of them without it)."""
+        order = np.argsort(-np.asarray(w.amplitude * w.omega ** 2))
+        if not long_waves:
+            return order
+        order = order[np.asarray(resolvable(w, camera, n_max=n_max))[order]]
+        apart = rayleigh_separation(w, w, camera, fit_t, n_max=n_max)
+        kept = []
+        for i in order:
+            if all(apart[i, j] >= separation for j in kept):
+                kept.append(i)
+        return np.asarray(kept, int)
+
+    def seed_from(w: Waves, most: int):
+        """``(waves, band, out)``: ``w`` admitted and refined as the first trial model (None:
+        no wave admitted). After each refinement, waves it moved out of admission (a twin of
+        a steeper wave, or one the image no longer resolves: the band's) and, choosing the
+        count, waves whose Wald statistic at the flat sea's residual variance does not pay
+        the criterion's penalty are dropped and the rest refined again (twice at most)."""
+        nonlocal total_steps
+        # the Wald test at the noise level the selection's first batch is judged at: the
+        # flat sea's residual (or the stated noise), so that, as there, only waves strong
+        # against all that is still unexplained enter at once
+        cn, _ = clean_inputs(fit_n, None, weight)
+        flat = float(jnp.sum(cn[..., :2] ** 2 * weight[..., None])) / m_obs
+        level = math.sqrt(max(flat, floor2)) if noise is None else noise
+        w = Waves(*[jnp.asarray(x, dtype) for x in w])
+        pick = admissible(w)[:most]
+        band_fit = band
+        for _ in range(3):
+            if not pick.size:
+                return None
+            w, band_fit, out = run_lm(jax.tree.map(lambda x: x[np.sort(pick)], w), band_fit, inner_steps)
+            total_steps += int(out.steps)
+            n = w.omega.shape[0]
+            keep = np.zeros(n, bool)
+            keep[admissible(w)] = True
+            if n_waves is None:
+                active = jnp.arange(bucket_size(n + n_band)) < n + n_band
+                keep &= wald_keep(out.y, out.jtj, active, out.loss, m_obs, criterion, level, floor2, cells_of(w))[:n]
+            if keep.all():
+                break
+            pick = np.nonzero(keep)[0]
+        return w, band_fit, out
+
     def cells_of(w: Waves) -> np.ndarray:
         # pixels per independent observation of each wave (ones: white noise)
         if not noise_correlation > 0 or w.omega.shape[0] == 0:
@@ -435,14 +482,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
     # ---- start
     empty = Waves(*(jnp.zeros(0, dtype),) * 4)
-    # the network's waves are candidates of the first round, not a starting model: started
-    # from them the fit keeps their spurious slots (measured on a clean 4-wave swell: 44
-    # waves, amplitudes 0.053 m off, against the default start's 4 waves within 2e-4 m)
-    net_hint = None
+    net_start = None
     if isinstance(init, str):
-        net_hint = _net_start(init, net, net_threshold, normals, roughness, camera, times)
+        net_start = _net_start(init, net, net_threshold, normals, roughness, camera, times)
         init = None
-        prune = True if prune is None else prune
     current = empty if init is None else Waves(*[jnp.asarray(x, dtype) for x in validate(init, max_steepness=None)])
     selecting = init is None  # the count is chosen by the criterion
     limit = n_waves if n_waves is not None else (max_waves if selecting else current.omega.shape[0])
@@ -480,6 +523,29 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     path_c.append(best_score)
     path_rss.append(rss_now)
     path_acc.append(True)
+    if net_start is not None:
+        # the network's waves as the first trial model, admitted as the selection admits its
+        # first batch (seed_from): measured on a clean 4-wave swell, the network's 6 waves
+        # all entered untested and 2 of them stayed, with the test the 4 true ones alone
+        seeded = seed_from(net_start, limit)
+    if net_start is not None and seeded is not None:
+        trial, trial_band, out = seeded
+        sc = score_of(trial, trial_band, out)
+        accepted = n_waves is not None or sc < best_score
+        path_n.append(trial.omega.shape[0])
+        path_c.append(sc)
+        path_rss.append(rss_of(out))
+        path_acc.append(bool(accepted))
+        if verbose:
+            print(f"  network start: waves {trial.omega.shape[0]:4d}  criterion {sc:.6g}  rss/m "
+                  f"{rss_of(out) / m_obs:.3e}  {'kept' if accepted else 'rejected'}", flush=True)
+        if accepted:
+            current, band, best_score, rss_now = trial, trial_band, sc, rss_of(out)
+            on_hits = try_hits(current, band, rss_now)
+            if on_hits is not None:
+                current, band, out = on_hits
+                best_score = score_of(current, band, out)
+                rss_now = rss_of(out)
 
     n_cand = batch + 8
     cur_batch = batch
@@ -504,15 +570,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # a plane wave there, not on the mean sea plane
         est = spectral_pyramid(resid, wt, fit_t, camera, scales=n_scales, grid=grid, n_peaks=16,
                                surface=rest_surface)
-        hint_om, hint_th = ((jnp.zeros(0, dtype),) * 2 if net_hint is None
-                            else (jnp.asarray(net_hint.omega, dtype), jnp.asarray(net_hint.theta, dtype)))
-        net_hint = None  # the network's candidates enter the first round only
-        c_om = jnp.concatenate([est.peak_omega.ravel(), hint_om, long_om])
-        c_th = jnp.concatenate([est.peak_theta.ravel(), hint_th, long_th])
-        valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(hint_om.shape, bool),
-                                np.ones(long_om.shape, bool)])
-        c_res = np.concatenate([np.repeat(res_scale, est.peak_power.shape[1]), np.full(hint_om.shape, res_scale[0]),
-                                np.full(long_om.shape, res_scale[-1])])
+        c_om = jnp.concatenate([est.peak_omega.ravel(), long_om])
+        c_th = jnp.concatenate([est.peak_theta.ravel(), long_th])
+        valid = np.concatenate([np.asarray(est.peak_power.ravel()) > 0, np.ones(long_om.shape, bool)])
+        c_res = np.concatenate([np.repeat(res_scale, est.peak_power.shape[1]), np.full(long_om.shape, res_scale[-1])])
         c_om = jnp.where(jnp.asarray(valid), c_om, 1.0)
         energy, _, _ = score_candidates(c_om, c_th, smp_score, n_min, n_max)
         energy = np.where(valid, np.asarray(energy), -np.inf)
@@ -684,9 +745,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                     rss_now = rss_of(p_out)
             if n_waves is None and not holdout and rss_now / m_obs <= floor2:
                 break  # explained to the noise floor: nothing left to find
-        elif cur_batch > 1:
+        elif cur_batch > 1 and len(chosen) > 1:
             # a smaller batch; halving past the candidates that were there to choose from
-            # (a batch no smaller would choose the same ones and be rejected again)
+            # (a batch no smaller would choose the same ones and be rejected again; one
+            # rejected candidate would be chosen alone again from the same residual)
             cur_batch //= 2
             while cur_batch > 1 and cur_batch >= len(chosen):
                 cur_batch //= 2
