@@ -407,6 +407,17 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         fitted, band_fit = split(out.y, n, n_pad)
         return fitted, band_fit, out
 
+    def judge(trial: Waves, trial_band: Waves | None, out):
+        """``(criterion, kept)`` of a trial model against the best so far (always kept with a
+        fixed count), recorded on the selection's path."""
+        sc = score_of(trial, trial_band, out)
+        accepted = n_waves is not None or sc < best_score
+        path_n.append(trial.omega.shape[0])
+        path_c.append(sc)
+        path_rss.append(rss_of(out))
+        path_acc.append(bool(accepted))
+        return sc, accepted
+
     def admissible(w: Waves) -> np.ndarray:
         """Indices of ``w`` the selection would admit together, steepest (largest slope
         amplitude k h) first: resolved by the image and ``separation`` Rayleigh limits from
@@ -530,12 +541,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         seeded = seed_from(net_start, limit)
     if net_start is not None and seeded is not None:
         trial, trial_band, out = seeded
-        sc = score_of(trial, trial_band, out)
-        accepted = n_waves is not None or sc < best_score
-        path_n.append(trial.omega.shape[0])
-        path_c.append(sc)
-        path_rss.append(rss_of(out))
-        path_acc.append(bool(accepted))
+        sc, accepted = judge(trial, trial_band, out)
         if verbose:
             print(f"  network start: waves {trial.omega.shape[0]:4d}  criterion {sc:.6g}  rss/m "
                   f"{rss_of(out) / m_obs:.3e}  {'kept' if accepted else 'rejected'}", flush=True)
@@ -711,12 +717,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         jax.block_until_ready(out.loss)  # dispatch is asynchronous: time the work, not the call
         timing["lm"] += time.perf_counter() - t_c
         total_steps += int(out.steps)
-        sc = score_of(trial, trial_band, out)
-        accepted = n_waves is not None or sc < best_score
-        path_n.append(trial.omega.shape[0])
-        path_c.append(sc)
-        path_rss.append(rss_of(out))
-        path_acc.append(bool(accepted))
+        sc, accepted = judge(trial, trial_band, out)
         if verbose:
             print(f"  waves {trial.omega.shape[0]:4d}  criterion {sc:.6g}  rss/m {rss_of(out) / m_obs:.3e}  "
                   f"{'kept' if accepted else 'rejected'}  ({time.perf_counter() - t0:.0f} s; "
