@@ -418,6 +418,16 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         path_acc.append(bool(accepted))
         return sc, accepted
 
+    def adopt(w: Waves, band_: Waves | None, out, sc):
+        """``(waves, band, out, criterion, rss)`` of an accepted trial model, refitted where
+        :func:`try_hits` switches paths (later trials are scored against the refit on the
+        path chosen)."""
+        on_hits = try_hits(w, band_, rss_of(out))
+        if on_hits is not None:
+            w, band_, out = on_hits
+            sc = score_of(w, band_, out)
+        return w, band_, out, sc, rss_of(out)
+
     def admissible(w: Waves) -> np.ndarray:
         """Indices of ``w`` the selection would admit together, steepest (largest slope
         amplitude k h) first: resolved by the image and ``separation`` Rayleigh limits from
@@ -443,9 +453,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         # the Wald test at the noise level the selection's first batch is judged at: the
         # flat sea's residual (or the stated noise), so that, as there, only waves strong
         # against all that is still unexplained enter at once
-        cn, _ = clean_inputs(fit_n, None, weight)
-        flat = float(jnp.sum(cn[..., :2] ** 2 * weight[..., None])) / m_obs
-        level = math.sqrt(max(flat, floor2)) if noise is None else noise
+        level = math.sqrt(max(flat_rss / m_obs, floor2)) if noise is None else noise
         w = Waves(*[jnp.asarray(x, dtype) for x in w])
         pick = admissible(w)[:most]
         band_fit = band
@@ -516,6 +524,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     k_res = 2 * math.pi / max(baseline, 1e-6)
 
     update_surface(current, band, None)
+    cn, _ = clean_inputs(fit_n, None, weight)
+    flat_rss = float(jnp.sum(cn[..., :2] ** 2 * weight[..., None]))  # the flat sea's, on the fitted frames
     if current.omega.shape[0] > 0:
         current, band, best_out = run_lm(current, band, inner_steps if limit > current.omega.shape[0] else max_steps)
         total_steps += int(best_out.steps)
@@ -527,31 +537,24 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         best_score = float(jnp.sum(cn[..., :2] ** 2 * wt[..., None]) / jnp.maximum(jnp.sum(wt), 1.0))
         rss_now = float("nan")
     else:
-        cn, _ = clean_inputs(fit_n, None, weight)
-        rss_now = float(jnp.sum(cn[..., :2] ** 2 * weight[..., None]))
+        rss_now = flat_rss
         best_score = _criterion_value(criterion, rss_now, m_obs, 0, noise, floor2)
     path_n.append(current.omega.shape[0])
     path_c.append(best_score)
     path_rss.append(rss_now)
     path_acc.append(True)
-    if net_start is not None:
-        # the network's waves as the first trial model, admitted as the selection admits its
-        # first batch (seed_from): measured on a clean 4-wave swell, the network's 6 waves
-        # all entered untested and 2 of them stayed, with the test the 4 true ones alone
-        seeded = seed_from(net_start, limit)
-    if net_start is not None and seeded is not None:
+    # the network's waves as the first trial model, admitted as the selection admits its
+    # first batch (seed_from): measured on a clean 4-wave swell, the network's 6 waves all
+    # entered untested and 2 of them stayed, with the test the 4 true ones alone
+    seeded = None if net_start is None else seed_from(net_start, limit)
+    if seeded is not None:
         trial, trial_band, out = seeded
         sc, accepted = judge(trial, trial_band, out)
         if verbose:
             print(f"  network start: waves {trial.omega.shape[0]:4d}  criterion {sc:.6g}  rss/m "
                   f"{rss_of(out) / m_obs:.3e}  {'kept' if accepted else 'rejected'}", flush=True)
         if accepted:
-            current, band, best_score, rss_now = trial, trial_band, sc, rss_of(out)
-            on_hits = try_hits(current, band, rss_now)
-            if on_hits is not None:
-                current, band, out = on_hits
-                best_score = score_of(current, band, out)
-                rss_now = rss_of(out)
+            current, band, out, best_score, rss_now = adopt(trial, trial_band, out, sc)
 
     n_cand = batch + 8
     cur_batch = batch
@@ -723,14 +726,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                   f"{'kept' if accepted else 'rejected'}  ({time.perf_counter() - t0:.0f} s; "
                   + ", ".join(f"{k} {v:.0f} s" for k, v in timing.items()) + ")", flush=True)
         if accepted:
-            current, band, best_score = trial, trial_band, sc
-            rss_now = rss_of(out)
-            on_hits = try_hits(current, band, rss_now)
-            if on_hits is not None:
-                # later trials are scored against the refit on the path chosen
-                current, band, out = on_hits
-                best_score = score_of(current, band, out)
-                rss_now = rss_of(out)
+            current, band, out, best_score, rss_now = adopt(trial, trial_band, out, sc)
             if (n_waves is None and not holdout and floor2 < rss_now / m_obs <= POLISH_FACTOR * floor2
                     and rss_now < 0.5 * polished_at and int(out.steps) >= inner_steps):
                 # the trial ran out of steps near the floor: refine longer before adding waves
