@@ -860,9 +860,8 @@ def test_a_model_that_moves_the_hits_by_half_a_footprint_is_fitted_on_the_hits_p
     # to 53 waves, 26 of the 50 resolvable found; they move a hit by half a footprint, which
     # sends the fit to the hits path as it sends render (36 found)
     scene = dataset.sample_scene(jax.random.fold_in(jax.random.key(7), 37), resolution=(32, 32), n_frames=6)
-    _, geo = dataset.render_scene(scene)
-    normals = jnp.where(geo.converged[..., None], geo.normal, jnp.nan)
-    fit = fw.waves(normals, geo.roughness, scene.camera, scene.times)
+    _, geo = dataset.render_scene(scene)  # the normals as simulate stores them
+    fit = fw.waves(geo.normal, geo.roughness, scene.camera, scene.times)
     assert fit.surface == "hits"
     resolvable = fw.resolvable(scene.waves, scene.camera)
     assert int(resolvable.sum()) == 50
