@@ -143,11 +143,15 @@ def forecast(waves: Waves, times, camera=None, lighting=None, *, plan="rows", n_
     validate(waves, max_steepness=None)
     if waves.omega.ndim != 1:
         raise ValueError(f"forecast takes Waves with leaves (N,); got {waves.omega.shape} (vmap batches)")
+    if is_concrete(times):
+        # checked before the cast to the waves' dtype, which turns a finite 1e300 into inf
+        raw = np.asarray(times, np.float64)
+        largest = float(np.finfo(np.dtype(waves.omega.dtype)).max)
+        check_values(np.abs(raw) <= largest, f"forecast times must be finite and within the waves' "
+                     f"{np.dtype(waves.omega.dtype).name} range (|t| <= {largest:.3g} s)", raw)
     times = jnp.atleast_1d(jnp.asarray(times, waves.omega.dtype))
     if times.ndim != 1:
         raise ValueError(f"times must be a scalar or (T,); got shape {times.shape}")
-    if is_concrete(times):
-        check_values(np.isfinite(np.asarray(times)), "forecast times must be finite", times)
     if (window is None) != (frequency_sigma is None):
         raise ValueError("window and frequency_sigma go together: give both (a damped forecast) or neither")
     scale = None

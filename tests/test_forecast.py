@@ -60,6 +60,9 @@ def test_forecast_without_camera_and_bad_inputs():
         fc.forecast(jax.tree.map(lambda x: jnp.stack([x, x]), w), [0.0])
     with pytest.raises(InvalidValueError, match="finite"):
         fc.forecast(w, [0.0, np.nan])
+    # a finite time beyond float32 is named as such, not cast to inf first (with a warning)
+    with pytest.raises(InvalidValueError, match=r"float32 range .*1e\+300"):
+        fc.forecast(w, [0.0, 1e300])
     with pytest.raises(ValueError, match="plan must be"):
         fc.forecast(w, [0.0], camera(), plan="fast")
 
