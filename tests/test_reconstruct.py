@@ -473,14 +473,15 @@ def test_the_sea_stage_hands_the_determined_mask_to_the_spectrum_fit(tmp_path, m
     geo = SimpleNamespace(normal=jnp.tile(jnp.asarray([0.0, 0.0, 1.0]), (len(times), 32, 32, 1)),
                           roughness=jnp.full((len(times), 32, 32), 1e-3), mask=jnp.ones((len(times), 32, 32), bool))
     seen = {}
-    real = jo.fit.spectrum
+    from jaxocean import fit  # jaxocean loads its fit package lazily: jo.fit exists only once imported
+    real = fit.spectrum
 
     def spy(w, **kw):
         seen.update(kw)
         return real(w, **kw)
 
-    monkeypatch.setattr(jo.fit, "spectrum", spy)
-    monkeypatch.setattr(jo.fit, "resolvable", lambda w, c: np.ones(w.omega.shape, bool))
+    monkeypatch.setattr(fit, "spectrum", spy)
+    monkeypatch.setattr(fit, "resolvable", lambda w, c: np.ones(w.omega.shape, bool))
     mask = np.array([True, True, False, True])
     (sea, _, sfit), _ = rc.sea_stage(seq, waves, geo, determined=mask, waves_ok=True, evidence=None)
     np.testing.assert_array_equal(seen["determined"], mask)
