@@ -350,8 +350,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         """Where :func:`update_surface` switches, refit ``w`` on the hits path and keep it if
         the model leaves the data unexplained and moves a hit by half a footprint; else refit
         it on the rows path with the same steps too and keep the path that explains the data
-        better: ``(waves, band, out)`` of that fit (None where it does not switch). Equal steps, because ``w`` comes from a short trial:
-        against its residual a longer refit on either path wins (measured: one clean wave at
+        better: ``(waves, band, out)`` of that fit (None where it does not switch). Equal
+        steps, because ``w`` comes from a short trial: against its residual a longer refit on
+        either path wins (measured: one clean wave at
         two frames per period, 8 steps from its start at 17x the noise floor, moved to the
         hits path and took 12 stand-ins; 32 more steps on the rows path explain it). Back on
         the rows path the data are its own (rendered on it, as ``render`` does where no wave
@@ -370,9 +371,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             # the comparison below is decided by the waves still missing (measured on a
             # 128^2 dataset scene: 11 waves refitted on each path explained it 0.6% better
             # on the rows path, and the selection crept on there to the cap with a mean
-            # normal error of 0.11 rad). Where the rows path explains the data, the band's
-            # heights, which its slopes barely fix, can move the hits on a sea it explains
-            # (measured 0.11 m on one short wave fitted to 3e-6 rad)
+            # normal error of 0.11 rad). Where the rows path explains the data the rule is
+            # not trusted: the band's heights can move the hits there (docstring above)
             if verbose:
                 print("  the model moves a hit by half a footprint: on the hits path", flush=True)
             return h_fit
