@@ -118,7 +118,9 @@ def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True) 
     row["fitted_determined"] = np.asarray(result.determined, bool).tolist()
     if band is not None:  # the band's fitted stand-ins, for a forecast of everything the fit explains
         row["band_waves"] = benchutil.waves_to_json(band.waves)
+    # the path the truth needs (render's rule) and the one the fit ended on
     row["surface"] = "hits" if bool(render.needs_refinement(scene.waves, scene.camera)) else "rows"
+    row["fit_surface"] = result.surface
     determined = np.asarray(result.determined, bool)
     row.update(score_waves(result.waves, determined, scene))
     row.update(score_sea_both(result.waves, determined, scene, geo))
