@@ -233,9 +233,18 @@ def _check_out_parents(path: Path) -> None:
             return
 
 
+def _out_path(path, what: str) -> Path:
+    """``--out`` as a path, refusing an empty one: ``Path("")`` is the current directory, and an
+    empty ``--out`` is far more often an unset shell variable than a wish to write there."""
+    if not str(path).strip():
+        raise ValueError(f"--out is empty (an unset shell variable?); give {what}")
+    return Path(path)
+
+
 def check_out_dir(path) -> Path:
-    """``--out`` of a command that writes a directory: not an existing file, nor under one."""
-    path = Path(path)
+    """``--out`` of a command that writes a directory: not empty, not an existing file, nor
+    under one."""
+    path = _out_path(path, "the directory to write ('.' for the current one)")
     if path.exists() and not path.is_dir():
         raise ValueError(f"--out {path}: exists and is not a directory (this command writes a directory there)")
     _check_out_parents(path)
@@ -257,8 +266,8 @@ def refuse_out_over_source(out, source, command: str) -> None:
 
 def check_out_file(path, example: str) -> Path:
     """``--out`` of a command that writes one JSON file: not an existing directory, nor under a
-    file. ``example``: the command's usual file name, suggested in the directory."""
-    path = Path(path)
+    file, not empty. ``example``: the command's usual file name, suggested in the directory."""
+    path = _out_path(path, f"the JSON file to write, e.g. {example}")
     _check_out_parents(path)
     if path.is_dir():
         raise ValueError(f"--out {path}: is a directory; give the JSON file to write, e.g. {path / example}")

@@ -566,6 +566,20 @@ def test_out_directory_for_a_json_file_suggests_the_commands_file(tmp_path, caps
         capsys.readouterr().err
 
 
+@pytest.mark.parametrize("argv, expected", [
+    (["render", "--frames", "1", "--res", "8", "--waves", "4"], "give the directory to write ('.' for the current"),
+    (["simulate", "--scenes", "1", "--frames", "1", "--res", "8", "--quiet"], "give the directory to write"),
+    (["fit-waves", "scene"], "give the JSON file to write, e.g. waves.json"),
+    (["train-geometry", "dataset"], "give the directory to write"),
+])
+def test_empty_out_is_refused_not_the_current_directory(tmp_path, monkeypatch, capsys, argv, expected):
+    monkeypatch.chdir(tmp_path)  # Path("") is the current directory: it wrote there
+    assert cli.main(argv + ["--out", ""]) == 2
+    err = capsys.readouterr().err
+    assert "--out is empty (an unset shell variable?); " + expected in err, err
+    assert not list(tmp_path.iterdir())
+
+
 def test_render_replaces_the_previous_scene_in_its_directory(tmp_path, capsys):
     out = tmp_path / "r"
     out.mkdir()
