@@ -572,10 +572,9 @@ def cmd_fit_lighting(args):
     if args.scene:
         inputs.refuse_other_json(args.scene, "--scene takes the frame's scene directory or scene.json (its camera)")
     scene = read_scene(args.scene) if args.scene else None
-    if scene is not None and scene.camera is None:
-        raise ValueError(f"{args.scene}: the scene has no camera")
+    # a scene without a camera takes it from the options, as a frame without a scene does
     camera = inputs.camera_from_args(args, None if scene is None else scene.camera, tuple(frame.image.shape[:2]),
-                               where=f"frame {args.frame}")
+                                     where=f"frame {args.frame}" if scene is None else f"the scene {args.scene}")
     print(f"fitting the lighting of {args.frame} ({frame.image.shape[0]}x{frame.image.shape[1]}; "
           f"compilation included)")
     result = fit.lighting(frame.image, frame, camera, throw=False)

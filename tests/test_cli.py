@@ -196,6 +196,33 @@ def test_fit_lighting_notes_a_frame_without_slope_variance(default_scene, tmp_pa
     assert "old.exr has no slope_variance.X/Y channels" in err and "isotropic roughness" in err
 
 
+def test_fit_lighting_takes_the_camera_options_for_a_scene_without_a_camera(tiny_scene, tmp_path, capsys,
+                                                                             monkeypatch):
+    import json
+
+    from jaxocean import fit
+
+    data = json.loads((tiny_scene / "scene.json").read_text())
+    del data["camera"]
+    (tmp_path / "scene.json").write_text(json.dumps(data))
+    frame = str(tiny_scene / "frame_00000.exr")
+    assert cli.main(["fit-lighting", frame, "--scene", str(tmp_path), "--out", str(tmp_path / "a.json")]) == 2
+    assert f"the scene {tmp_path} has no camera: give --camera-height and --camera-pitch-deg" in \
+        capsys.readouterr().err
+    seen = {}
+
+    def stop(image, geometry, camera, **kwargs):
+        seen["camera"] = camera
+        raise ValueError("fit skipped")
+
+    monkeypatch.setattr(fit, "lighting", stop)  # refused before the options were looked at
+    assert cli.main(["fit-lighting", frame, "--scene", str(tmp_path), "--camera-height", "7",
+                     "--camera-pitch-deg", "40", "--out", str(tmp_path / "a.json")]) == 2
+    assert "fit skipped" in capsys.readouterr().err
+    assert float(seen["camera"].height) == pytest.approx(7.0)
+    assert float(seen["camera"].pitch) == pytest.approx(np.radians(40.0))
+
+
 def test_fit_lighting_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     from jaxocean import io
 
