@@ -527,6 +527,7 @@ def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     merged = fw.waves(normals, rough, c, TIMES, init=init, prune=True, verbose=True)
     out = capsys.readouterr().out
     assert "merging 1 of 4 waves" in out and "pruning" not in out  # the Wald step kept the twin
+    assert "final refinement of 4 waves on every frame: " in out and " of 100 steps, rss/m " in out, out
     assert int(merged.n_waves) == 3 and bool(merged.success)
     m = fw.match(merged.waves, truth)
     assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4

@@ -754,7 +754,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                 total_steps += int(p_out.steps)
                 if verbose:
                     print(f"  refined {p_waves.omega.shape[0]} waves longer: rss/m {rss_now / m_obs:.3e} -> "
-                          f"{rss_of(p_out) / m_obs:.3e}", flush=True)
+                          f"{rss_of(p_out) / m_obs:.3e}  ({int(p_out.steps)} steps; "
+                          f"{time.perf_counter() - t0:.0f} s)", flush=True)
                 if rss_of(p_out) < rss_now:
                     current, band, best_score = p_waves, p_band, score_of(p_waves, p_band, p_out)
                     rss_now = rss_of(p_out)
@@ -824,8 +825,14 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     on_hits = try_hits(current, band, rss_now if math.isfinite(rss_now) else None)
     if on_hits is not None:
         current, band = on_hits[:2]
+    t_final = time.perf_counter()
     best = final_fit(current, band)
     total_steps += int(best["steps"])
+    if verbose:
+        print(f"  final refinement of {current.omega.shape[0]} waves on every frame: {int(best['steps'])} of "
+              f"{max_steps} steps, rss/m {float(best['half']):.3e}, "
+              f"{'converged' if bool(best['success']) else 'not converged'} "
+              f"({time.perf_counter() - t_final:.0f} s; {time.perf_counter() - t0:.0f} s in all)", flush=True)
     if n_waves is None and prune:
         def try_without(drop, why):
             """Refit without the waves ``drop`` marks; keep that model if the criterion does
