@@ -9,7 +9,7 @@ normal angle over sea pixels (:func:`jaxocean.forecast.geometry_error`).
 
 ``--surface`` picks how both are drawn: ``camera`` (default) draws what the camera sees --
 the truth as the dataset's frames were rendered (``plan="auto"``: the converged hits where
-the waves move them), the fit on the path it was fitted on (``surface`` of its row) with its
+the waves move them), the fit on the path it was fitted on (``fit_surface`` of its row) with its
 long-wave band, the model whose frame 0 the fit explained; ``rows`` draws both on the rows
 path (every pixel at its mean-sea-plane hit) from the fitted waves alone, and where a row
 holds the band, the waves and band together too (``normal_error_with_band_rad``).
@@ -114,7 +114,8 @@ def one_scene(row, frames, surface="camera"):
         # and long-wave band) on the path it was fitted on
         truth = fc.forecast(scene.waves, times, scene.camera, plan="auto").geometry
         model, _ = _with_band(fitted, row)
-        refine = render.MAX_REFINE_ITERATIONS if row.get("surface") == "hits" else 0
+        fit_surface = row.get("fit_surface", row.get("surface"))  # rows saved before the column: the truth's
+        refine = render.MAX_REFINE_ITERATIONS if fit_surface == "hits" else 0
         pred = fc.forecast(model, times, scene.camera, plan=render.full_plan(model.omega.shape[0], refine)).geometry
     else:
         truth = fc.forecast(scene.waves, times, scene.camera).geometry
@@ -123,7 +124,7 @@ def one_scene(row, frames, surface="camera"):
     frame0 = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), truth)
     persistence = fc.geometry_error(frame0, truth)
     normal = np.asarray(err.normal, float)
-    out = dict(seed=row["seed"], surface=surface, fit_surface=row.get("surface"), fit_success=row.get("success"),
+    out = dict(seed=row["seed"], surface=surface, fit_surface=row.get("fit_surface", row.get("surface")), fit_success=row.get("success"),
                frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
                normal_error_rad=normal.tolist(), roughness_error=np.asarray(err.roughness, float).tolist(),
                ratio_to_frame0=(normal / normal[0]).tolist(),

@@ -317,7 +317,8 @@ def table2_summary(rows) -> dict:
                     separable_omega=every("mae_omega_separable", TARGET["omega"]),
                     separable_theta=every("mae_theta_separable", TARGET["theta"]),
                     count=every("fitted_over_separable", TARGET["fitted_over_separable"]),
-                    sea_state=all(sea_state_met(r) for r in rows if "peak_resolvable" in r),
+                    sea_state=all(sea_state_met(r) for r in rows) if all("peak_resolvable" in r for r in rows)
+                    else None,  # rows saved before the column existed: --rescore
                     time=s["time_s"]["max"] <= TARGET["time_s"]) if rows else {}
     return s
 
