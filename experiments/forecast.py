@@ -107,6 +107,7 @@ def _damped(model, det, scene, times, truth, refine):
 
 def one_scene(row, frames, surface="camera"):
     scene, geo = wave_fit.dataset_scene(row["seed"], row["resolution"])
+    fit_surface = row.get("fit_surface", row.get("surface"))  # rows saved before the column: the truth's
     fitted = benchutil.waves_from_json(row["fitted_waves"])
     times = jnp.asarray(fc.frame_times(np.asarray(scene.times), frames), jnp.float32)
     if surface == "camera":
@@ -114,7 +115,6 @@ def one_scene(row, frames, surface="camera"):
         # and long-wave band) on the path it was fitted on
         truth = fc.forecast(scene.waves, times, scene.camera, plan="auto").geometry
         model, _ = _with_band(fitted, row)
-        fit_surface = row.get("fit_surface", row.get("surface"))  # rows saved before the column: the truth's
         refine = render.MAX_REFINE_ITERATIONS if fit_surface == "hits" else 0
         pred = fc.forecast(model, times, scene.camera, plan=render.full_plan(model.omega.shape[0], refine)).geometry
     else:
@@ -124,7 +124,7 @@ def one_scene(row, frames, surface="camera"):
     frame0 = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), truth)
     persistence = fc.geometry_error(frame0, truth)
     normal = np.asarray(err.normal, float)
-    out = dict(seed=row["seed"], surface=surface, fit_surface=row.get("fit_surface", row.get("surface")), fit_success=row.get("success"),
+    out = dict(seed=row["seed"], surface=surface, fit_surface=fit_surface, fit_success=row.get("success"),
                frames=list(map(int, frames)), times=np.asarray(times, float).tolist(),
                normal_error_rad=normal.tolist(), roughness_error=np.asarray(err.roughness, float).tolist(),
                ratio_to_frame0=(normal / normal[0]).tolist(),
