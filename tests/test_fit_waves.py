@@ -853,6 +853,26 @@ def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
     assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound(2e-3)
 
 
+@pytest.mark.slow  # a full default fit of a 4-wave sea
+def test_a_swell_near_the_floor_adds_no_stand_ins():
+    # four JONSWAP waves, one of them a swell the view does not resolve: once the three
+    # resolvable waves are in, the residual (7x the floor) is the swell's, whose candidates
+    # are all long; the pool's rule for a swell that fills the spectrum must not then pull in
+    # small resolvable candidates (it added 11 stand-ins: 14 waves for 3)
+    truth = spectrum.sample_waves(jax.random.key(0), spectrum.Spectrum(
+        hs=0.6, tp=4.0, gamma=3.3, theta_mean=0.4, s_max=15.0), 4).waves
+    c = cam.make_camera(height=10.0, pitch=0.8, fov=0.8, yaw=0.0, resolution=(32, 32))
+    times = np.arange(10) * 0.15
+    resolvable = fw.resolvable(truth, c)
+    assert resolvable.tolist() == [False, True, True, True]
+    normals, rough = fw.predict(truth, c, times, surface="auto")
+    fit = fw.waves(normals, rough, c, times)
+    assert bool(fit.success)
+    m = fw.match(fit.waves, jax.tree.map(lambda x: x[resolvable], truth))
+    assert m.missed.size == 0
+    assert fit.waves.omega.shape[0] <= 4
+
+
 @pytest.mark.slow  # a full default fit of a 32^2 dataset scene
 def test_a_model_that_moves_the_hits_by_half_a_footprint_is_fitted_on_the_hits_path():
     # a dataset scene (jaxocean simulate --res 32 --frames 6 --seed 7, scene 37), rendered on

@@ -66,6 +66,13 @@ POLISH_FACTOR = 10.0
 #: candidates the view does not resolve are admitted too: the data demand more waves, and
 #: noise-free data resolve waves closer than the Rayleigh limit)
 CROWDED_SEPARATION = 0.5
+#: the candidate pool makes room for the strongest candidates the image resolves (when none
+#: of the strongest is resolvable: a swell longer than the view fills the residual's
+#: spectrum) only while the residual per component is more than this factor above the noise
+#: (the floor, or the stated noise): near it, what the swell leaves is the long-wave band's
+#: to absorb, and resolvable candidates there are stand-ins (measured on a 4-wave swell with
+#: 3 waves resolvable: at 7x the floor the rule added 11 stand-ins, 14 waves for 3)
+POOL_FACTOR = 100.0
 
 
 class NoWaveFound(InvalidValueError):
@@ -575,6 +582,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             current, band, out, best_score, rss_now = adopt(trial, trial_band, out, sc)
 
     n_cand = batch + 8
+    pool_noise2 = floor2 if noise is None else max(floor2, float(noise) ** 2)
     cur_batch = batch
     polished_at = math.inf  # the residual at the last longer refinement
     timing = dict(detect=0.0, refine=0.0, lm=0.0)
@@ -622,7 +630,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             return picked
 
         picked = distinct([(order, n_cand)])
-        if long_waves and picked:
+        # (an unknown residual, the holdout criterion's empty model, counts as far above it)
+        if long_waves and picked and not rss_now / m_obs <= POOL_FACTOR * pool_noise2:
             # a swell longer than the view can fill the residual's spectrum with near-copies
             # that cannot become waves (measured on a 32^2 dataset scene: the 20 strongest
             # were all 70-90 m long in a 40 m view, and the fit reported a flat sea over its
@@ -636,6 +645,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             # the whole list is checked only when the pool holds no resolvable candidate
             if not resolved(np.asarray(picked)).size:
                 picked = distinct([(order, n_cand // 2), (resolved(order), n_cand)])
+                if verbose:
+                    print(f"  none of the {n_cand} strongest candidates is resolvable at rss/m "
+                          f"{rss_now / m_obs:.3e}: half of them are the strongest resolvable", flush=True)
         if not picked:
             if verbose:
                 print("  stop: the residual's spectrum holds no candidate with positive energy", flush=True)
