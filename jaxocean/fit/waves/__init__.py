@@ -68,7 +68,10 @@ Pipeline of :func:`waves`:
    waves are tried, so that the trials' missing steps are not taken for missing waves. A
    model stalled more than ``POLISH_FACTOR`` above the floor with no admissible candidate
    may add candidates the view does not resolve or that stand ``CROWDED_SEPARATION`` (0.5)
-   x ``separation`` from its waves. On the hits path the residual is resampled for
+   x ``separation`` from its waves. Where none of the strongest candidates is resolvable (a
+   swell longer than the view fills the residual's spectrum) while the residual is more
+   than ``POOL_FACTOR`` (100) above the noise, half of the candidates are the strongest
+   resolvable ones. On the hits path the residual is resampled for
    detection at the model's rest positions (grid point ``X`` of frame ``t`` read at the
    pixel that sees the model's surface point ``p(X, t)``), where waves riding on the
    model's longer waves are plane waves.
