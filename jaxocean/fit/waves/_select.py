@@ -286,12 +286,12 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"heights=True needs solver='structured'; got {solver!r}")
     dtype = normals.dtype
     floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
-    if atol is None:
-        # the loss 0.5 mean |dn_xy|^2 is the per-component mean square residual
-        atol = (floor2 if noise is None else float(noise) ** 2) / 1000.0
     # the noise variance of the refinements' chi^2 convergence test: the stated noise, or the
     # floor that noise-free data are held to
     sigma2 = floor2 if noise is None else float(noise) ** 2
+    if atol is None:
+        # the loss 0.5 mean |dn_xy|^2 is the per-component mean square residual
+        atol = sigma2 / 1000.0
     H = camera.resolution[0]
     tail_rows = jnp.zeros(H, dtype)
     rw = 0.0 if roughness is None else float(roughness_weight)
@@ -582,7 +582,6 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
             current, band, out, best_score, rss_now = adopt(trial, trial_band, out, sc)
 
     n_cand = batch + 8
-    pool_noise2 = floor2 if noise is None else max(floor2, float(noise) ** 2)
     cur_batch = batch
     polished_at = math.inf  # the residual at the last longer refinement
     timing = dict(detect=0.0, refine=0.0, lm=0.0)
@@ -631,7 +630,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
 
         picked = distinct([(order, n_cand)])
         # (an unknown residual, the holdout criterion's empty model, counts as far above it)
-        if long_waves and picked and not rss_now / m_obs <= POOL_FACTOR * pool_noise2:
+        if long_waves and picked and not rss_now / m_obs <= POOL_FACTOR * max(sigma2, floor2):
             # a swell longer than the view can fill the residual's spectrum with near-copies
             # that cannot become waves (measured on a 32^2 dataset scene: the 20 strongest
             # were all 70-90 m long in a 40 m view, and the fit reported a flat sea over its
