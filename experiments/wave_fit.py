@@ -22,7 +22,8 @@ hierarchical normal and roughness maps, 10 frames):
    direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
    time (target 2 minutes). Geometry as the dataset writes it (:func:`dataset_scene`).
    ``--no-heights``: the fit from the slopes alone (``fit.waves(heights=False)``), saved
-   as ``table2_slopes``; ``--seeds 0,3`` picks scenes, so that two runs with ``--resume``
+   as ``table2_slopes``; ``--height-trend plane|quadratic``: ``fit.waves(height_trend=...)``,
+   saved as ``table2_plane`` / ``table2_quadratic``; ``--seeds 0,3`` picks scenes, so that two runs with ``--resume``
    can share one table.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
@@ -32,7 +33,7 @@ hierarchical normal and roughness maps, 10 frames):
    (spectral estimate, a perturbed truth, random), every solver, final error against time.
 
 Usage: ``python experiments/wave_fit.py [--quick] [--only table2,convergence,speed]
-[--scenes N | --seeds LIST] [--no-heights] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
+[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
 existing file) and ``wave_fit_*.png``.
 """
 
@@ -91,12 +92,14 @@ def wrap_deg(a):
 # --------------------------------------------------------------------------- table 2
 
 
-def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True) -> dict:
+def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level") -> dict:
     scene, geo = dataset_scene(seed, resolution)
     t0 = time.perf_counter()
-    result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights)
+    result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights,
+                       height_trend=height_trend)
     wall = time.perf_counter() - t0
-    row = dict(seed=seed, resolution=resolution, heights=heights, camera_height=float(scene.camera.height),
+    row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend,
+               camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
                gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
                sampled_hs=float(fit.sea_state(scene.waves).hs), n_fitted=int(result.n_waves), success=bool(result.success),
@@ -254,7 +257,7 @@ def section_table2(args, out):
     for seed in args.seeds:
         if seed in done:
             continue
-        row = table2_one(seed, args.resolution, args.verbose, heights=args.heights)
+        row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
@@ -275,8 +278,11 @@ def section_table2(args, out):
 
 def table2_key(args) -> str:
     """Where a Table 2 run goes in the results: ``table2`` for the default fit (with the
-    integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``."""
-    return "table2" if args.heights else "table2_slopes"
+    integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``, ``table2_plane`` /
+    ``table2_quadratic`` for ``fit.waves(height_trend=...)``."""
+    if not args.heights:
+        return "table2_slopes"
+    return "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
 
 
 def table2_summary(rows) -> dict:
@@ -514,6 +520,9 @@ def main(argv=None):
     parser.add_argument("--seeds", default="", help="table2: comma-separated scene seeds (default 0..scenes-1)")
     parser.add_argument("--no-heights", dest="heights", action="store_false",
                         help="table2: fit.waves(heights=False) (slopes alone), saved as table2_slopes")
+    parser.add_argument("--height-trend", default="level", choices=("level", "plane", "quadratic"),
+                        help="table2: fit.waves(height_trend=...); other than level saved as table2_plane or "
+                             "table2_quadratic")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="recompute the scores of the saved table2 (--no-heights: table2_slopes) scenes from "

@@ -270,6 +270,10 @@ def build_parser():
     p.add_argument("--no-heights", dest="heights", action="store_false",
                    help="fit the slopes alone, without the normals' integrated heights (fit.heights), which by "
                         "default pin the heights of the long waves that move the pixels' hits on rough seas")
+    p.add_argument("--height-trend", default="level", choices=("level", "plane", "quadratic"),
+                   help="what of each frame's integrated heights is left free: the level (default), or also a "
+                        "plane or a quadratic over the sea plane (steep seas seen at a low angle bias the "
+                        "integration by such a trend)")
 
     p = sub.add_parser("forecast", help="render waves at future frames",
                        description="Evolve waves (a fit-waves JSON or any scene.json) to the given frames or "
@@ -719,7 +723,8 @@ def cmd_fit_waves(args):
         result = fit_waves(normals, roughness, scene.camera, times, n_waves=args.n_waves, max_waves=args.max_waves,
                            noise=args.noise, noise_correlation=args.noise_correlation, throw=False,
                            verbose=args.verbose,
-                           init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights)
+                           init="net" if args.init == "net" else None, net=args.net_model, heights=args.heights,
+                           height_trend=args.height_trend)
     except NoWaveFound as error:  # a fit that found nothing, not bad input: exit 1 with its JSON
         write_result(None, {**inputs_report, "n_waves": 0, "success": False, "message": str(error)})
         print(f"jaxocean: the wave fit failed: {error}; see extra.wave_fit in the JSON", file=sys.stderr)

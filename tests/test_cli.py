@@ -409,6 +409,9 @@ def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert "give --noise too" in capsys.readouterr().err
     assert cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out)]).heights
     assert not cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out), "--no-heights"]).heights
+    parse = cli.build_parser().parse_args
+    assert parse(["fit-waves", str(tiny_scene), "--out", str(out)]).height_trend == "level"
+    assert parse(["fit-waves", str(tiny_scene), "--out", str(out), "--height-trend", "quadratic"]).height_trend == "quadratic"
     assert not out.exists()
 
 

@@ -316,6 +316,50 @@ def test_slopes_alone_fit_what_the_integrated_heights_agree_with():
         fw.waves(normals, rough, c, TIMES, heights=True, solver="lm", long_waves=False)
 
 
+def _heights_loss(w, normals, c, heights):
+    """The structured LM's loss of ``w`` (no step taken) with the ``heights`` term."""
+    dtype = normals.dtype
+    wp, active = _model.pad_waves(w, _model.bucket_size(w.omega.shape[0]))
+    out, _ = _lm.refine_kernel(_model.pack(wp), active, normals, None, TIMES, c, jnp.zeros(RES[0], dtype),
+                               jnp.asarray(1e-6, dtype), jnp.asarray(0.0, dtype), n_min=1.0, n_max=1.5, max_steps=0,
+                               roughness_weight=0.0, refine=_model.HITS, heights=heights)
+    return float(out.loss)
+
+
+@pytest.mark.parametrize("trend", ["plane", "quadratic"])
+def test_a_height_trend_leaves_that_trend_of_the_integrated_heights_free(x64, trend):
+    # with height_trend the heights term is blind to any per-frame combination of the trend's
+    # functions added to the integrated heights (what a biased integration adds on a steep
+    # sea); with the level alone the same plane costs
+    c = persp()
+    truth = few_waves()
+    normals, _ = fw.predict(truth, c, TIMES, surface="hits")
+    model = truth._replace(amplitude=truth.amplitude * 0.8)  # a heights misfit to leave alone
+    level = _select._height_data(normals, c, normals.dtype)
+    data = _select._height_data(normals, c, normals.dtype, trend)
+    assert len(level) == 3 and len(data) == 4
+    basis = np.asarray(data[3])
+    assert basis.shape == (len(TIMES), 3 if trend == "plane" else 6) + RES
+    coef = np.random.default_rng(0).normal(0.0, 0.05, basis.shape[:2])
+    trend_z = np.einsum("tk,tkhw->thw", coef, basis)
+    tilted = (data[0] + trend_z,) + tuple(data[1:])
+    base = _heights_loss(model, normals, c, data)
+    assert _heights_loss(model, normals, c, tilted) == pytest.approx(base, rel=1e-9)
+    # the level alone: the tilt is paid for, and the trend's free fit is never worse
+    level_base = _heights_loss(model, normals, c, level)
+    assert _heights_loss(model, normals, c, (level[0] + trend_z,) + tuple(level[1:])) > 1.01 * level_base
+    assert base <= level_base * (1 + 1e-9)
+
+
+def test_height_trend_bad_values_are_errors():
+    c = ortho()
+    normals, rough = fw.predict(few_waves(), c, TIMES)
+    with pytest.raises(ValueError, match="height_trend must be one of"):
+        fw.waves(normals, rough, c, TIMES, height_trend="cubic")
+    with pytest.raises(ValueError, match="height_trend='plane' needs the heights"):
+        fw.waves(normals, rough, c, TIMES, height_trend="plane", heights=False)
+
+
 def test_a_flat_sea_raises_no_wave_found():
     # nothing to return: a sea without waves is an error of its own type, saying at what noise
     c = ortho()

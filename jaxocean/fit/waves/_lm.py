@@ -153,16 +153,27 @@ def _ls_loss(y, active, normals, weight, times, camera, rough, tail_rows, scale,
              heights=None):
     """``(0.5 |r|^2, xy)``: the loss through ``render.geometry`` (normals) plus the roughness
     rows, and the rest positions ``(T, H, W, 2)`` the model's pixels see (its hits).
-    ``heights``: None, or ``(z, mask, weight)`` integrated heights ``(T, H, W)`` and where to
-    use them: the model's height at each pixel's hit against them, per-frame level free."""
+    ``heights``: None, or ``(z, mask, weight[, basis])`` integrated heights ``(T, H, W)`` and
+    where to use them: the model's height at each pixel's hit against them, per frame the
+    level free, or (with ``basis (T, K, H, W)``, its first function the constant) the
+    weighted least-squares combination of the basis functions."""
     pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max, refine, heights is not None, True)
     d = (pred.normal[..., :2] - normals[..., :2])
     half = 0.5 * scale * jnp.sum(d * d * weight[..., None])
     if heights is not None:
-        z, mask, rho = heights
+        z, mask, rho = heights[:3]
         m = mask * weight
         e = jnp.where(m > 0, pred.z - z, 0.0)
-        e = e - (jnp.sum(e * m, (1, 2)) / jnp.maximum(jnp.sum(m, (1, 2)), 1.0))[:, None, None]
+        if len(heights) > 3:
+            # the trend's per-frame coefficients at their weighted least-squares optimum (a
+            # tiny ridge: a frame with too few used pixels has a singular system)
+            B = heights[3]
+            G = jnp.einsum("tkhw,tlhw,thw->tkl", B, B, m)
+            G = G + 1e-9 * jnp.maximum(jnp.sum(m, (1, 2)), 1.0)[:, None, None] * jnp.eye(G.shape[-1], dtype=G.dtype)
+            c = jnp.linalg.solve(G, jnp.einsum("tkhw,thw->tk", B, e * m)[..., None])[..., 0]
+            e = e - jnp.einsum("tk,tkhw->thw", c, B)
+        else:
+            e = e - (jnp.sum(e * m, (1, 2)) / jnp.maximum(jnp.sum(m, (1, 2)), 1.0))[:, None, None]
         half = half + 0.5 * scale * rho * jnp.sum(e * e * m)
     rr = rough_residual(y, active, rough, tail_rows, n_min, n_max)
     return half + 0.5 * jnp.sum(rr * rr), pred.xy
@@ -346,7 +357,7 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
     ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed; ``refine``
     the forward model's path (``ROWS``; ``HITS``: the pixel-frames whose hit under ``y0``
     does not converge are left out of the whole refinement); ``sigma2``: the noise variance
-    of the chi^2 convergence test (0: off); ``heights``: None or ``(z, mask, weight)``
+    of the chi^2 convergence test (0: off); ``heights``: None or ``(z, mask, weight[, basis])``
     integrated heights the model's hits are also held to (:func:`_ls_loss`). Returns
     ``(out, n_valid)``."""
     held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
