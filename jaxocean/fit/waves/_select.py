@@ -245,9 +245,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       that bias is such a trend: on the two steepest Table 2 scenes the heights are off by
       0.25 and 0.31 m after the level, 0.11 and 0.12 m after a plane and 0.07 m after a
       quadratic, and a fit started from the true waves keeps them with ``"quadratic"``
-      (2e-6 and 1.8e-4 rad) but leaves them with ``"level"`` (0.0073 and 0.012 rad;
-      ``experiments/WAVES.md``). What it costs: the heights no longer pin the waves longer
-      than the view as firmly (a trend over the view is what such a wave looks like).
+      (2e-6 and 1.8e-4 rad) but leaves them with ``"level"`` (0.0073 and 0.012 rad);
+      from the default start the fit still fails on both (``experiments/WAVES.md``). What
+      it costs: the heights no longer pin the waves longer than the view as firmly (a trend
+      over the view is what such a wave looks like).
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
