@@ -22,9 +22,9 @@ hierarchical normal and roughness maps, 10 frames):
    direction of the full sea from ``fit.spectrum`` (targets 10%, 10%, 10 deg), and the
    time (target 2 minutes). Geometry as the dataset writes it (:func:`dataset_scene`).
    ``--no-heights``: the fit from the slopes alone (``fit.waves(heights=False)``), saved
-   as ``table2_slopes``; ``--height-trend plane|quadratic``: ``fit.waves(height_trend=...)``,
-   saved as ``table2_plane`` / ``table2_quadratic``; ``--seeds 0,3`` picks scenes, so that two runs with ``--resume``
-   can share one table.
+   as ``table2_slopes``; ``--height-trend plane|quadratic``:
+   ``fit.waves(height_trend=...)``, saved as ``table2_plane`` / ``table2_quadratic``;
+   ``--seeds 0,3`` picks scenes, so that two runs with ``--resume`` can share one table.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
    ``adam``) from the same perturbed start; loss and parameter errors against step and
@@ -520,7 +520,7 @@ def main(argv=None):
     parser.add_argument("--seeds", default="", help="table2: comma-separated scene seeds (default 0..scenes-1)")
     parser.add_argument("--no-heights", dest="heights", action="store_false",
                         help="table2: fit.waves(heights=False) (slopes alone), saved as table2_slopes")
-    parser.add_argument("--height-trend", default="level", choices=("level", "plane", "quadratic"),
+    parser.add_argument("--height-trend", default="level", choices=fw.HEIGHT_TRENDS,
                         help="table2: fit.waves(height_trend=...); other than level saved as table2_plane or "
                              "table2_quadratic")
     parser.add_argument("--verbose", action="store_true")

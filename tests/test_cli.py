@@ -411,7 +411,13 @@ def test_fit_waves_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert not cli.build_parser().parse_args(["fit-waves", str(tiny_scene), "--out", str(out), "--no-heights"]).heights
     parse = cli.build_parser().parse_args
     assert parse(["fit-waves", str(tiny_scene), "--out", str(out)]).height_trend == "level"
-    assert parse(["fit-waves", str(tiny_scene), "--out", str(out), "--height-trend", "quadratic"]).height_trend == "quadratic"
+    from jaxocean.fit import waves_fit
+
+    for trend in waves_fit.HEIGHT_TRENDS:  # the parser's literal list covers the library's
+        assert parse(["fit-waves", str(tiny_scene), "--out", str(out), "--height-trend", trend]).height_trend == trend
+    with pytest.raises(SystemExit):
+        parse(["fit-waves", str(tiny_scene), "--out", str(out), "--height-trend", "cubic"])
+    capsys.readouterr()
     assert not out.exists()
 
 

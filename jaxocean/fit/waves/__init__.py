@@ -127,7 +127,7 @@ from jaxocean.fit.waves._lm import (NOISE_FACTOR, NORMAL_ERROR_FLOOR, SOLVER_NAM
 from jaxocean.fit.waves._match import (WaveMatch, alias_separation, forecast_model, forecast_plan, frequency_cell,
                                        match, noise_cells, rayleigh_separation, resolvable, separable)
 from jaxocean.fit.waves._model import loss, predict
-from jaxocean.fit.waves._select import NoWaveFound, OrderSelection, waves
+from jaxocean.fit.waves._select import HEIGHT_TRENDS, NoWaveFound, OrderSelection, waves
 from jaxocean.fit.waves._spectral import (SpectralEstimate, SpectralPeaks, solve_amplitudes, spectral_estimate,
                                          spectral_init, spectral_peaks)
 
@@ -139,6 +139,7 @@ __all__ = [
     "WaveMatch",
     "LongWaveBand",
     "SOLVER_NAMES",
+    "HEIGHT_TRENDS",
     "NOISE_FACTOR",
     "NORMAL_ERROR_FLOOR",
     "UNIT_NORMAL_TOLERANCE",
