@@ -98,15 +98,17 @@ def _jax_resnet_step():
 JAX_DEVICES_WORKER = r"""
 import json, sys, time
 sys.path.insert(0, sys.argv[1])
-from bench_nn_step import _jax_resnet_step
-run = _jax_resnet_step()
-run(); run()
+from bench_nn_step import DEVICE_JOBS
+runs = {name: make() for name, make in DEVICE_JOBS.items()}
+for run in runs.values():
+    run(); run()
 import jax
 print(json.dumps({"devices": jax.device_count()}), flush=True)
 for line in sys.stdin:
+    name, n = line.rsplit(" ", 1)
     ts = []
-    for _ in range(int(line)):
-        t = time.perf_counter(); run(); ts.append(time.perf_counter() - t)
+    for _ in range(int(n)):
+        t = time.perf_counter(); runs[name](); ts.append(time.perf_counter() - t)
     print(json.dumps(ts), flush=True)
 """
 
@@ -130,7 +132,9 @@ def _geometry_step(dataset):
     return run
 
 
-def _geometry_inference():
+def _geometry_inference(frames=1):
+    """``predict`` of the shipped model on ``frames`` 128^2 frames at once (one batch of
+    ``predict``'s 8 at most), spread over every local device."""
     import jax
     import numpy as np
 
@@ -139,12 +143,17 @@ def _geometry_inference():
 
     model = geo.load() if geo.PRETRAINED_PATH.exists() else geo.init(jax.random.key(0))
     camera = cam.make_camera(height=10.0, pitch=0.6, fov=0.8, resolution=(128, 128))
-    image = np.random.default_rng(0).uniform(0.02, 0.2, (1, 128, 128, 3)).astype(np.float32)
+    image = np.random.default_rng(0).uniform(0.02, 0.2, (frames, 128, 128, 3)).astype(np.float32)
 
     def run():
         jax.block_until_ready(geo.predict(model, image, camera).normal)
 
     return run
+
+
+#: the jobs also timed in a subprocess with one XLA host device per core
+DEVICE_JOBS = {"jaxocean.nn ResNet step": _jax_resnet_step,
+               "geometry inference, a batch of 8 128^2 frames": lambda: _geometry_inference(8)}
 
 
 def _time(fn, n):
@@ -172,35 +181,45 @@ def main(argv=None):
     if args.dataset:
         jobs["geometry cpu-config step (64^2 crops, batch 8)"] = _geometry_step(args.dataset)
     jobs["geometry inference, one 128^2 frame"] = _geometry_inference()
+    jobs["geometry inference, a batch of 8 128^2 frames"] = _geometry_inference(8)
     compile_s = {name: _time(fn, 1)[0] for name, fn in jobs.items()}
-    workers = {}  # name -> persistent subprocess timing its step on request, round by round
+    # name -> (persistent subprocess timing its jobs on request, round by round; its job)
+    workers = {}
     cores = os.cpu_count() or 1
     if cores > 1:
         flags = (os.environ.get("XLA_FLAGS", "") + f" --xla_force_host_platform_device_count={cores}").strip()
-        workers[f"jaxocean.nn ResNet step, batch split over {cores} host devices"] = subprocess.Popen(
+        proc = subprocess.Popen(
             [sys.executable, "-c", JAX_DEVICES_WORKER, str(HERE)], stdin=subprocess.PIPE, stdout=subprocess.PIPE,
             text=True, env=dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=str(HERE.parent)))
+        for job in DEVICE_JOBS:
+            split = "batch split" if "step" in job else "frames split"
+            workers[f"{job}, {split} over {cores} host devices"] = (proc, job)
     if args.torch_python:
-        workers["PyTorch ResNet step"] = subprocess.Popen(
+        proc = subprocess.Popen(
             [args.torch_python, "-c", TORCH_WORKER], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
             env=dict(os.environ, PYTHONWARNINGS="ignore"))
-    info = {name: json.loads(proc.stdout.readline()) for name, proc in workers.items()}
+        workers["PyTorch ResNet step"] = (proc, None)
+    procs = {id(proc): proc for proc, _ in workers.values()}
+    info = {name: json.loads(proc.stdout.readline()) for name, (proc, job) in workers.items()
+            if job is None or job == next(iter(DEVICE_JOBS))}
     torch_info = info.get("PyTorch ResNet step")
     rounds = {name: [] for name in list(jobs) + list(workers)}
     for _ in range(args.rounds):
         for name, fn in jobs.items():
             rounds[name].append(float(np.median(_time(fn, args.steps))))
-        for name, proc in workers.items():
-            proc.stdin.write(f"{args.steps}\n")
+        for name, (proc, job) in workers.items():
+            proc.stdin.write(f"{args.steps}\n" if job is None else f"{job} {args.steps}\n")
             proc.stdin.flush()
             rounds[name].append(float(np.median(json.loads(proc.stdout.readline()))))
-    for proc in workers.values():
+    for proc in procs.values():
         proc.stdin.close()
         proc.wait()
     torch_proc = workers.get("PyTorch ResNet step")
     medians = {name: float(np.median(v)) for name, v in rounds.items()}
     result = {"median_s": medians, "per_round_median_s": rounds, "compile_s": compile_s, "torch": torch_info,
-              "workers": info, "load_average": os.getloadavg(), "cpu_count": os.cpu_count()}
+              "workers": info, "load_average": os.getloadavg(), "cpu_count": os.cpu_count(),
+              "frames_per_s": {name: (8 if "batch of 8" in name else 1) / v for name, v in medians.items()
+                               if "inference" in name}}
     if torch_proc:
         for name in [n for n in rounds if n.startswith("jaxocean.nn ResNet step")]:
             ratios = [j / t for j, t in zip(rounds[name], rounds["PyTorch ResNet step"])]
@@ -212,7 +231,8 @@ def main(argv=None):
     write_json(args.out + ".json", result)
     _chart(args.out + ".png", rounds)
     for name, v in medians.items():
-        print(f"{name:<52} {1000 * v:9.1f} ms")
+        fps = result["frames_per_s"].get(name)
+        print(f"{name:<72} {1000 * v:9.1f} ms" + (f"  ({fps:.1f} frames/s)" if fps else ""))
     if torch_proc:
         split = (f", batch split over {cores} host devices {result['jax_devices_over_torch_median']:.2f}"
                  if "jax_devices_over_torch_median" in result else "")

@@ -1,8 +1,10 @@
 import json
 import math
+import os
 import subprocess
 import sys
 
+import jax
 import numpy as np
 import pytest
 
@@ -1000,3 +1002,21 @@ def test_reconstruct_of_a_video_without_a_plugin_exits_2_saying_what_to_install(
                      "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
     assert err.startswith("jaxocean: error: reading the video") and "pip install 'imageio[pyav]'" in err
+
+
+@pytest.mark.parametrize("flags, expected", [(None, "cores"), ("--xla_force_host_platform_device_count=1", 1)])
+def test_the_network_commands_split_the_cpu_into_one_device_per_core_unless_told(flags, expected):
+    cores = len(os.sched_getaffinity(0))
+    expected = cores if expected == "cores" else expected
+    env = {k: v for k, v in os.environ.items() if k not in ("XLA_FLAGS", "JAX_NUM_CPU_DEVICES")}
+    if flags:
+        env["XLA_FLAGS"] = flags
+    script = "import jax; from jaxocean import cli; cli._one_cpu_device_per_core(); print(jax.local_device_count())"
+    run = subprocess.run([sys.executable, "-c", script], env=dict(env, JAX_PLATFORMS="cpu"), capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 0, run.stderr[-2000:]
+    assert int(run.stdout.split()[-1]) == expected
+    # in a process whose JAX runs already the devices stay as they are, without an error
+    before = jax.local_device_count()
+    cli._one_cpu_device_per_core()
+    assert jax.local_device_count() == before

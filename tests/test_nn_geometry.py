@@ -331,6 +331,42 @@ def test_sharded_step_equals_the_single_device_step(tiny_dataset, tmp_path):
     assert run.returncode == 0, run.stderr[-3000:]
 
 
+def test_predict_spreads_frames_over_devices_and_gives_the_single_device_maps(key, tmp_path):
+    """Two host devices: 5 frames in batches of 2 (the last padded to the device count) give
+    the maps of one device, in that process and in a one-device process, to float32
+    rounding, and the batch is really split over both devices."""
+    model = geo.init(key, TINY)
+    geo.save(tmp_path / "model.npz", model)
+    camera = cam.make_camera(height=10.0, pitch=0.3, fov=0.9, resolution=(20, 28))
+    images = np.asarray(jax.random.uniform(key, (5, 20, 28, 3)))
+    np.save(tmp_path / "images.npy", images)
+    one = geo.predict(model, images, camera, batch_size=2)
+    script = textwrap.dedent(f"""
+        import jax, numpy as np
+        from jaxocean import camera as cam
+        from jaxocean.nn import geometry as geo
+        assert jax.local_device_count() == 2
+        model = geo.load({str(tmp_path / "model.npz")!r})
+        camera = cam.make_camera(height=10.0, pitch=0.3, fov=0.9, resolution=(20, 28))
+        images = np.load({str(tmp_path / "images.npy")!r})
+        place, params, lanes = geo._frame_placement(model.params)
+        assert lanes == 2 and len(place(images[:2]).sharding.device_set) == 2
+        pred = geo.predict(model, images, camera, batch_size=2)
+        alone = geo.predict(model, images, camera, batch_size=2, devices=jax.local_devices()[:1])
+        for a, b in zip(pred, alone):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
+        np.savez({str(tmp_path / "two.npz")!r}, **pred._asdict())
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAX_PLATFORMS="cpu")
+    run = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-3000:]
+    two = np.load(tmp_path / "two.npz")
+    for field in geo.GeometryPrediction._fields:
+        np.testing.assert_allclose(two[field], getattr(one, field), rtol=1e-5, atol=1e-6, err_msg=field)
+    with pytest.raises(ValueError, match="devices is empty"):
+        geo.predict(model, images, camera, devices=[])
+
+
 def test_evaluate_scores_flat_and_a_model(tiny_dataset):
     flat = gt.evaluate(gt.flat_method, tiny_dataset, "test")
     assert flat["frames"] == 2 and set(flat["scenes"]) == set(dataset.Dataset(tiny_dataset).splits["test"])
