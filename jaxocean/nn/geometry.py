@@ -322,12 +322,13 @@ def _frame_placement(params, devices=None):
     (``experiments/NETS.md``, *Speed*). The maps are those of one device to float32
     rounding: each device's share of the batch is a smaller convolution, which XLA may sum in
     another order (measured: unit normals within 3e-7; bit for bit on the shipped model's
-    batches of 8). With one device: ``place`` is ``jnp.asarray``, ``lanes`` 1."""
+    batches of 8). With one device the frames and parameters are put on it, ``lanes`` 1."""
     devices = jax.local_devices() if devices is None else list(devices)
     if not devices:
         raise ValueError("devices is empty: predict needs at least one device")
     if len(devices) == 1:
-        return jnp.asarray, params, 1
+        (one,) = devices
+        return (lambda x: jax.device_put(x, one)), jax.device_put(params, one), 1
     from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
     mesh = Mesh(np.asarray(devices), ("frames",))
