@@ -349,10 +349,13 @@ def test_predict_spreads_frames_over_devices_and_gives_the_single_device_maps(ke
         model = geo.load({str(tmp_path / "model.npz")!r})
         camera = cam.make_camera(height=10.0, pitch=0.3, fov=0.9, resolution=(20, 28))
         images = np.load({str(tmp_path / "images.npy")!r})
-        place, params, lanes = geo._frame_placement(model.params)
-        assert lanes == 2 and len(place(images[:2]).sharding.device_set) == 2
+        seen = []
+        apply = geo._predict_jit
+        geo._predict_jit = lambda *a: seen.append(len(a[2].sharding.device_set)) or apply(*a)
         pred = geo.predict(model, images, camera, batch_size=2)
+        assert seen == [2, 2, 2], seen  # every batch split over both devices (the last padded)
         alone = geo.predict(model, images, camera, batch_size=2, devices=jax.local_devices()[:1])
+        assert seen[3:] == [1, 1, 1], seen
         for a, b in zip(pred, alone):
             np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
         np.savez({str(tmp_path / "two.npz")!r}, **pred._asdict())

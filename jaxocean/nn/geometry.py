@@ -57,6 +57,7 @@ from jaxocean.errors import InvalidValueError, is_integer
 from jaxocean.nn import backbones
 from jaxocean.nn import layers as nl
 from jaxocean.nn.checkpoint import load_model, load_tree, model_path, nonfinite_arrays, save_model
+from jaxocean.nn.training import data_parallel
 
 __all__ = [
     "GeometryConfig",
@@ -271,7 +272,9 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8, device
     leading axes. A gray input to an RGB model is taken as equal R, G, B; an RGB input to a
     gray model as its luminance. A model whose parameters hold NaN or inf is refused
     (``InvalidValueError``). Each batch of ``batch_size`` frames is split over ``devices``
-    (default: every local device; see :func:`_frame_placement`)."""
+    (default: every local device: GPUs, or the CPU split by
+    ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` or ``jax_num_cpu_devices``, which
+    the ``predict-geometry`` and ``eval-geometry`` commands set to one device per core)."""
     if not isinstance(batch_size, int) or isinstance(batch_size, bool) or batch_size < 1:
         raise ValueError(f"batch_size must be a positive integer; got {batch_size!r}")
     images = np.asarray(images, np.float32)
@@ -296,45 +299,28 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8, device
     if bad:
         raise InvalidValueError(f"the geometry model's parameters hold NaN or inf (array {bad[0]}, {len(bad)} in all; "
                                 "a diverged training?)")
-    place, params, lanes = _frame_placement(model.params, devices)
+    if devices is not None and not list(devices):
+        raise ValueError("devices is empty: predict needs at least one device")
+    # the frames of a batch split over the devices, the parameters replicated: XLA:CPU runs
+    # one convolution on one core, so on this 2-core CPU a batch of 8 128² frames split over
+    # two host devices runs 1.5x as many frames a second (experiments/NETS.md, Speed). The
+    # maps are one device's to float32 rounding (each device's share is a smaller
+    # convolution, which XLA may sum in another order: unit normals within 3e-7 measured;
+    # bit for bit on the shipped model's batches of 8)
+    placement = data_parallel(devices)
+    params = placement.state(model.params)
     outs = []
     for i in range(0, len(images), batch_size):
         chunk = images[i:i + batch_size]
         # a batch padded with copies of its last frame to a multiple of the devices; each
         # frame's maps are computed alone, so the padding changes no value
-        pad = -len(chunk) % lanes
+        pad = -len(chunk) % placement.size
         chunk = np.concatenate([chunk, np.repeat(chunk[-1:], pad, 0)]) if pad else chunk
-        out = _predict_jit(model.config, params, place(chunk), camera)
+        out = _predict_jit(model.config, params, placement.batch(chunk), camera)
         outs.append(jax.tree.map(lambda x, n=len(chunk) - pad: x[:n], out))
     pred = GeometryPrediction(*[np.concatenate([np.asarray(getattr(o, f)) for o in outs])
                                 for f in GeometryPrediction._fields])
     return GeometryPrediction(*[a[0] for a in pred]) if single else pred
-
-
-def _frame_placement(params, devices=None):
-    """``(place, params, lanes)``: how :func:`predict` spreads a batch of frames over
-    ``devices`` (default: every local device). With more than one (GPUs, or the CPU split
-    by ``XLA_FLAGS=--xla_force_host_platform_device_count=N`` or ``jax_num_cpu_devices``,
-    which the ``predict-geometry`` and ``eval-geometry`` commands set to one device per
-    core) the frames are split along the batch axis over all of them and the parameters
-    replicated: XLA:CPU runs one convolution on one core, so on this 2-core CPU a batch of
-    8 128² frames split over two host devices runs 1.5x as many frames a second
-    (``experiments/NETS.md``, *Speed*). The maps are those of one device to float32
-    rounding: each device's share of the batch is a smaller convolution, which XLA may sum in
-    another order (measured: unit normals within 3e-7; bit for bit on the shipped model's
-    batches of 8). With one device the frames and parameters are put on it, ``lanes`` 1."""
-    devices = jax.local_devices() if devices is None else list(devices)
-    if not devices:
-        raise ValueError("devices is empty: predict needs at least one device")
-    if len(devices) == 1:
-        (one,) = devices
-        return (lambda x: jax.device_put(x, one)), jax.device_put(params, one), 1
-    from jax.sharding import Mesh, NamedSharding, PartitionSpec
-
-    mesh = Mesh(np.asarray(devices), ("frames",))
-    split = NamedSharding(mesh, PartitionSpec("frames"))
-    replicated = jax.device_put(params, NamedSharding(mesh, PartitionSpec()))
-    return (lambda x: jax.device_put(x, split)), replicated, len(devices)
 
 
 @functools.partial(jax.jit, static_argnums=0)
