@@ -299,8 +299,6 @@ def predict(model: GeometryModel, images, camera, *, batch_size: int = 8, device
     if bad:
         raise InvalidValueError(f"the geometry model's parameters hold NaN or inf (array {bad[0]}, {len(bad)} in all; "
                                 "a diverged training?)")
-    if devices is not None and not list(devices):
-        raise ValueError("devices is empty: predict needs at least one device")
     # the frames of a batch split over the devices, the parameters replicated: XLA:CPU runs
     # one convolution on one core, so on this 2-core CPU a batch of 8 128² frames split over
     # two host devices runs 1.5x as many frames a second (experiments/NETS.md, Speed). The

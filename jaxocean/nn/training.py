@@ -65,7 +65,9 @@ class DataParallel:
     """Placement of the state (replicated) and batches (split along axis 0) on local devices."""
 
     def __init__(self, devices=None):
-        self.devices = list(devices or jax.local_devices())
+        self.devices = jax.local_devices() if devices is None else list(devices)
+        if not self.devices:
+            raise ValueError("devices is empty: a placement needs at least one device")
         self.mesh = Mesh(np.asarray(self.devices), ("data",))
         self.replicated = NamedSharding(self.mesh, PartitionSpec())
         self.split = NamedSharding(self.mesh, PartitionSpec("data"))
@@ -89,7 +91,7 @@ class DataParallel:
 
 
 def data_parallel(devices=None) -> DataParallel:
-    """The placement over ``devices`` (default: every local device)."""
+    """The placement over ``devices`` (default: every local device; an empty list is an error)."""
     return DataParallel(devices)
 
 
