@@ -24,6 +24,9 @@ hierarchical normal and roughness maps, 10 frames):
    ``--no-heights``: the fit from the slopes alone (``fit.waves(heights=False)``), saved
    as ``table2_slopes``; ``--height-trend plane|quadratic``:
    ``fit.waves(height_trend=...)``, saved as ``table2_plane`` / ``table2_quadratic``;
+   ``--final-steps 30``: ``fit.waves(max_steps=30)``, saved as ``table2_final30``;
+   ``--exact-height-block``: ``fit.waves(exact_height_block=True)``, saved as
+   ``table2_exact_heights``;
    ``--seeds 0,3`` picks scenes, so that two runs with ``--resume`` can share one table.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
@@ -33,7 +36,7 @@ hierarchical normal and roughness maps, 10 frames):
    (spectral estimate, a perturbed truth, random), every solver, final error against time.
 
 Usage: ``python experiments/wave_fit.py [--quick] [--only table2,convergence,speed]
-[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
+[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
 existing file) and ``wave_fit_*.png``.
 """
 
@@ -92,13 +95,16 @@ def wrap_deg(a):
 # --------------------------------------------------------------------------- table 2
 
 
-def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level") -> dict:
+def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level",
+               final_steps: int | None = None, exact_height_block: bool = False) -> dict:
     scene, geo = dataset_scene(seed, resolution)
     t0 = time.perf_counter()
+    steps = {} if final_steps is None else dict(max_steps=final_steps)
     result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights,
-                       height_trend=height_trend)
+                       height_trend=height_trend, exact_height_block=exact_height_block, **steps)
     wall = time.perf_counter() - t0
-    row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend,
+    row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend, final_steps=final_steps,
+               exact_height_block=exact_height_block,
                camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
                gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
@@ -257,7 +263,8 @@ def section_table2(args, out):
     for seed in args.seeds:
         if seed in done:
             continue
-        row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend)
+        row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend,
+                         final_steps=args.final_steps, exact_height_block=args.exact_height_block)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
@@ -279,7 +286,13 @@ def section_table2(args, out):
 def table2_key(args) -> str:
     """Where a Table 2 run goes in the results: ``table2`` for the default fit (with the
     integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``, ``table2_plane`` /
-    ``table2_quadratic`` for ``fit.waves(height_trend=...)``."""
+    ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
+    ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
+    ``fit.waves(exact_height_block=True)``."""
+    if args.exact_height_block:
+        return "table2_exact_heights"
+    if args.final_steps is not None:
+        return f"table2_final{args.final_steps}"
     if not args.heights:
         return "table2_slopes"
     return "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
@@ -523,6 +536,11 @@ def main(argv=None):
     parser.add_argument("--height-trend", default="level", choices=fw.HEIGHT_TRENDS,
                         help="table2: fit.waves(height_trend=...); other than level saved as table2_plane or "
                              "table2_quadratic")
+    parser.add_argument("--final-steps", type=int, default=None,
+                        help="table2: fit.waves(max_steps=N), the final refinement's step budget; saved as "
+                             "table2_finalN")
+    parser.add_argument("--exact-height-block", action="store_true",
+                        help="table2: fit.waves(exact_height_block=True); saved as table2_exact_heights")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="recompute the scores of the saved table2 (--no-heights: table2_slopes) scenes from "

@@ -351,6 +351,43 @@ def test_a_height_trend_leaves_that_trend_of_the_integrated_heights_free(x64, tr
     assert base <= level_base * (1 + 1e-9)
 
 
+def test_the_exact_height_block_is_the_gauss_newton_matrix_of_the_level_free_heights(x64):
+    # J^T J of the height residual as the loss has it (the model's heights on the rows path,
+    # each frame's weighted mean taken out) from autodiff through render, against the
+    # structured block over the same pixel-frames
+    c = persp()
+    truth = few_waves()
+    times = jnp.asarray(TIMES[:3])
+    normals, _ = fw.predict(truth, c, times)
+    y = _model.pack(truth) * 1.02
+    n = 3
+    active = jnp.ones(n, bool)
+    used = _inputs.valid_weights(normals, c) * jnp.asarray(np.random.default_rng(1).uniform(0.5, 1.5, normals.shape[:3]))
+
+    def residual(yy):
+        z = _model.predict_jit(_model.active_waves(yy, active), c, times, 1.0, 1.5, _model.ROWS, True).z
+        level = jnp.sum(z * used, (1, 2)) / jnp.sum(used, (1, 2))
+        return (jnp.sqrt(used) * (z - level[:, None, None])).reshape(-1)
+
+    J = jax.jacfwd(residual)(y)
+    samples = _inputs.all_samples(jnp.zeros(normals.shape[:3] + (2,)), used, times, c)
+    block = _lm._height_gauss_newton(y, active, _inputs.chunked(samples, 100), times, 1.0, 1.5)
+    np.testing.assert_allclose(block, J.T @ J, rtol=1e-8, atol=1e-10 * float(jnp.max(jnp.abs(J.T @ J))))
+
+
+def test_exact_height_block_bad_uses_are_errors():
+    c = ortho()
+    normals, rough = fw.predict(few_waves(), c, TIMES)
+    for kw in (dict(heights=False), dict(height_trend="plane")):
+        with pytest.raises(ValueError, match="exact_height_block=True needs the integrated heights"):
+            fw.waves(normals, rough, c, TIMES, exact_height_block=True, **kw)
+    y = _model.pack(few_waves())
+    with pytest.raises(ValueError, match="exact_heights needs the integrated heights"):
+        _lm.refine_kernel(y, jnp.ones(3, bool), normals, None, TIMES, c, jnp.zeros(RES[0]), jnp.asarray(1e-6),
+                          jnp.asarray(0.0), n_min=1.0, n_max=1.5, max_steps=0, roughness_weight=0.0,
+                          exact_heights=True)
+
+
 def test_height_trend_bad_values_are_errors():
     c = ortho()
     normals, rough = fw.predict(few_waves(), c, TIMES)

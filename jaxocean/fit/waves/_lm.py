@@ -23,8 +23,9 @@ from jaxocean._math import safe_sqrt
 from jaxocean.errors import is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chunked, clean_inputs, subsample,
                                         valid_weights)
-from jaxocean.fit.waves._model import (ROWS, active_waves, bucket_size, jacobian, metrics, pack, pad_waves, predict_jit,
-                                       rough_data, rough_residual, surface_refine, to_waves, unpack)
+from jaxocean.fit.waves._model import (ROWS, active_waves, bucket_size, height_partials, jacobian, metrics, pack,
+                                       pad_waves, predict_jit, rough_data, rough_residual, surface_refine, to_waves,
+                                       unpack, wave_phases)
 from jaxocean.waves import GRAVITY, MAX_STEEPNESS, Waves, too_steep, validate
 
 
@@ -137,6 +138,36 @@ def _gauss_newton(y, active, chunks: Samples, n_min, n_max, moving=False):
     return jtj
 
 
+def _height_gauss_newton(y, active, chunks: Samples, times, n_min, n_max):
+    """``J^T J`` of the integrated-height residual (:func:`_ls_loss`) over the (sub)sampled
+    chunks, at the chunks' rest positions held fixed; each frame's free level removed (the
+    residual is centred per frame, so its Jacobian is too).
+
+    Model height at a pixel-frame: z = sum_i w_i (a_i cos psi_i - b_i sin psi_i), psi_i =
+    omega_i t - k_i . X, with w_i the wave's hierarchy weight at the sample's footprint (as in
+    :func:`jacobian`). With W the samples' weights (``sw^2``), the centred product is
+    ``J^T W J - sum_t m_t m_t^T / W_t`` with ``m_t = sum_{s in t} W_s J_s``."""
+    n = active.shape[0]
+    P = unpack(y, n)
+    a, b = P[0], P[1]
+    act = active.astype(y.dtype)
+
+    def body(acc, ch):
+        jtj, m, wt = acc
+        _, _, _, _, w, dw_du, _, psi, dpsi_du, dpsi_dth = wave_phases(P, act, ch, n_min, n_max)
+        sp, cp = jnp.sin(psi), jnp.cos(psi)
+        cn, snn = a * cp - b * sp, a * sp + b * cp  # h cos psi and h sin psi
+        J = height_partials(w, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth).reshape(ch.t.shape[0], 4 * n)
+        W = ch.sw ** 2
+        frame = (ch.t[:, None] == times[None, :]).astype(y.dtype) * W[:, None]  # (S, T)
+        return (jtj + J.T @ (J * W[:, None]), m + frame.T @ J, wt + jnp.sum(frame, 0)), None
+
+    zero = (jnp.zeros((4 * n, 4 * n), y.dtype), jnp.zeros((times.shape[0], 4 * n), y.dtype),
+            jnp.zeros(times.shape, y.dtype))
+    (jtj, m, wt), _ = jax.lax.scan(body, zero, chunks)
+    return jtj - m.T @ (m / jnp.maximum(wt, 1e-30)[:, None])
+
+
 # =============================================================================== structured LM
 
 
@@ -198,7 +229,7 @@ def _steepness_projection(y, n, max_steepness):
 
 def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
                    max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, sigma2=0.0, xtol=1e-7,
-                   heights=None):
+                   heights=None, exact_heights=False):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
@@ -210,6 +241,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     is taken at the current hits, with their motion (:func:`jacobian`'s ``moving``).
     ``sigma2 > 0``: the noise variance per normal component; an accepted step after which a
     full Gauss-Newton step could lower chi^2 by less than :data:`CHI2_TOL` also converges.
+    ``exact_heights``: the height residual's ``J^T J`` block in full (cross terms, each
+    frame's level projected out: :func:`_height_gauss_newton`) rather than its diagonal.
     """
     n = active.shape[0]
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
@@ -226,6 +259,16 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     act4 = jnp.concatenate([active, active, active & ~held, active & ~held])
     dtype = y0.dtype
 
+    def height_term(y, xy):
+        # the integrated heights' J^T J from an evenly spread subsample at the current hits
+        if not exact_heights:
+            return 0.0
+        used = heights[1] * weight
+        hs = all_samples(jnp.zeros(used.shape + (2,), dtype), used, times, camera, scale * heights[2], xy)
+        sub_h = subsample(hs, hessian_samples)
+        ratio_h = jnp.sum(hs.sw ** 2) / jnp.maximum(jnp.sum(sub_h.sw ** 2), 1e-30)
+        return _height_gauss_newton(y, active, chunked(sub_h, size), times, n_min, n_max) * ratio_h
+
     def normal_eq(y):
         # the exact gradient of the very loss the accept test uses (reverse mode through
         # render.geometry: the rank-N rows path, or the converged hits with their implicit
@@ -233,6 +276,7 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         # the hits come with the gradient's own forward pass, not a second render
         jtr, xy = jax.grad(f_and_hits, has_aux=True)(y)
         jtj = _gauss_newton(y, active, hessian_chunks(xy), n_min, n_max, refine != ROWS) * ratio
+        jtj = jtj + height_term(y, xy)
         _, jr = jax.linearize(lambda yy: rough_residual(yy, active, rough, tail_rows, n_min, n_max), y)
         Jr = jax.vmap(jr, out_axes=1)(jnp.eye(4 * n, dtype=dtype))  # (H, 4N)
         jtj = jtj + Jr.T @ Jr + jnp.diag(jnp.concatenate([ridge + height_diag, ridge + height_diag,
@@ -250,13 +294,13 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
 
     # the height residual's Gauss-Newton diagonal on the amplitudes (a, b): each moves its
     # wave's height by cos / sin of the phase, mean square 1/2 over the used pixels. Only the
-    # diagonal: with the exact block (cross terms, level projected out) a refinement
+    # diagonal unless ``exact_heights``: with the exact block a refinement of a few waves
     # converges in far fewer steps, but the greedy selection, whose batches get 8 steps,
     # lands in worse optima -- 3 of 8 Table 2 scenes succeed against 5 of 8 with this
     # diagonal, both measured without the selection's near-floor refinement
     # (experiments/WAVES.md; why is not measured)
     height_diag = jnp.zeros_like(ridge)
-    if heights is not None:
+    if heights is not None and not exact_heights:
         height_diag = 0.5 * scale * heights[2] * jnp.sum(heights[1] * weight) * active.astype(dtype)
 
     def prior(y):
@@ -352,14 +396,19 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
                   max_steps, roughness_weight, hessian_samples=None, history=False, held=None, refine=ROWS,
-                  sigma2=0.0, heights=None):
+                  sigma2=0.0, heights=None, exact_heights=False):
     """The structured LM on packed parameters ``y0 (4N,)``; ``active (N,)`` marks real waves,
     ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed; ``refine``
     the forward model's path (``ROWS``; ``HITS``: the pixel-frames whose hit under ``y0``
     does not converge are left out of the whole refinement); ``sigma2``: the noise variance
     of the chi^2 convergence test (0: off); ``heights``: None or ``(z, mask, weight[, basis])``
-    integrated heights the model's hits are also held to (:func:`_ls_loss`). Returns
+    integrated heights the model's hits are also held to (:func:`_ls_loss`);
+    ``exact_heights``: their exact Gauss-Newton block in ``J^T J`` instead of its diagonal
+    (level-only heights). Returns
     ``(out, n_valid)``."""
+    if exact_heights and (heights is None or len(heights) != 3):
+        raise ValueError("exact_heights needs the integrated heights with each frame's level alone left free "
+                         "(heights=(z, mask, weight), no trend basis)")
     held = jnp.zeros(active.shape, bool) if held is None else jnp.asarray(held, bool)
     if hessian_samples is None:
         hessian_samples = _hessian_samples(active.shape[0], int(np.prod(normals.shape[:3])))
@@ -369,12 +418,14 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
                        jnp.asarray(max_steps, jnp.int32), jnp.asarray(sigma2, y0.dtype), heights,
                        jnp.asarray(roughness_weight, y0.dtype), n_min=n_min, n_max=n_max,
                        hessian_samples=int(hessian_samples),
-                       history_len=int(max_steps) + 1 if history else 1, refine=int(refine))
+                       history_len=int(max_steps) + 1 if history else 1, refine=int(refine),
+                       exact_heights=bool(exact_heights))
 
 
-@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "hessian_samples", "history_len", "refine"))
+@functools.partial(jax.jit, static_argnames=("n_min", "n_max", "hessian_samples", "history_len", "refine",
+                                             "exact_heights"))
 def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, sigma2,
-                heights, roughness_weight, *, n_min, n_max, hessian_samples, history_len, refine):
+                heights, roughness_weight, *, n_min, n_max, hessian_samples, history_len, refine, exact_heights):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     if refine != ROWS:
@@ -386,7 +437,7 @@ def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, 
     out = _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
                          n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
                          history_len=history_len, refine=refine, sigma2=sigma2,
-                         heights=heights)
+                         heights=heights, exact_heights=exact_heights)
     return out, n_valid
 
 

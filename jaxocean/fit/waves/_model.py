@@ -168,6 +168,36 @@ def _nxy(sums):
     return normal_from_sums(sums[0], sums[1], sums[2], sums[3], sums[4])[:2]
 
 
+def wave_phases(P, act, s: Samples, n_min, n_max):
+    """What :func:`jacobian` and the height residual's Jacobian share, per sample and wave
+    ``(S, N)`` (``c, sn, om, k (N,)``): ``(om, k, c, sn, w, dw_du, proj, psi0, dpsi_du,
+    dpsi_dth)`` -- the hierarchy weight ``w`` at the sample's footprint and its derivative
+    in log omega, the projection ``k_hat . X``, the phase ``psi0 = omega t - k k_hat . X``
+    and its derivatives in log omega and theta."""
+    u, th = P[2], P[3]
+    om = jnp.exp(u)
+    k = om * om / GRAVITY
+    c, sn = jnp.cos(th), jnp.sin(th)
+    x = (2 * jnp.pi / k)[None, :] / s.fp[:, None]  # (S, N) wavelength / footprint
+    width = n_max - n_min
+    q = jnp.clip((x - n_min) / width, 0.0, 1.0)
+    w = q * q * (3.0 - 2.0 * q) * act
+    # d(lambda/fp)/d log omega = -2 lambda/fp; x clipped where the smoothstep is flat anyway
+    dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max)) * act
+    proj = s.xy[:, :1] * c + s.xy[:, 1:] * sn  # (S, N)
+    psi0 = om * s.t[:, None] - k * proj
+    dpsi_du = om * s.t[:, None] - 2.0 * k * proj
+    dpsi_dth = k * (sn * s.xy[:, :1] - c * s.xy[:, 1:])
+    return om, k, c, sn, w, dw_du, proj, psi0, dpsi_du, dpsi_dth
+
+
+def height_partials(w, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth):
+    """``(S, 4, N)``: the derivatives of each wave's vertical displacement ``d_z = w h cos(psi)
+    = w (a cos psi0 - b sin psi0)`` in ``(a, b, log omega, theta)`` (``cn = h cos psi``,
+    ``snn = h sin psi``)."""
+    return jnp.stack([w * cp, -w * sp, dw_du * cn - w * snn * dpsi_du, -w * snn * dpsi_dth], 1)
+
+
 def jacobian(P, act, s: Samples, n_min, n_max, moving: bool = False):
     """Residual ``r (S*2,)`` and its Jacobian ``J (S*2, 4N)`` for samples ``s`` (hand-written
     chain rule: each wave's parameters touch only its own sine and cosine).
@@ -181,18 +211,8 @@ def jacobian(P, act, s: Samples, n_min, n_max, moving: bool = False):
     horizontal run per unit height (``s.ray``), so dX/dp = (I - dF/dX)^-1 dF/dp (implicit
     function theorem) and the normals gain (dn/dX) dX/dp. Exact at a converged hit.
     """
-    a, b, u, th = P[0], P[1], P[2], P[3]
-    om = jnp.exp(u)
-    k = om * om / GRAVITY
-    c, sn = jnp.cos(th), jnp.sin(th)
-    x = (2 * jnp.pi / k)[None, :] / s.fp[:, None]  # (S, N) wavelength / footprint
-    width = n_max - n_min
-    q = jnp.clip((x - n_min) / width, 0.0, 1.0)
-    w = q * q * (3.0 - 2.0 * q) * act
-    # d(lambda/fp)/d log omega = -2 lambda/fp; x clipped where the smoothstep is flat anyway
-    dw_du = 6.0 * q * (1.0 - q) / width * (-2.0 * jnp.clip(x, n_min, n_max)) * act
-    proj = s.xy[:, :1] * c + s.xy[:, 1:] * sn  # (S, N)
-    psi0 = om * s.t[:, None] - k * proj
+    a, b = P[0], P[1]
+    om, k, c, sn, w, dw_du, proj, psi0, dpsi_du, dpsi_dth = wave_phases(P, act, s, n_min, n_max)
     sp, cp = sincos(psi0)
     wk = w * k
     cn, snn = a * cp - b * sp, a * sp + b * cp
@@ -208,8 +228,6 @@ def jacobian(P, act, s: Samples, n_min, n_max, moving: bool = False):
     alpha_t = g[0] * (-2.0 * cs) + g[1] * (cc - ss) + g[2] * (2.0 * cs)
     beta_t = -g[3] * sn + g[4] * c
     e = lambda z: z[:, None, :]  # noqa: E731  (S, N) -> (S, 1, N)
-    dpsi_du = om * s.t[:, None] - 2.0 * k * proj
-    dpsi_dth = k * (sn * s.xy[:, :1] - c * s.xy[:, 1:])
     dwk_du = k * dw_du + 2.0 * wk
     j_a = e(wk) * (alpha * e(cp) + beta * e(sp))
     j_b = e(wk) * (beta * e(cp) - alpha * e(sp))
@@ -243,7 +261,7 @@ def _hit_motion(G, C, S, w, k, c, sn, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth,
     eye = jnp.eye(2, dtype=A.dtype)
     move = jnp.einsum("sij,sjk->sik", dn_dX, jnp.linalg.inv(eye - dF_dX))  # (S, 2, 2)
     # dF/dp per wave: s d(d_z)/dp - d(d_xy)/dp, with d(d_xy) = khat d(w snn) (+ theta's turn)
-    dz = jnp.stack([w * cp, -w * sp, dw_du * cn - w * snn * dpsi_du, -w * snn * dpsi_dth], 1)  # (S, 4, N)
+    dz = height_partials(w, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth)  # (S, 4, N)
     dh = jnp.stack([w * sp, w * cp, dw_du * snn + w * cn * dpsi_du, w * cn * dpsi_dth], 1)  # along khat
     turn = w * snn  # d(khat)/dtheta = (-sin, cos)
     dF_x = ray[:, 0, None, None] * dz - c * dh

@@ -159,7 +159,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
           roughness_weight: float = 1.0, omega_min: float = 0.3, scales: int | None = None, grid: int = 64,
           score_samples: int = 32768, prune: bool = False, long_waves: bool = True, separation: float = 0.5,
           surface: str = "auto", heights: bool | None = None, height_trend: str = "level",
-          n_min=hierarchy.DEFAULT_N_MIN,
+          exact_height_block: bool = False, n_min=hierarchy.DEFAULT_N_MIN,
           n_max=hierarchy.DEFAULT_N_MAX, throw: bool = False, history: bool = False, return_selection: bool = False,
           verbose: bool = False):
     """Recover the component waves behind a sequence of geometry (:mod:`jaxocean.fit.waves`).
@@ -249,6 +249,17 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       from the default start the fit still fails on both (``experiments/WAVES.md``). What
       it costs: the heights no longer pin the waves longer than the view as firmly (a trend
       over the view is what such a wave looks like).
+    * ``max_steps``: the step budget of the final refinement on every frame (and of each
+      pruning refit). Noise-free fits spend all 100 and are still creeping; a budget of 30
+      takes 12-56% less time on the Table 2 scenes but leaves scene 4 at 1.13e-3 rad
+      (failed, against 6.2e-4) and doubles the frequency errors of scenes 4 and 6
+      (``experiments/WAVES.md``).
+    * ``exact_height_block``: the final refinement (and each pruning refit) takes the
+      integrated heights' exact Gauss-Newton block (cross terms, each frame's level
+      projected out) into its ``J^T J`` instead of the diagonal the selection's trials use.
+      It explains the data better at the same 100 steps (Table 2 scene 5: 1.16e-4 rad
+      against 2.5e-4; scene 4: 4.4e-4 against 6.2e-4), at a higher cost per step; Table 2
+      with it is in ``experiments/WAVES.md``. Needs the heights with ``height_trend="level"``.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
@@ -304,6 +315,9 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         raise ValueError(f"height_trend must be one of {HEIGHT_TRENDS}; got {height_trend!r}")
     if height_trend != "level" and not heights:
         raise ValueError(f"height_trend={height_trend!r} needs the heights (heights=False, or a registry solver)")
+    if exact_height_block and (not heights or height_trend != "level"):
+        raise ValueError("exact_height_block=True needs the integrated heights with the default "
+                         f"height_trend='level' (got heights={heights}, height_trend={height_trend!r})")
     dtype = normals.dtype
     floor2 = (DEFAULT_NOISE_FLOOR if noise_floor is None else float(noise_floor)) ** 2
     # the noise variance of the refinements' chi^2 convergence test: the stated noise, or the
@@ -835,7 +849,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
                                          jnp.asarray(rtol, dtype), jnp.asarray(atol, dtype), n_min=n_min,
                                          n_max=n_max, max_steps=max_steps, roughness_weight=rw if rough_info
                                          else 0.0, history=history, held=held, refine=state["refine"],
-                                         sigma2=sigma2, heights=height_data)
+                                         sigma2=sigma2, heights=height_data, exact_heights=exact_height_block)
             return dict(y=out.y, jtj=out.jtj, half=out.loss, steps=out.steps, success=out.success, hist=out.history,
                         active=active, n_valid=n_valid, n_pad=n_pad, band=split(out.y, w.omega.shape[0], n_pad)[1])
         active = jnp.ones(w.omega.shape[0], bool)
