@@ -257,9 +257,10 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
     * ``exact_height_block``: the final refinement (and each pruning refit) takes the
       integrated heights' exact Gauss-Newton block (cross terms, each frame's level
       projected out) into its ``J^T J`` instead of the diagonal the selection's trials use.
-      It explains the data better at the same 100 steps (Table 2 scene 5: 1.16e-4 rad
-      against 2.5e-4; scene 4: 4.4e-4 against 6.2e-4), at a higher cost per step; Table 2
-      with it is in ``experiments/WAVES.md``. Needs the heights with ``height_trend="level"``.
+      On Table 2 it explains every scene's data better at the same 100 steps (scene 5:
+      1.16e-4 rad against 2.5e-4) and brings frequencies and directions closer, but some
+      separable amplitudes farther, in about 10% more time (``experiments/WAVES.md``).
+      Needs the heights with ``height_trend="level"``.
     * ``rtol``, ``atol``: the refinements' convergence tolerances (relative decrease of the
       loss on an accepted step; absolute loss). A refinement also converges when a full
       Gauss-Newton step could lower chi^2 (the residual in units of ``noise^2``, or of
