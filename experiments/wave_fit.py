@@ -288,14 +288,15 @@ def table2_key(args) -> str:
     integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``, ``table2_plane`` /
     ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
     ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
-    ``fit.waves(exact_height_block=True)``."""
-    if args.exact_height_block:
-        return "table2_exact_heights"
-    if args.final_steps is not None:
-        return f"table2_final{args.final_steps}"
+    ``fit.waves(exact_height_block=True)``; options together join their names
+    (``table2_slopes_final30``), so no variant's rows land in another's."""
     if not args.heights:
-        return "table2_slopes"
-    return "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
+        key = "table2_slopes"
+    else:
+        key = "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
+    if args.final_steps is not None:
+        key += f"_final{args.final_steps}"
+    return key + ("_exact_heights" if args.exact_height_block else "")
 
 
 def table2_summary(rows) -> dict:

@@ -362,7 +362,8 @@ def test_the_exact_height_block_is_the_gauss_newton_matrix_of_the_level_free_hei
     y = _model.pack(truth) * 1.02
     n = 3
     active = jnp.ones(n, bool)
-    used = _inputs.valid_weights(normals, c) * jnp.asarray(np.random.default_rng(1).uniform(0.5, 1.5, normals.shape[:3]))
+    jitter = np.random.default_rng(1).uniform(0.5, 1.5, normals.shape[:3])  # uneven weights
+    used = _inputs.valid_weights(normals, c) * jnp.asarray(jitter)
 
     def residual(yy):
         z = _model.predict_jit(_model.active_waves(yy, active), c, times, 1.0, 1.5, _model.ROWS, True).z
