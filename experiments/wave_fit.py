@@ -26,7 +26,8 @@ hierarchical normal and roughness maps, 10 frames):
    ``fit.waves(height_trend=...)``, saved as ``table2_plane`` / ``table2_quadratic``;
    ``--final-steps 30``: ``fit.waves(max_steps=30)``, saved as ``table2_final30``;
    ``--exact-height-block``: ``fit.waves(exact_height_block=True)``, saved as
-   ``table2_exact_heights``;
+   ``table2_exact_heights``; ``--stall-rtol 2e-3``: ``fit.waves(stall_rtol=2e-3)``, saved
+   with ``_stall`` appended (``table2_exact_heights_stall``);
    ``--seeds 0,3`` picks scenes, so that two runs with ``--resume`` can share one table.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
@@ -36,7 +37,7 @@ hierarchical normal and roughness maps, 10 frames):
    (spectral estimate, a perturbed truth, random), every solver, final error against time.
 
 Usage: ``python experiments/wave_fit.py [--quick] [--only table2,convergence,speed]
-[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
+[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block] [--stall-rtol X] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
 existing file) and ``wave_fit_*.png``.
 """
 
@@ -96,15 +97,16 @@ def wrap_deg(a):
 
 
 def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level",
-               final_steps: int | None = None, exact_height_block: bool = False) -> dict:
+               final_steps: int | None = None, exact_height_block: bool = False, stall_rtol: float = 0.0) -> dict:
     scene, geo = dataset_scene(seed, resolution)
     t0 = time.perf_counter()
     steps = {} if final_steps is None else dict(max_steps=final_steps)
     result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights,
-                       height_trend=height_trend, exact_height_block=exact_height_block, **steps)
+                       height_trend=height_trend, exact_height_block=exact_height_block, stall_rtol=stall_rtol,
+                       **steps)
     wall = time.perf_counter() - t0
     row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend, final_steps=final_steps,
-               exact_height_block=exact_height_block,
+               exact_height_block=exact_height_block, stall_rtol=stall_rtol,
                camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
                gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
@@ -264,7 +266,8 @@ def section_table2(args, out):
         if seed in done:
             continue
         row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend,
-                         final_steps=args.final_steps, exact_height_block=args.exact_height_block)
+                         final_steps=args.final_steps, exact_height_block=args.exact_height_block,
+                         stall_rtol=args.stall_rtol)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
@@ -288,15 +291,15 @@ def table2_key(args) -> str:
     integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``, ``table2_plane`` /
     ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
     ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
-    ``fit.waves(exact_height_block=True)``; options together join their names
-    (``table2_slopes_final30``), so no variant's rows land in another's."""
+    ``fit.waves(exact_height_block=True)``, ``_stall`` appended for ``stall_rtol > 0``; options
+    together join their names (``table2_slopes_final30``), so no variant's rows land in another's."""
     if not args.heights:
         key = "table2_slopes"
     else:
         key = "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
     if args.final_steps is not None:
         key += f"_final{args.final_steps}"
-    return key + ("_exact_heights" if args.exact_height_block else "")
+    return key + ("_exact_heights" if args.exact_height_block else "") + ("_stall" if args.stall_rtol > 0 else "")
 
 
 def table2_summary(rows) -> dict:
@@ -542,6 +545,9 @@ def main(argv=None):
                              "table2_finalN")
     parser.add_argument("--exact-height-block", action="store_true",
                         help="table2: fit.waves(exact_height_block=True); saved as table2_exact_heights")
+    parser.add_argument("--stall-rtol", type=float, default=0.0,
+                        help="table2: fit.waves(stall_rtol=X), the final refinement's stall test; '_stall' "
+                             "appended to the saved key")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="recompute the scores of the saved table2 (--no-heights: table2_slopes) scenes from "

@@ -389,6 +389,41 @@ def test_exact_height_block_bad_uses_are_errors():
                           exact_heights=True)
 
 
+def test_the_stall_test_stops_where_ten_steps_lower_the_loss_by_less_than_its_tolerance(x64):
+    # the same refinement with the stall test off, then on at a tolerance that the run's own
+    # history meets part-way: the stall run follows the same steps and stops at the first
+    # step whose loss is within stall_rtol of the loss ten steps before, converged
+    # (two close waves longer than the view: 18 steps to converge from this start)
+    c = persp()
+    truth = make_waves([0.15, 0.12, 0.03], [1.40, 1.47, 3.6], [0.3, 0.5, 2.1], [0.5, 4.0, 2.0])
+    normals, _ = fw.predict(truth, c, TIMES, surface="rows")
+    start = truth._replace(amplitude=truth.amplitude * 0.8, theta=truth.theta + jnp.asarray([0.1, -0.1, 0.0]))
+    wp, active = _model.pad_waves(start, _model.bucket_size(3))
+
+    def run(stall_rtol):
+        out, _ = _lm.refine_kernel(_model.pack(wp), active, normals, None, TIMES, c, jnp.zeros(RES[0]),
+                                   jnp.asarray(0.0), jnp.asarray(0.0), n_min=1.0, n_max=1.5, max_steps=40,
+                                   roughness_weight=0.0, history=True, hessian_samples=4096, stall_rtol=stall_rtol)
+        return out
+
+    free = run(0.0)
+    hist = np.asarray(free.history)[:int(free.steps) + 1]
+    w = _lm.STALL_STEPS
+    assert len(hist) > w + 2
+    gain = (hist[:-w] - hist[w:]) / hist[w:]  # gain[j]: the relative decrease over steps j+1 .. j+w
+    # met part-way through the free run; met at once (the earliest step it can stop at)
+    for tol in (float(np.sort(gain)[len(gain) // 2]), float(np.max(gain))):
+        stop = w + int(np.argmax(gain <= tol))
+        assert stop < int(free.steps)
+        stalled = run(tol)
+        assert int(stalled.steps) == stop and bool(stalled.success)
+        np.testing.assert_allclose(float(stalled.loss), hist[stop], rtol=1e-12)
+    with pytest.raises(ValueError, match="stall_rtol must be a finite number >= 0"):
+        fw.waves(normals, None, c, TIMES, stall_rtol=-1.0)
+    with pytest.raises(ValueError, match="stall_rtol is the structured solver's stall test"):
+        fw.waves(normals, None, c, TIMES, stall_rtol=1e-3, solver="lm", long_waves=False, heights=False)
+
+
 def test_height_trend_bad_values_are_errors():
     c = ortho()
     normals, rough = fw.predict(few_waves(), c, TIMES)

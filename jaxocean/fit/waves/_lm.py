@@ -47,6 +47,9 @@ HEIGHT_WEIGHT = 1e-2
 #: tenth of their 1-sigma uncertainty of the optimum, and further steps change nothing the
 #: data can tell (used where a noise variance is given, ``sigma2 > 0``)
 CHI2_TOL = 0.01
+#: the stall test of a refinement given ``stall_rtol > 0``: it converges once its last
+#: ``STALL_STEPS`` steps lowered the loss by less than ``stall_rtol`` of it in all
+STALL_STEPS = 10
 _CHUNK_FLOATS = 6_000_000  # per-wave Jacobian entries held at once (24 MB in float32)
 
 
@@ -229,7 +232,7 @@ def _steepness_projection(y, n, max_steepness):
 
 def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, *, scale, n_min, n_max,
                    max_steps, rtol, atol, hessian_samples, history_len, refine=ROWS, sigma2=0.0, xtol=1e-7,
-                   heights=None, exact_heights=False):
+                   heights=None, exact_heights=False, stall_rtol=0.0):
     """Levenberg-Marquardt with structured normal equations (:mod:`jaxocean.fit.waves`, step 4).
 
     The gradient ``J^T r`` is exact (every pixel-frame); ``J^T J`` comes from an evenly
@@ -243,6 +246,8 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
     full Gauss-Newton step could lower chi^2 by less than :data:`CHI2_TOL` also converges.
     ``exact_heights``: the height residual's ``J^T J`` block in full (cross terms, each
     frame's level projected out: :func:`_height_gauss_newton`) rather than its diagonal.
+    ``stall_rtol > 0``: the refinement also converges once its last :data:`STALL_STEPS` steps
+    lowered the loss by less than ``stall_rtol`` of it in all (0: off).
     """
     n = active.shape[0]
     samples = all_samples(normals[..., :2], weight, times, camera, scale)
@@ -328,6 +333,7 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         done: jax.Array
         conv: jax.Array
         hist: jax.Array
+        recent: jax.Array  # (STALL_STEPS,) the loss after each of the last steps, a ring
         start: jax.Array  # the start is not evaluated yet
 
     def cond(s):
@@ -376,19 +382,25 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
         decrement = 0.5 * (jtr @ g_step)
         chi2_gain = 2.0 * decrement / (scale * jnp.where(sigma2 > 0, sigma2, 1.0))
         insignificant = (sigma2 > 0) & jnp.isfinite(chi2_gain) & (chi2_gain >= 0) & (chi2_gain <= CHI2_TOL)
-        conv = (accept & (rel | insignificant)) | small | floor | stalled
+        # the stall test: the loss STALL_STEPS steps ago sits in the ring slot this step takes
+        k_new = s.k + 1
+        slot = k_new % STALL_STEPS
+        stalled_progress = ((stall_rtol > 0) & (k_new >= STALL_STEPS)
+                            & (s.recent[slot] - fv <= stall_rtol * jnp.maximum(fv, eps)))
+        conv = (accept & (rel | insignificant)) | small | floor | stalled | stalled_progress
+        recent = jnp.where(s.start, jnp.full_like(s.recent, fv), s.recent.at[slot].set(fv))
         hist = jnp.where(jnp.arange(history_len) > s.k, fv, s.hist)
         done = conv | ~jnp.isfinite(fv)
         conv = conv & jnp.isfinite(fv)
         # the start's pass: no step taken, converged only at the absolute floor
         return S(y, fv, jtj, jtr, lam, nu, jnp.where(s.start, s.k, s.k + 1), jnp.where(s.start, floor, done),
-                 jnp.where(s.start, floor, conv), jnp.where(s.start, jnp.full_like(s.hist, fv), hist),
+                 jnp.where(s.start, floor, conv), jnp.where(s.start, jnp.full_like(s.hist, fv), hist), recent,
                  jnp.zeros_like(s.start))
 
     p = y0.shape[0]
     s0 = S(y0, jnp.asarray(jnp.inf, dtype), jnp.eye(p, dtype=dtype), jnp.zeros(p, dtype), jnp.asarray(1e-3, dtype),
            jnp.asarray(2.0, dtype), jnp.asarray(0, jnp.int32), jnp.asarray(False), jnp.asarray(False),
-           jnp.zeros((history_len,), dtype), jnp.asarray(True))
+           jnp.zeros((history_len,), dtype), jnp.zeros((STALL_STEPS,), dtype), jnp.asarray(True))
     s = jax.lax.while_loop(cond, body, s0)
     success = s.conv & jnp.isfinite(s.f) & jnp.all(jnp.isfinite(s.y))
     return _LMOut(s.y, s.f, s.k, success, s.jtj, s.hist)
@@ -396,7 +408,7 @@ def _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail
 
 def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol, atol, *, n_min, n_max,
                   max_steps, roughness_weight, hessian_samples=None, history=False, held=None, refine=ROWS,
-                  sigma2=0.0, heights=None, exact_heights=False):
+                  sigma2=0.0, heights=None, exact_heights=False, stall_rtol=0.0):
     """The structured LM on packed parameters ``y0 (4N,)``; ``active (N,)`` marks real waves,
     ``held (N,)`` (default none) waves whose ``omega`` and ``theta`` stay fixed; ``refine``
     the forward model's path (``ROWS``; ``HITS``: the pixel-frames whose hit under ``y0``
@@ -404,8 +416,8 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
     of the chi^2 convergence test (0: off); ``heights``: None or ``(z, mask, weight[, basis])``
     integrated heights the model's hits are also held to (:func:`_ls_loss`);
     ``exact_heights``: their exact Gauss-Newton block in ``J^T J`` instead of its diagonal
-    (level-only heights). Returns
-    ``(out, n_valid)``."""
+    (level-only heights); ``stall_rtol``: the stall test's tolerance (0: off; :data:`STALL_STEPS`).
+    Returns ``(out, n_valid)``."""
     if exact_heights and (heights is None or len(heights) != 3):
         raise ValueError("exact_heights needs the integrated heights with each frame's level alone left free "
                          "(heights=(z, mask, weight), no trend basis)")
@@ -416,8 +428,8 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
     # and weight); the history's length is static and only as long as asked for
     return _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol,
                        jnp.asarray(max_steps, jnp.int32), jnp.asarray(sigma2, y0.dtype), heights,
-                       jnp.asarray(roughness_weight, y0.dtype), n_min=n_min, n_max=n_max,
-                       hessian_samples=int(hessian_samples),
+                       jnp.asarray(roughness_weight, y0.dtype), jnp.asarray(stall_rtol, y0.dtype), n_min=n_min,
+                       n_max=n_max, hessian_samples=int(hessian_samples),
                        history_len=int(max_steps) + 1 if history else 1, refine=int(refine),
                        exact_heights=bool(exact_heights))
 
@@ -425,7 +437,8 @@ def refine_kernel(y0, active, normals, roughness, times, camera, tail_rows, rtol
 @functools.partial(jax.jit, static_argnames=("n_min", "n_max", "hessian_samples", "history_len", "refine",
                                              "exact_heights"))
 def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, rtol, atol, max_steps, sigma2,
-                heights, roughness_weight, *, n_min, n_max, hessian_samples, history_len, refine, exact_heights):
+                heights, roughness_weight, stall_rtol, *, n_min, n_max, hessian_samples, history_len, refine,
+                exact_heights):
     weight = valid_weights(normals, camera)
     normals, roughness = clean_inputs(normals, roughness, weight)
     if refine != ROWS:
@@ -437,7 +450,7 @@ def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, 
     out = _structured_lm(y0, active, held, normals, weight, times, camera, rough, tail_rows, scale=scale, n_min=n_min,
                          n_max=n_max, max_steps=max_steps, rtol=rtol, atol=atol, hessian_samples=hessian_samples,
                          history_len=history_len, refine=refine, sigma2=sigma2,
-                         heights=heights, exact_heights=exact_heights)
+                         heights=heights, exact_heights=exact_heights, stall_rtol=stall_rtol)
     return out, n_valid
 
 
