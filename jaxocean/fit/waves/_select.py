@@ -260,8 +260,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
       On Table 2 it explains every scene's data better at the same 100 steps (scene 5:
       1.16e-4 rad against 2.5e-4) and brings frequencies and directions closer, but some
       separable amplitudes farther, in about 10% more time (``experiments/WAVES.md``).
-      With it the amplitude part of each step is predicted to three digits, so its
-      refinement reaches a slow, steady descent that ``stall_rtol`` can stop.
+      With it the amplitude part of each step is predicted to within 1% (scene 5's rows
+      path), so its refinement reaches a slow, steady descent that ``stall_rtol`` can stop.
       Needs the heights with ``height_trend="level"``.
     * ``stall_rtol``: the final refinement (and each pruning refit) also stops, converged,
       once its last 10 steps lowered the loss by less than this fraction of it in all (0,
