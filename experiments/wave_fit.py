@@ -97,16 +97,17 @@ def wrap_deg(a):
 
 
 def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level",
-               final_steps: int | None = None, exact_height_block: bool = False, stall_rtol: float = 0.0) -> dict:
+               final_steps: int | None = None, exact_height_block: bool = False, stall_rtol: float = 0.0,
+               prune: bool = False) -> dict:
     scene, geo = dataset_scene(seed, resolution)
     t0 = time.perf_counter()
     steps = {} if final_steps is None else dict(max_steps=final_steps)
     result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights,
                        height_trend=height_trend, exact_height_block=exact_height_block, stall_rtol=stall_rtol,
-                       **steps)
+                       prune=prune, **steps)
     wall = time.perf_counter() - t0
     row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend, final_steps=final_steps,
-               exact_height_block=exact_height_block, stall_rtol=stall_rtol,
+               exact_height_block=exact_height_block, stall_rtol=stall_rtol, prune=prune,
                camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
                gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
@@ -267,7 +268,7 @@ def section_table2(args, out):
             continue
         row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend,
                          final_steps=args.final_steps, exact_height_block=args.exact_height_block,
-                         stall_rtol=args.stall_rtol)
+                         stall_rtol=args.stall_rtol, prune=args.prune)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
@@ -291,15 +292,16 @@ def table2_key(args) -> str:
     integrated heights), ``table2_slopes`` for ``fit.waves(heights=False)``, ``table2_plane`` /
     ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
     ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
-    ``fit.waves(exact_height_block=True)``, ``_stall`` appended for ``stall_rtol > 0``; options
-    together join their names (``table2_slopes_final30``), so no variant's rows land in another's."""
+    ``fit.waves(exact_height_block=True)``, ``_stall`` appended for ``stall_rtol > 0`` and
+    ``_prune`` for ``prune=True``; options together join their names (``table2_slopes_final30``), so no variant's rows land in another's."""
     if not args.heights:
         key = "table2_slopes"
     else:
         key = "table2" if args.height_trend == "level" else f"table2_{args.height_trend}"
     if args.final_steps is not None:
         key += f"_final{args.final_steps}"
-    return key + ("_exact_heights" if args.exact_height_block else "") + ("_stall" if args.stall_rtol > 0 else "")
+    return (key + ("_exact_heights" if args.exact_height_block else "") + ("_stall" if args.stall_rtol > 0 else "")
+            + ("_prune" if args.prune else ""))
 
 
 def table2_summary(rows) -> dict:
@@ -548,6 +550,9 @@ def main(argv=None):
     parser.add_argument("--stall-rtol", type=float, default=0.0,
                         help="table2: fit.waves(stall_rtol=X), the final refinement's stall test; '_stall' "
                              "appended to the saved key")
+    parser.add_argument("--prune", action="store_true",
+                        help="table2: fit.waves(prune=True), Wald pruning and merging of unseparated pairs after "
+                             "the final refinement; '_prune' appended to the saved key")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="recompute the scores of the saved table2 (--no-heights: table2_slopes) scenes from "

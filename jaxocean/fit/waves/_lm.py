@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxocean import hierarchy
-from jaxocean._math import safe_sqrt
+from jaxocean._math import safe_sqrt, sincos
 from jaxocean.errors import is_concrete
 from jaxocean.fit.waves._inputs import (Samples, all_samples, check_inputs, chunked, clean_inputs, subsample,
                                         valid_weights)
@@ -158,7 +158,7 @@ def _height_gauss_newton(y, active, chunks: Samples, times, n_min, n_max):
     def body(acc, ch):
         jtj, m, wt = acc
         _, _, _, _, w, dw_du, _, psi, dpsi_du, dpsi_dth = wave_phases(P, act, ch, n_min, n_max)
-        sp, cp = jnp.sin(psi), jnp.cos(psi)
+        sp, cp = sincos(psi)
         cn, snn = a * cp - b * sp, a * sp + b * cp  # h cos psi and h sin psi
         J = height_partials(w, cp, sp, cn, snn, dw_du, dpsi_du, dpsi_dth).reshape(ch.t.shape[0], 4 * n)
         W = ch.sw ** 2
