@@ -37,8 +37,9 @@ hierarchical normal and roughness maps, 10 frames):
    (spectral estimate, a perturbed truth, random), every solver, final error against time.
 
 Usage: ``python experiments/wave_fit.py [--quick] [--only table2,convergence,speed]
-[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block] [--stall-rtol X] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json`` (sections merged into an
-existing file) and ``wave_fit_*.png``.
+[--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block]
+[--stall-rtol X] [--prune] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json``
+(sections merged into an existing file) and ``wave_fit_*.png``.
 """
 
 from __future__ import annotations
