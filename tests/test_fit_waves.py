@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from jax.test_util import check_grads
 
 from jaxocean import camera as cam
-from jaxocean import render, spectrum
+from jaxocean import hierarchy, render, spectrum
 from jaxocean.errors import InvalidValueError
 from jaxocean.io import dataset
 import jaxocean.fit as fit_package
@@ -23,6 +23,7 @@ from jaxocean.fit import spectrum_fit as fit_spectrum
 from jaxocean.fit import waves_fit as fw
 from jaxocean import _roughness
 from jaxocean.fit.waves import _inputs, _lm, _model, _select, _spectral
+from jaxocean.fit.waves._prune import merge_close_pairs
 from jaxocean.fit.solvers import FitError
 from jaxocean.waves import GRAVITY, Waves, make_waves, too_steep
 
@@ -648,6 +649,49 @@ def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     assert int(merged.n_waves) == 3 and bool(merged.success)
     m = fw.match(merged.waves, truth)
     assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4
+
+
+def test_merge_separation_merges_a_twin_into_the_wave_the_data_hold(ortho_scene, capsys):
+    # the twin of the test above, merged instead of dropped: the pair's coherent sum is the
+    # true wave, so the refit keeps 3 waves with the true amplitudes
+    c, truth, normals, rough = ortho_scene
+    init = make_waves([0.0225, 0.02, 0.012, 0.0075], [2.8, 3.6, 4.9, 2.85], [0.4, 2.1, -1.2, 0.4],
+                      [0.5, 4.0, 2.0, 0.5])
+    merged = fw.waves(normals, rough, c, TIMES, init=init, merge_separation=0.5, verbose=True)
+    out = capsys.readouterr().out
+    assert "merging 1 pair of the 4 waves (closer than 0.5 Rayleigh limits): " in out and "kept" in out, out
+    assert int(merged.n_waves) == 3 and bool(merged.success)
+    m = fw.match(merged.waves, truth)
+    assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4
+    # a limit below the pair's separation leaves the four waves
+    sep = float(fw.rayleigh_separation(init, init, c, TIMES)[0, 3])
+    apart = fw.waves(normals, rough, c, TIMES, init=init, merge_separation=0.5 * sep, verbose=True)
+    assert int(apart.n_waves) == 4 and "merging" not in capsys.readouterr().out
+
+
+def test_merging_a_pair_sums_it_coherently_where_the_data_see_it():
+    c = ortho()
+    # one wave vector, phases a quarter turn apart: one wave of the phasors' sum
+    pair = make_waves([0.02, 0.01], [3.0, 3.0], [0.7, 0.7], [0.3, 0.3 + np.pi / 2])
+    one, n = merge_close_pairs(pair, c, TIMES, hierarchy.DEFAULT_N_MAX, 0.5)
+    assert n == 1 and one.omega.shape == (1,)
+    np.testing.assert_allclose(float(one.amplitude[0]), np.hypot(0.02, 0.01), rtol=1e-6)
+    np.testing.assert_allclose(float(one.omega[0]), 3.0, rtol=1e-6)
+    np.testing.assert_allclose(float(one.theta[0]), 0.7, atol=1e-6)
+    np.testing.assert_allclose(float(one.phase[0]), 0.3 + np.arctan2(0.01, 0.02), atol=1e-5)
+    # waves the window separates are returned as they are
+    w = few_waves()
+    same, n = merge_close_pairs(w, c, TIMES, hierarchy.DEFAULT_N_MAX, 0.5)
+    assert n == 0
+    for a, b in zip(same, w):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
+
+
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "0.5"])
+def test_merge_separation_out_of_range_is_an_error(ortho_scene, bad):
+    c, _, normals, rough = ortho_scene
+    with pytest.raises(ValueError, match=r"merge_separation must be a number of Rayleigh limits in \[0, 1\]"):
+        fw.waves(normals, rough, c, TIMES, merge_separation=bad)
 
 
 def _m_and_floor(normals, c):

@@ -5,7 +5,8 @@ Protocol: from a fitted model's packed parameters ``y (4 N,)`` and normal matrix
 :func:`wald_keep` says which waves pay the information criterion's penalty and
 :func:`correlated_discount` how much of the explained RSS correlated noise could have made;
 :func:`unseparated_weaker` marks the weaker wave of each pair the observation window does not
-separate (eager, NumPy, outside any gradient).
+separate, and :func:`merge_close_pairs` replaces each much closer pair by the one wave the pair
+draws together (eager, NumPy, outside any gradient).
 """
 
 from __future__ import annotations
@@ -14,8 +15,9 @@ import math
 
 import numpy as np
 
+from jaxocean import camera as cam
 from jaxocean.fit.waves._match import rayleigh_separation
-from jaxocean.waves import Waves
+from jaxocean.waves import GRAVITY, Waves
 
 
 def _deletion_cost(y, jtj, active, n):
@@ -91,3 +93,49 @@ def unseparated_weaker(w: Waves, camera, times, n_max) -> np.ndarray:
     for i in np.argsort(-amp, kind="stable"):
         drop[i] = bool(np.any((sep[i] < 1.0) & ~drop & (np.arange(amp.size) != i) & (amp >= amp[i])))
     return drop
+
+
+def merge_close_pairs(w: Waves, camera, times, n_max, limit: float) -> tuple[Waves, int]:
+    """Merge, closest pair first, every two waves of ``w (N,)`` closer than ``limit``
+    Rayleigh limits (:func:`rayleigh_separation`) into one; returns the waves (merged ones
+    in the place of the pair's first) and the number of merges.
+
+    Two waves that close draw one wave over the observation window, and the data fix that
+    wave, not the split between the two (a fit lets the pair drift apart in amplitude). The
+    merged wave is the pair's coherent sum where the data see it, at the centre ``c`` of the
+    sea pixels and the middle ``t_c`` of the frames: complex amplitude
+    ``z = sum_i h_i exp(i (omega_i t_c - k_i . c + phi_i))``, wave vector the pair's mean
+    weighted by ``|z_i|^2``, ``omega`` on the dispersion shell ``omega^2 = g |k|``."""
+    h = np.asarray(w.amplitude, np.float64)
+    om = np.asarray(w.omega, np.float64)
+    th = np.asarray(w.theta, np.float64)
+    hit = cam.intersect_sea(camera)
+    centre = np.asarray(hit.xy)[np.asarray(hit.mask)].mean(0)
+    t_c = float(np.mean(np.asarray(times, np.float64)))
+    kv = (om ** 2 / GRAVITY)[:, None] * np.stack([np.cos(th), np.sin(th)], -1)
+    z = h * np.exp(1j * (om * t_c - kv @ centre + np.asarray(w.phase, np.float64)))
+    alive = np.ones(h.size, bool)
+    n_merged = 0
+    while alive.sum() > 1:
+        idx = np.nonzero(alive)[0]
+        cur = _from_complex(kv[idx], z[idx], centre, t_c, w.omega.dtype)
+        sep = rayleigh_separation(cur, cur, camera, times, n_max=n_max)
+        np.fill_diagonal(sep, np.inf)
+        a, b = np.unravel_index(np.argmin(sep), sep.shape)
+        if not sep[a, b] < limit:
+            break
+        i, j = idx[min(a, b)], idx[max(a, b)]
+        e_i, e_j = abs(z[i]) ** 2, abs(z[j]) ** 2
+        kv[i] = (e_i * kv[i] + e_j * kv[j]) / max(e_i + e_j, 1e-300)
+        z[i] = z[i] + z[j]
+        alive[j] = False
+        n_merged += 1
+    return _from_complex(kv[alive], z[alive], centre, t_c, w.omega.dtype), n_merged
+
+
+def _from_complex(kv, z, centre, t_c, dtype) -> Waves:
+    """Waves of wave vectors ``kv (N, 2)`` with complex amplitudes ``z (N,)`` at ``(centre, t_c)``."""
+    k = np.linalg.norm(kv, axis=-1)
+    om = np.sqrt(GRAVITY * k)
+    phase = np.mod(np.angle(z) - om * t_c + kv @ centre, 2 * np.pi)
+    return Waves(*(np.asarray(x, dtype) for x in (np.abs(z), om, np.arctan2(kv[:, 1], kv[:, 0]), phase)))
