@@ -687,7 +687,7 @@ def test_merging_a_pair_sums_it_coherently_where_the_data_see_it():
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-6, atol=1e-6)
 
 
-@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "0.5"])
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), "0.5", True])
 def test_merge_separation_out_of_range_is_an_error(ortho_scene, bad):
     c, _, normals, rough = ortho_scene
     with pytest.raises(ValueError, match=r"merge_separation must be a number of Rayleigh limits in \[0, 1\]"):

@@ -319,7 +319,8 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
         check_values(np.asarray(noise) > 0, "noise must be > 0", noise)
     check_nonnegative_number(noise_correlation, "noise_correlation must be a finite number of pixels >= 0")
     check_nonnegative_number(stall_rtol, "stall_rtol must be a finite number >= 0 (0: no stall test)")
-    if not (isinstance(merge_separation, (int, float, np.floating)) and 0.0 <= merge_separation <= 1.0):
+    if (isinstance(merge_separation, bool) or not isinstance(merge_separation, (int, float, np.floating))
+            or not 0.0 <= merge_separation <= 1.0):
         raise ValueError("merge_separation must be a number of Rayleigh limits in [0, 1] (0: no merging); "
                          f"got {merge_separation!r}")
     if stall_rtol > 0 and solver != "structured":
@@ -906,6 +907,7 @@ def waves(normals, roughness, camera, times, *, n_waves: int | None = None, init
               f"{max_steps} steps, rss/m {float(best['half']):.3e}, "
               f"{'converged' if bool(best['success']) else 'not converged'} "
               f"({time.perf_counter() - t_final:.0f} s; {time.perf_counter() - t0:.0f} s in all)", flush=True)
+
     def fitted_now() -> Waves:
         return jax.tree.map(lambda x: x[:current.omega.shape[0]], to_waves(best["y"], best["n_pad"]))
 
