@@ -112,17 +112,16 @@ def plot(out):
                            (axes[1], "fitted_over_separable", "fitted / separable")):
         labels = []
         for x, e in enumerate(offline):
-            i = x
             labels.append(f"{'exact' if e['source'] != 'table2' else 'default'}\n{e['seed']}")
-            ax.plot([x], [e["saved"][col]], "ko", ms=5, label="saved fit" if i == 0 else None)
+            ax.plot([x], [e["saved"][col]], "ko", ms=5, label="saved fit" if x == 0 else None)
             for limit, mark in zip(LIMITS, ("s", "^")):
                 ax.plot([x], [e[f"merged_{limit:g}"][col]], mark, color="C0" if limit == LIMITS[0] else "C1",
-                        label=f"merged < {limit:g} Rayleigh, no refit" if i == 0 else None)
+                        label=f"merged < {limit:g} Rayleigh, no refit" if x == 0 else None)
         for r in out.get("refit", []):
             i = next((j for j, e in enumerate(offline) if e["source"] == SOURCES[1] and e["seed"] == r["seed"]), None)
             if i is not None:
                 ax.plot([i], [r["refit"][col]], "*", color="C3", ms=11,
-                        label="merged < 0.5 and refitted" if r is out["refit"][0] else None)
+                        label=f"merged < {r['merge_separation']:g} and refitted" if r is out["refit"][0] else None)
         ax.set_xticks(range(len(offline)), labels, fontsize=7)
         ax.set_ylabel(label)
         if col == "mae_amplitude_separable":

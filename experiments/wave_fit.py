@@ -294,7 +294,8 @@ def table2_key(args) -> str:
     ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
     ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
     ``fit.waves(exact_height_block=True)``, ``_stall`` appended for ``stall_rtol > 0`` and
-    ``_prune`` for ``prune=True``; options together join their names (``table2_slopes_final30``), so no variant's rows land in another's."""
+    ``_prune`` for ``prune=True``; options together join their names
+    (``table2_slopes_final30``), so no variant's rows land in another's."""
     if not args.heights:
         key = "table2_slopes"
     else:
