@@ -22,7 +22,7 @@ demo: $(STAMP)
 # CI (.ci/run) runs both. No persistent XLA cache is shared between the workers: it is the
 # one state a worker crash inside XLA could come from, and it saved no time measurable here
 # (make test 16.5 min alone with it and without it; make test-slow 21.5 and 22 min).
-RUN_PYTEST = JAXOCEAN_SMALL=1 $(PY) -m pytest -q -n 2
+RUN_PYTEST = JAXOCEAN_SMALL=1 $(PY) -m pytest -q -n 2 --dist loadscope
 
 test: $(STAMP)
 	$(RUN_PYTEST) -m "not slow" --nbmake tests notebooks $(PYTEST_ARGS)

@@ -27,7 +27,8 @@ hierarchical normal and roughness maps, 10 frames):
    ``--final-steps 30``: ``fit.waves(max_steps=30)``, saved as ``table2_final30``;
    ``--exact-height-block``: ``fit.waves(exact_height_block=True)``, saved as
    ``table2_exact_heights``; ``--stall-rtol 2e-3``: ``fit.waves(stall_rtol=2e-3)``, saved
-   with ``_stall`` appended (``table2_exact_heights_stall``);
+   with ``_stall`` appended (``table2_exact_heights_stall``); ``--prune`` and
+   ``--merge-separation 0.5`` append ``_prune`` and ``_merge``;
    ``--seeds 0,3`` picks scenes, so that two runs with ``--resume`` can share one table.
 2. ``convergence``: Fig. 11-12 redone: four waves, every solver (ours ``structured``,
    optimistix ``lm`` / ``gauss_newton`` / ``dogleg`` / ``bfgs``, jaxopt ``lbfgsb``, optax
@@ -38,7 +39,7 @@ hierarchical normal and roughness maps, 10 frames):
 
 Usage: ``python experiments/wave_fit.py [--quick] [--only table2,convergence,speed]
 [--scenes N | --seeds LIST] [--no-heights] [--height-trend T] [--final-steps N] [--exact-height-block]
-[--stall-rtol X] [--prune] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json``
+[--stall-rtol X] [--prune] [--merge-separation X] [--resume] [--rescore]``; writes ``experiments/results/wave_fit.json``
 (sections merged into an existing file) and ``wave_fit_*.png``.
 """
 
@@ -99,17 +100,17 @@ def wrap_deg(a):
 
 def table2_one(seed: int, resolution: int, verbose: bool, heights: bool = True, height_trend: str = "level",
                final_steps: int | None = None, exact_height_block: bool = False, stall_rtol: float = 0.0,
-               prune: bool = False) -> dict:
+               prune: bool = False, merge_separation: float = 0.0) -> dict:
     scene, geo = dataset_scene(seed, resolution)
     t0 = time.perf_counter()
     steps = {} if final_steps is None else dict(max_steps=final_steps)
     result = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, verbose=verbose, heights=heights,
                        height_trend=height_trend, exact_height_block=exact_height_block, stall_rtol=stall_rtol,
-                       prune=prune, **steps)
+                       prune=prune, merge_separation=merge_separation, **steps)
     wall = time.perf_counter() - t0
     row = dict(seed=seed, resolution=resolution, heights=heights, height_trend=height_trend, final_steps=final_steps,
                exact_height_block=exact_height_block, stall_rtol=stall_rtol, prune=prune,
-               camera_height=float(scene.camera.height),
+               merge_separation=merge_separation, camera_height=float(scene.camera.height),
                camera_pitch=float(scene.camera.pitch), hs=float(scene.spectrum.hs), tp=float(scene.spectrum.tp),
                gamma=float(scene.spectrum.gamma), true_theta_mean=float(scene.spectrum.theta_mean),
                sampled_hs=float(fit.sea_state(scene.waves).hs), n_fitted=int(result.n_waves), success=bool(result.success),
@@ -269,7 +270,8 @@ def section_table2(args, out):
             continue
         row = table2_one(seed, args.resolution, args.verbose, heights=args.heights, height_trend=args.height_trend,
                          final_steps=args.final_steps, exact_height_block=args.exact_height_block,
-                         stall_rtol=args.stall_rtol, prune=args.prune)
+                         stall_rtol=args.stall_rtol, prune=args.prune,
+                         merge_separation=args.merge_separation)
         rows.append(row)
         benchutil.print_table([row], ["seed", "n_resolvable", "n_separable", "n_fitted", "n_matched", "n_missed",
                                       "mae_amplitude", "mae_amplitude_separable",
@@ -294,7 +296,8 @@ def table2_key(args) -> str:
     ``table2_quadratic`` for ``fit.waves(height_trend=...)``, ``table2_final30`` for
     ``fit.waves(max_steps=30)`` (``--final-steps 30``), ``table2_exact_heights`` for
     ``fit.waves(exact_height_block=True)``, ``_stall`` appended for ``stall_rtol > 0`` and
-    ``_prune`` for ``prune=True``; options together join their names
+    ``_prune`` for ``prune=True`` and ``_merge`` for ``merge_separation > 0``; options together
+    join their names
     (``table2_slopes_final30``), so no variant's rows land in another's."""
     if not args.heights:
         key = "table2_slopes"
@@ -303,7 +306,7 @@ def table2_key(args) -> str:
     if args.final_steps is not None:
         key += f"_final{args.final_steps}"
     return (key + ("_exact_heights" if args.exact_height_block else "") + ("_stall" if args.stall_rtol > 0 else "")
-            + ("_prune" if args.prune else ""))
+            + ("_prune" if args.prune else "") + ("_merge" if args.merge_separation > 0 else ""))
 
 
 def table2_summary(rows) -> dict:
@@ -555,6 +558,9 @@ def main(argv=None):
     parser.add_argument("--prune", action="store_true",
                         help="table2: fit.waves(prune=True), Wald pruning and merging of unseparated pairs after "
                              "the final refinement; '_prune' appended to the saved key")
+    parser.add_argument("--merge-separation", type=float, default=0.0,
+                        help="table2: fit.waves(merge_separation=X), pairs closer than X Rayleigh limits merged "
+                             "after the final refinement; '_merge' appended to the saved key")
     parser.add_argument("--verbose", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="recompute the scores of the saved table2 (--no-heights: table2_slopes) scenes from "

@@ -523,17 +523,17 @@ def test_demo_render_stage_and_bad_stage(tmp_path, capsys):
     assert "the real stage is not among --stages" in capsys.readouterr().err and not (tmp_path / "d3").exists()
 
 
-@pytest.mark.slow  # fits compile for minutes on a CPU; `make demo` runs the same code
-def test_demo_fit_stages(tmp_path, capsys):
+@pytest.mark.slow  # the lighting fit compiles for about half a minute on a CPU
+def test_demo_lighting_stage(tmp_path, capsys):
+    # the demo's waves stage (a 64^2, 8-frame default fit: four minutes on a 2-core CPU) is
+    # left to `make demo`; its parts (fit.waves, forecast, the CLI's fit-waves -> forecast)
+    # are tested on their own
     out = tmp_path / "demo"
     assert cli.main(["demo", "--out", str(out), "--frames", "2", "--res", "48x64", "--waves", "12",
-                     "--stages", "render,lighting,waves"]) == 0
+                     "--stages", "render,lighting"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     assert summary["lighting_fit"]["success"] and summary["lighting_fit"]["sun_error_deg"] < 0.01
-    assert summary["wave_fit"]["matched"] == 4
-    assert max(summary["wave_fit"]["forecast_normal_error_deg"]) < 0.5
-    for name in ("lighting_fit.png", "wave_fit.png", "forecast_strip.png"):
-        assert (out / name).exists()
+    assert (out / "lighting_fit.png").exists() and "wave_fit" not in summary
 
 
 # ----------------------------------------------------------------------------- refused before any work (issue 13)
