@@ -660,7 +660,7 @@ def test_camera_fit_under_jit_and_vmap(x64):
     np.testing.assert_allclose(float(out.camera.height[1]), 10.0, rtol=1e-8)
 
 
-@pytest.mark.slow
+@pytest.mark.extended  # 48^2, 64 waves, and a 135-start search (over a minute)
 def test_camera_fit_demo_scene_coarse_to_fine():
     # the demo scene of LIGHTING.md (48^2, float32, 64 waves to 30 wp, refined geometry): the
     # full model alone lands in the neighbouring minimum (9.85 m) and says so; coarse to fine

@@ -1014,7 +1014,7 @@ def test_a_swell_that_fills_the_spectrum_does_not_hide_the_resolvable_waves():
     assert not bool(fit.success) or float(fit.normal_error) <= fw.normal_error_bound(2e-3)
 
 
-@pytest.mark.slow  # a full default fit of a 4-wave sea
+@pytest.mark.extended  # a full default fit of a 4-wave sea (two minutes)
 def test_a_swell_near_the_floor_adds_no_stand_ins():
     # four JONSWAP waves, one of them a swell the view does not resolve: once the three
     # resolvable waves are in, the residual (7x the floor) is the swell's, whose candidates
@@ -1034,7 +1034,7 @@ def test_a_swell_near_the_floor_adds_no_stand_ins():
     assert fit.waves.omega.shape[0] <= 4
 
 
-@pytest.mark.slow  # a full default fit of a 32^2 dataset scene
+@pytest.mark.extended  # a full default fit of a 32^2 dataset scene (two minutes)
 def test_a_model_that_moves_the_hits_by_half_a_footprint_is_fitted_on_the_hits_path():
     # a dataset scene (jaxocean simulate --res 32 --frames 6 --seed 7, scene 37), rendered on
     # the hits path: its first 10 fitted waves, refitted on each path, explain it 1.5% better
