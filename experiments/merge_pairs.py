@@ -11,7 +11,9 @@ Two sections, both from the fitted waves that ``wave_fit.py --only table2`` save
 2. ``refit``: ``fit.waves(init=<the saved exact-block fit>, exact_height_block=True,
    stall_rtol=2e-3, merge_separation=0.5)`` on the scenes given: the saved waves refined
    (the band refitted from zero), the final refinement, the merge, its refit, kept if the
-   criterion does not get worse; scored the same way.
+   criterion does not get worse (if not, the closest half of the pairs, then the closest
+   quarter: ``merge_tries`` refits at most; rows without that field merged all at once
+   only); scored the same way.
 
 Usage: ``python experiments/merge_pairs.py [--only offline,refit] [--seeds 3,4]
 [--separation 0.5] [--resume]``; writes ``experiments/results/merge_pairs.json`` (sections
@@ -32,6 +34,7 @@ import wave_fit  # noqa: E402
 
 from jaxocean import fit, hierarchy  # noqa: E402
 from jaxocean.fit.waves._prune import merge_close_pairs  # noqa: E402
+from jaxocean.fit.waves._select import MERGE_TRIES  # noqa: E402
 
 NAME = "merge_pairs"
 SOURCES = ("table2", "table2_exact_heights_stall")
@@ -84,7 +87,8 @@ def section_refit(args, out):
         res = fit.waves(geo.normal, geo.roughness, scene.camera, scene.times, init=init, exact_height_block=True,
                         stall_rtol=2e-3, merge_separation=args.separation, verbose=True)
         det = np.asarray(res.determined, bool)
-        entry = dict(seed=seed, merge_separation=args.separation, n_init=int(np.asarray(init.omega).size),
+        entry = dict(seed=seed, merge_separation=args.separation, merge_tries=MERGE_TRIES,
+                     n_init=int(np.asarray(init.omega).size),
                      success=bool(res.success), normal_error_rad=float(res.normal_error),
                      saved_normal_error_rad=row["normal_error_rad"], time_s=time.perf_counter() - t0,
                      saved=scores(init, np.asarray(row["fitted_determined"], bool), scene),

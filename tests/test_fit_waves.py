@@ -669,6 +669,41 @@ def test_merge_separation_merges_a_twin_into_the_wave_the_data_hold(ortho_scene,
     assert int(apart.n_waves) == 4 and "merging" not in capsys.readouterr().out
 
 
+@pytest.mark.slow
+def test_a_reverted_merge_is_retried_on_the_closest_pairs(capsys):
+    # two true waves 0.36 Rayleigh limits apart and a twin (one true wave split, 0.12 apart):
+    # merging both pairs loses a true wave and is reverted; the closest pair alone, the twin,
+    # is the wave the data hold, and that merge is kept
+    c = ortho()
+    truth = make_waves([0.03, 0.02, 0.012, 0.015], [2.8, 3.6, 4.9, 2.8], [0.4, 2.1, -1.2, 0.58], [0.5, 4.0, 2.0, 1.0])
+    assert 0.3 < fw.rayleigh_separation(truth, truth, c, TIMES)[0, 3] < 0.4
+    normals, rough = fw.predict(truth, c, TIMES)
+    init = make_waves([0.03, 0.02, 0.007, 0.015, 0.006], [2.8, 3.6, 4.9, 2.8, 4.9], [0.4, 2.1, -1.2, 0.58, -1.22],
+                      [0.5, 4.0, 2.0, 1.0, 2.5])
+    fitted = fw.waves(normals, rough, c, TIMES, init=init, merge_separation=0.5, max_steps=40, verbose=True)
+    out = capsys.readouterr().out
+    assert "merging 2 pairs of the 5 waves (closer than 0.5 Rayleigh limits): " in out and "reverted" in out, out
+    assert "merging the closest 1 pair of the 5 waves (closer than 0.5 Rayleigh limits): " in out, out
+    assert out.rstrip().endswith("kept"), out
+    assert int(fitted.n_waves) == 4 and bool(fitted.success)
+    m = fw.match(fitted.waves, truth)
+    assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 3e-3
+
+
+def test_merges_are_made_closest_pair_first_up_to_the_limit():
+    c = ortho()
+    # two pairs on one wave vector each, the first pair closer (a smaller frequency step)
+    w = make_waves([0.02, 0.01, 0.015, 0.012], [3.0, 3.01, 4.5, 4.56], [0.7, 0.7, -1.0, -1.0], [0.3, 0.3, 1.0, 1.0])
+    sep = fw.rayleigh_separation(w, w, c, TIMES)
+    assert sep[0, 1] < sep[2, 3] < 0.5
+    both, n = merge_close_pairs(w, c, TIMES, hierarchy.DEFAULT_N_MAX, 0.5)
+    assert n == 2 and both.omega.shape == (2,)
+    first, n = merge_close_pairs(w, c, TIMES, hierarchy.DEFAULT_N_MAX, 0.5, max_merges=1)
+    assert n == 1 and first.omega.shape == (3,)
+    np.testing.assert_allclose(float(first.amplitude[0]), 0.03, rtol=1e-5)  # in phase: the sum
+    np.testing.assert_allclose(np.asarray(first.omega[1:]), [4.5, 4.56], rtol=1e-6)
+
+
 def test_merging_a_pair_sums_it_coherently_where_the_data_see_it():
     c = ortho()
     # one wave vector, phases a quarter turn apart: one wave of the phasors' sum

@@ -95,10 +95,12 @@ def unseparated_weaker(w: Waves, camera, times, n_max) -> np.ndarray:
     return drop
 
 
-def merge_close_pairs(w: Waves, camera, times, n_max, limit: float) -> tuple[Waves, int]:
+def merge_close_pairs(w: Waves, camera, times, n_max, limit: float,
+                      max_merges: int | None = None) -> tuple[Waves, int]:
     """Merge, closest pair first, every two waves of ``w (N,)`` closer than ``limit``
-    Rayleigh limits (:func:`rayleigh_separation`) into one; returns the waves (merged ones
-    in the place of the pair's first) and the number of merges.
+    Rayleigh limits (:func:`rayleigh_separation`) into one, at most ``max_merges`` times
+    (None: no limit); returns the waves (merged ones in the place of the pair's first) and
+    the number of merges.
 
     Two waves that close draw one wave over the observation window, and the data fix that
     wave, not the split between the two (a fit lets the pair drift apart in amplitude). The
@@ -116,7 +118,7 @@ def merge_close_pairs(w: Waves, camera, times, n_max, limit: float) -> tuple[Wav
     z = h * np.exp(1j * (om * t_c - kv @ centre + np.asarray(w.phase, np.float64)))
     alive = np.ones(h.size, bool)
     n_merged = 0
-    while alive.sum() > 1:
+    while alive.sum() > 1 and (max_merges is None or n_merged < max_merges):
         idx = np.nonzero(alive)[0]
         cur = _from_complex(kv[idx], z[idx], centre, t_c, w.omega.dtype)
         sep = rayleigh_separation(cur, cur, camera, times, n_max=n_max)
