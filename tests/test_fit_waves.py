@@ -300,19 +300,29 @@ def test_a_short_wave_the_rows_path_explains_stays_on_it():
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
 
 
-def test_slopes_alone_fit_what_the_integrated_heights_agree_with():
-    # the same rows-path wave fitted without its integrated heights (on by default): they
-    # agree with the normals, so slopes alone give the same one wave; a registry solver has
-    # no height term, goes without it by default and says so when asked for it
+def _one_rows_path_wave():
     c = ortho()
     k = 2 * np.pi / (5.0 * 12.0 / RES[0])
     truth = make_waves([0.2 / k], [float(np.sqrt(GRAVITY * k))], [-0.43], [1.70])
     normals, rough = fw.predict(truth, c, TIMES, surface="auto")
+    return truth, normals, rough, c
+
+
+@pytest.mark.slow  # a full fit without heights
+def test_slopes_alone_fit_what_the_integrated_heights_agree_with():
+    # the same rows-path wave fitted without its integrated heights (on by default): they
+    # agree with the normals, so slopes alone give the same one wave
+    truth, normals, rough, c = _one_rows_path_wave()
     fit = fw.waves(normals, rough, c, TIMES, heights=False)
     assert bool(fit.success) and int(fit.n_waves) <= 2
     m = fw.match(fit.waves, truth)
     assert m.missed.size == 0 and float(np.max(m.abs_error.omega)) < 1e-3
     assert float(np.max(m.abs_error.amplitude)) < 1e-3
+
+
+def test_a_registry_solver_has_no_height_term_and_says_so():
+    # a registry solver has no height term: asked for the heights, it says so
+    _, normals, rough, c = _one_rows_path_wave()
     with pytest.raises(ValueError, match="heights=True needs solver='structured'"):
         fw.waves(normals, rough, c, TIMES, heights=True, solver="lm", long_waves=False)
 
@@ -327,6 +337,7 @@ def _heights_loss(w, normals, c, heights):
     return float(out.loss)
 
 
+@pytest.mark.slow  # two full fits with the height-trend option
 @pytest.mark.parametrize("trend", ["plane", "quadratic"])
 def test_a_height_trend_leaves_that_trend_of_the_integrated_heights_free(x64, trend):
     # with height_trend the heights term is blind to any per-frame combination of the trend's
@@ -618,6 +629,7 @@ def test_gradients_through_a_fit_match_finite_differences(x64):
     np.testing.assert_allclose(float(jnp.sum(jax.grad(loss_n)(normals) * v)), float(fd), rtol=1e-5)
 
 
+@pytest.mark.slow  # a full fit with the prune option
 def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
     # a fourth start wave the data do not contain: kept without pruning, dropped by its Wald
     # statistic with prune=True, and the three true waves stay
@@ -632,6 +644,7 @@ def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
     assert bool(pruned.success)
 
 
+@pytest.mark.slow  # a full fit with the prune option
 def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     # the strongest wave split into two 0.05 rad/s apart (0.07 Rayleigh limits): both fit
     # the data to the floor, and the Wald statistic (second order) keeps the twin; pruning
@@ -651,6 +664,7 @@ def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4
 
 
+@pytest.mark.slow  # a full fit with the merge and its refit
 def test_merge_separation_merges_a_twin_into_the_wave_the_data_hold(ortho_scene, capsys):
     # the twin of the test above, merged instead of dropped: the pair's coherent sum is the
     # true wave, so the refit keeps 3 waves with the true amplitudes
