@@ -1,7 +1,8 @@
 """Tests of jaxocean.fit.camera: camera height and pitch (and optionally the lighting) fitted
 to an image of known waves, coarse to fine; what the fit reports as determined; bad inputs.
 
-Every scene is float64 and 16x16 or smaller but for the extended demo-scene check.
+Scenes are 16x16 or smaller and float64 (but the float32 check's), except the extended
+demo-scene check (48x48, float32).
 """
 
 import dataclasses
