@@ -629,7 +629,7 @@ def test_gradients_through_a_fit_match_finite_differences(x64):
     np.testing.assert_allclose(float(jnp.sum(jax.grad(loss_n)(normals) * v)), float(fd), rtol=1e-5)
 
 
-@pytest.mark.slow  # a full fit with the prune option
+@pytest.mark.slow  # two full fits, with and without the prune option
 def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
     # a fourth start wave the data do not contain: kept without pruning, dropped by its Wald
     # statistic with prune=True, and the three true waves stay
@@ -644,7 +644,7 @@ def test_prune_drops_a_wave_the_data_do_not_hold(ortho_scene):
     assert bool(pruned.success)
 
 
-@pytest.mark.slow  # a full fit with the prune option
+@pytest.mark.slow  # two full fits, with and without the prune option
 def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     # the strongest wave split into two 0.05 rad/s apart (0.07 Rayleigh limits): both fit
     # the data to the floor, and the Wald statistic (second order) keeps the twin; pruning
@@ -664,7 +664,7 @@ def test_prune_merges_a_twin_the_window_does_not_separate(ortho_scene, capsys):
     assert m.missed.size == 0 and m.spurious.size == 0 and np.max(np.abs(m.abs_error.amplitude)) < 2e-4
 
 
-@pytest.mark.slow  # a full fit with the merge and its refit
+@pytest.mark.slow  # two full fits with the merge and its refit
 def test_merge_separation_merges_a_twin_into_the_wave_the_data_hold(ortho_scene, capsys):
     # the twin of the test above, merged instead of dropped: the pair's coherent sum is the
     # true wave, so the refit keeps 3 waves with the true amplitudes
