@@ -1190,6 +1190,30 @@ def test_spectrum_fit_recovers_the_sea_state_from_its_waves(sampled_sea):
     np.testing.assert_array_equal(keep.amplitude, waves.amplitude)
 
 
+def test_a_second_spectrum_fit_of_the_same_size_compiles_nothing(sampled_sea):
+    # the residuals take the fit's data as arguments, not as closed-over constants: a second
+    # fit of as many waves reuses every compiled program (a recompiled fit cost ~3 s a call)
+    _, waves = sampled_sea
+    c = cam.make_camera(height=20.0, pitch=0.9, fov=0.8, resolution=RES)
+    rough = fw.predict(waves, c, TIMES[:2])[1]
+    other, other_rough = waves._replace(amplitude=waves.amplitude * 0.9), rough * 0.81
+    first = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=np.ones(60, bool))
+    compiled = []
+
+    def count(event, duration, **kw):
+        if event.endswith("backend_compile_duration"):
+            compiled.append(kw.get("fun_name"))
+
+    jax.monitoring.register_event_duration_secs_listener(count)
+    try:
+        again = fit_spectrum.spectrum(other, camera=c, roughness=other_rough, reliable=np.ones(60, bool))
+    finally:
+        jax.monitoring.unregister_event_duration_listener(count)
+    assert compiled == []
+    # and the data did reach the fit: amplitudes 0.9x give Hs 0.9x
+    assert float(again.spectrum.hs) == pytest.approx(0.9 * float(first.spectrum.hs), rel=1e-3)
+
+
 def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     _, waves = sampled_sea
     tail = np.asarray(waves.omega) > 2.5 * 2 * np.pi / 5.0

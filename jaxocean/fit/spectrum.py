@@ -92,9 +92,10 @@ fitted spectrum, for re-rendering roughness.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
-from typing import NamedTuple
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -300,6 +301,71 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
     return (w_r * (k * k * dens * dom)[None, :]).sum(-1)
 
 
+class _Data(NamedTuple):
+    """What :func:`spectrum`'s residual compares, as arrays (passed as the solver's ``args``,
+    so that one compiled solver serves every fit of the same size)."""
+
+    edges: jax.Array  # (n + 1,) bin edges
+    total: jax.Array  # () the data's total energy
+    cum: jax.Array  # (n,) the data's cumulative energies, relative to the total
+    gamma: jax.Array  # () the fixed peak enhancement (unused when it is fitted)
+    rough: Optional[tuple]  # (fp (R,), obs (R,), share (R,), scale, om_top, band_hi) or None
+
+
+class _Problem(NamedTuple):
+    to_params: object  # (y, data) -> p = (log hs, log tp, gamma)
+    energy_residual: object  # (p, data) -> (n,)
+    roughness_residual: object  # (p, data) -> (R,)
+    residual_p: object  # (p, data) -> r
+    residual: object  # (y, data) -> r
+    residual_free: object  # (y_free, (data, y, idx)) -> r: only the entries idx of y vary
+    sum_squares: object  # jitted (M, len y), data -> (M,)
+
+
+@functools.lru_cache(maxsize=None)
+def _problem(bounded: bool, fixed_gamma: bool, n_min: float, n_max: float) -> _Problem:
+    """The residuals of :func:`spectrum` as functions of the parameters and the data, built
+    once per configuration: the solvers compile per function object, so closures over one
+    fit's data would be compiled again for every fit."""
+
+    def to_params(y, d):
+        # unbounded solvers see gamma = 1 + z^2 (>= 1 by construction); bounded ones gamma
+        if fixed_gamma:
+            return jnp.stack([y[0], y[1], d.gamma.astype(y.dtype)])
+        return y if bounded else jnp.stack([y[0], y[1], 1.0 + y[2] * y[2]])
+
+    def energy_residual(p, d):
+        # cumulative bin energies of the model against the data's, relative to the total
+        return jnp.cumsum(_bin_energy(p, d.edges)) / d.total - d.cum
+
+    def roughness_residual(p, d):
+        # relative roughness residual of the informative rows
+        fp, obs, share, _, om_top, band_hi = d.rough
+        model = share + _tail_roughness(p, fp, om_top, band_hi, n_min, n_max)
+        return (jnp.maximum(model, shading.MIN_SLOPE_VARIANCE) - obs) / obs
+
+    def residual_p(p, d):
+        r = energy_residual(p, d)
+        if d.rough is not None:
+            r = jnp.concatenate([r, roughness_residual(p, d) * d.rough[3]])
+        return r
+
+    def residual(y, d):
+        return residual_p(to_params(y, d), d)
+
+    def residual_free(y_free, args):
+        d, y, idx = args
+        return residual(y.at[idx].set(y_free), d)
+
+    sum_squares = jax.jit(jax.vmap(lambda y, d: jnp.sum(residual(y, d) ** 2), in_axes=(0, None)))
+    return _Problem(to_params, energy_residual, roughness_residual, residual_p, residual, residual_free,
+                    sum_squares)
+
+
+#: the bin energies of many spectra ``(M, 3)`` over one set of edges ``(n + 1,)``: ``(M, n)``
+_bin_energies = jax.jit(jax.vmap(_bin_energy, in_axes=(0, None)))
+
+
 def sea_state(waves: Waves) -> SeaState:
     """Bulk parameters of a set of waves (eager, NumPy): see :class:`SeaState`."""
     require_eager("fit.sea_state", _EAGER, waves)
@@ -433,41 +499,23 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
                           jnp.asarray(fitted_share[informative], dtype))
     band_hi = float(band[1]) if band is not None else 10.0
     om_top = float(edges[-1])
+    if rough_rows is not None:
+        scale = math.sqrt(roughness_weight * len(om) / max(int(rough_rows[0].shape[0]), 1))
+        rough_rows = rough_rows + tuple(jnp.asarray(v, dtype) for v in (scale, om_top, band_hi))
+    data = _Data(edges_j, jnp.asarray(total, dtype), cum_j, jnp.asarray(1.0 if gamma is None else gamma, dtype),
+                 rough_rows)
 
     bounded = solvers.get_solver(solver).bounded
+    problem = _problem(bool(bounded), gamma is not None, float(n_min), float(n_max))
 
     def to_params(y):
-        # unbounded solvers see gamma = 1 + z^2 (>= 1 by construction); bounded ones gamma
-        if gamma is not None:
-            return jnp.stack([y[0], y[1], jnp.asarray(gamma, y.dtype)])
-        return y if bounded else jnp.stack([y[0], y[1], 1.0 + y[2] * y[2]])
+        return problem.to_params(y, data)
 
     def from_params(p):
         p = np.asarray(p, np.float64)
         if gamma is not None:
             return p[:2]
         return p if bounded else np.array([p[0], p[1], math.sqrt(max(p[2] - 1.0, 0.0))])
-
-    # residuals of the spectrum's parameters p = (log hs, log tp, gamma), and of the solver's y
-    def energy_residual_p(p):
-        # cumulative bin energies of the model against the data's, relative to the total
-        return jnp.cumsum(_bin_energy(p, edges_j)) / total - cum_j
-
-    def roughness_residual_p(p):
-        # relative roughness residual of the informative rows
-        fp, obs, share = rough_rows
-        model = share + _tail_roughness(p, fp, om_top, band_hi, n_min, n_max)
-        return (jnp.maximum(model, shading.MIN_SLOPE_VARIANCE) - obs) / obs
-
-    def residual_p(p):
-        r = energy_residual_p(p)
-        if rough_rows is not None:
-            scale = math.sqrt(roughness_weight * len(om) / max(int(rough_rows[0].shape[0]), 1))
-            r = jnp.concatenate([r, roughness_residual_p(p) * scale])
-        return r
-
-    def residual(y, args):
-        return residual_p(to_params(y))
 
     def grid(tps, gammas=(1.0, 2.0, 3.3, 5.0, 7.0), known=None):
         # spectra over a (Tp, gamma) grid with Hs^2 in closed form (energies are linear in
@@ -480,7 +528,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
         gammas = np.asarray(gammas if gamma is None else [float(gamma)], np.float64)
         G, TP = np.meshgrid(gammas, tps, indexing="ij")
         p0 = jnp.asarray(np.stack([np.zeros(G.size), np.log(TP.ravel()), G.ravel()], -1), dtype)
-        e1 = np.asarray(jax.jit(jax.vmap(lambda p: _bin_energy(p, edges_j)))(p0), np.float64)
+        e1 = np.asarray(_bin_energies(p0, edges_j), np.float64)
         c1, c_data = np.cumsum(e1 * known, axis=-1), np.cumsum(e_data * known)
         ok = np.all(np.isfinite(e1), axis=-1) & (c1[:, -1] > 0)
         hs2 = np.where(ok, np.sum(c1 * c_data, -1) / np.maximum(np.sum(c1 * c1, -1), 1e-300), 0.0)
@@ -494,7 +542,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
         # the grid's best point (energies and roughness) as a solver vector y
         starts, ok, _ = grid(tps)
         starts_j = jnp.asarray(np.stack([from_params(p) for p in starts]), dtype)
-        vals = np.asarray(jax.jit(jax.vmap(lambda y: jnp.sum(residual(y, None) ** 2)))(starts_j), np.float64)
+        vals = np.asarray(problem.sum_squares(starts_j, data), np.float64)
         vals = np.where(ok & np.isfinite(vals), vals, np.inf)
         if not np.isfinite(vals).any():
             raise InvalidValueError("fit.spectrum found no admissible starting point (check the waves)")
@@ -503,14 +551,14 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     def least_squares(y0, free):
         # least squares over the entries ``free`` of y (the others stay at y0's values)
         idx = jnp.asarray(np.flatnonzero(free))
-        full = lambda yf: y0.at[idx].set(yf)  # noqa: E731
         lower = jnp.asarray([math.log(1e-3), math.log(0.3), 1.0][: y0.shape[0]], dtype)[idx]
         upper = jnp.asarray([math.log(50.0), math.log(60.0), 10.0][: y0.shape[0]], dtype)[idx]
         # jaxopt's tolerance is a projected-gradient norm: 1e-5 is what float32 reaches
-        out = solvers.solve(solver, lambda yf, args: residual(full(yf), args), y0[idx], None, max_steps=max_steps,
+        out = solvers.solve(solver, problem.residual_free, y0[idx], (data, y0, idx), max_steps=max_steps,
                             rtol=1e-6, atol=1e-5 if bounded else 1e-9, lower=lower if bounded else None,
                             upper=upper if bounded else None)
-        return out, np.asarray(to_params(full(out.params)), np.float64), full(out.params)
+        y_solver = y0.at[idx].set(out.params)
+        return out, np.asarray(to_params(y_solver), np.float64), y_solver
 
     free = np.ones(2 if gamma is not None else 3, bool)
     out, y, y_solver = least_squares(grid_start(np.geomspace(2 * np.pi / (om[-1]), 2 * np.pi / (0.3 * om[0]), 48)),
@@ -554,7 +602,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     # the covariance in the spectrum's own parameters: through the solver's z (gamma = 1 + z^2)
     # gamma's standard deviation would vanish at gamma = 1, where d gamma / d z = 0
     free_p = np.array([free[0], free[1], gamma is None])
-    std_p = _least_squares_std(residual_p, to_params(y_solver), free_p, len(om),
+    std_p = _least_squares_std(lambda p: problem.residual_p(p, data), to_params(y_solver), free_p, len(om),
                                edge_cov=_edge_covariance(edges, fitted_density, total))
     hs_std, tp_std = hs_fit * std_p[0], tp_fit * std_p[1]
     gamma_std = float(std_p[2])  # NaN when gamma was given
@@ -570,11 +618,12 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
                            s_max=jnp.asarray(s_max, dtype))
     # success: converged, and the answer explains the data to their stated noise
     p_solver = to_params(y_solver)
-    misfit = float(np.sqrt(np.mean(np.asarray(energy_residual_p(p_solver), np.float64) ** 2)))
+    misfit = float(np.sqrt(np.mean(np.asarray(problem.energy_residual(p_solver, data), np.float64) ** 2)))
     rough_misfit = rough_bound = float("nan")
     explained = misfit <= bound
     if rough_rows is not None and roughness_weight > 0:
-        rough_misfit = float(np.sqrt(np.mean(np.asarray(roughness_residual_p(p_solver), np.float64) ** 2)))
+        rough_misfit = float(np.sqrt(np.mean(np.asarray(problem.roughness_residual(p_solver, data),
+                                                        np.float64) ** 2)))
         rn = 0.0 if roughness_noise is None else float(roughness_noise)
         rough_bound = math.sqrt(NOISE_FACTOR * rn ** 2 + ROUGHNESS_FLOOR ** 2)
         explained = explained and rough_misfit <= rough_bound
