@@ -459,6 +459,8 @@ def _refine_jit(y0, active, held, normals, roughness, times, camera, tail_rows, 
 
 def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *, solver, n_min, n_max,
                     max_steps, rtol, atol, roughness_weight, history, options):
+    """Refine with a registry solver; returns ``(out, n_valid, residual)``, ``residual(y, _)``
+    the problem's residual (for :func:`dense_jtj`)."""
     from jaxocean.fit import solvers
 
     weight = valid_weights(normals, camera)
@@ -467,15 +469,26 @@ def registry_refine(y0, active, normals, roughness, times, camera, tail_rows, *,
     scale = 1.0 / n_valid
     rough = rough_data(roughness, weight, camera, n_valid, roughness_weight, tail_rows)
     sw = jnp.sqrt(weight * scale)[..., None]
+    residual = _registry_residual(float(n_min), float(n_max))
+    args = (active, normals, sw, rough, tail_rows, camera, times)
+    out = solvers.solve(solver, residual, y0, args, max_steps=max_steps, rtol=rtol, atol=atol, history=history,
+                        options=options)
+    return out, n_valid, lambda y, _: residual(y, args)
+
+
+@functools.lru_cache(maxsize=None)
+def _registry_residual(n_min: float, n_max: float):
+    """The registry path's residual ``(y, args) -> r``, one function object per hierarchy:
+    the data travel in ``args``, so a solver compiled for one fit serves the next of the
+    same shapes (a closure over the data would be compiled again every call)."""
 
     def residual(y, args):
+        active, normals, sw, rough, tail_rows, camera, times = args
         n_pred = predict_jit(active_waves(y, active), camera, times, n_min, n_max).normal
         r_n = ((n_pred[..., :2] - normals[..., :2]) * sw).ravel()
         return jnp.concatenate([r_n, rough_residual(y, active, rough, tail_rows, n_min, n_max)])
 
-    out = solvers.solve(solver, residual, y0, None, max_steps=max_steps, rtol=rtol, atol=atol, history=history,
-                        options=options)
-    return out, n_valid, residual
+    return residual
 
 
 # =============================================================================== uncertainty
