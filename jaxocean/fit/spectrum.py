@@ -301,6 +301,18 @@ def _tail_roughness(params, fp_row, omega_from, band_hi_rel, n_min, n_max, n=96)
     return (w_r * (k * k * dens * dom)[None, :]).sum(-1)
 
 
+class _Rough(NamedTuple):
+    """The informative roughness rows :func:`spectrum` fits, ``(R,)`` each, and the scalars
+    of their residual."""
+
+    footprint: jax.Array  # (R,) pixel footprint [m]
+    observed: jax.Array  # (R,) observed slope variance
+    fitted_share: jax.Array  # (R,) the fitted waves' sub-pixel share of it
+    scale: jax.Array  # () weight of the rows against the energies
+    omega_from: jax.Array  # () where the tail above the fitted waves starts [rad/s]
+    band_hi: jax.Array  # () the band's upper end, in units of wp
+
+
 class _Data(NamedTuple):
     """What :func:`spectrum`'s residual compares, as arrays (passed as the solver's ``args``,
     so that one compiled solver serves every fit of the same size)."""
@@ -309,7 +321,7 @@ class _Data(NamedTuple):
     total: jax.Array  # () the data's total energy
     cum: jax.Array  # (n,) the data's cumulative energies, relative to the total
     gamma: jax.Array  # () the fixed peak enhancement (unused when it is fitted)
-    rough: Optional[tuple]  # (fp (R,), obs (R,), share (R,), scale, om_top, band_hi) or None
+    rough: Optional[_Rough]  # the informative roughness rows, or None
 
 
 class _Problem(NamedTuple):
@@ -340,14 +352,14 @@ def _problem(bounded: bool, fixed_gamma: bool, n_min: float, n_max: float) -> _P
 
     def roughness_residual(p, d):
         # relative roughness residual of the informative rows
-        fp, obs, share, _, om_top, band_hi = d.rough
-        model = share + _tail_roughness(p, fp, om_top, band_hi, n_min, n_max)
-        return (jnp.maximum(model, shading.MIN_SLOPE_VARIANCE) - obs) / obs
+        rows = d.rough
+        model = rows.fitted_share + _tail_roughness(p, rows.footprint, rows.omega_from, rows.band_hi, n_min, n_max)
+        return (jnp.maximum(model, shading.MIN_SLOPE_VARIANCE) - rows.observed) / rows.observed
 
     def residual_p(p, d):
         r = energy_residual(p, d)
         if d.rough is not None:
-            r = jnp.concatenate([r, roughness_residual(p, d) * d.rough[3]])
+            r = jnp.concatenate([r, roughness_residual(p, d) * d.rough.scale])
         return r
 
     def residual(y, d):
@@ -501,7 +513,7 @@ def spectrum(waves: Waves, *, camera=None, roughness=None, reliable=None, determ
     om_top = float(edges[-1])
     if rough_rows is not None:
         scale = math.sqrt(roughness_weight * len(om) / max(int(rough_rows[0].shape[0]), 1))
-        rough_rows = rough_rows + tuple(jnp.asarray(v, dtype) for v in (scale, om_top, band_hi))
+        rough_rows = _Rough(*rough_rows, *(jnp.asarray(v, dtype) for v in (scale, om_top, band_hi)))
     data = _Data(edges_j, jnp.asarray(total, dtype), cum_j, jnp.asarray(1.0 if gamma is None else gamma, dtype),
                  rough_rows)
 
