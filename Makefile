@@ -17,9 +17,9 @@ $(STAMP): pyproject.toml
 demo: $(STAMP)
 	$(VENV)/bin/jaxocean demo --out out/demo --real experiments/data/ship_pacific_2014_clip
 
-# `make test` runs the quick tier on two workers; `make test-slow` the long checks (full fits,
-# training, the reconstruct pipeline end to end, float64 gradient checks through whole
-# images, and the notebooks through nbmake, shrunk by JAXOCEAN_SMALL); CI (.ci/run) runs both. `make test-extended` runs three full-scale regression checks of one
+# `make test` runs the quick tier and the notebooks (nbmake, shrunk by JAXOCEAN_SMALL) on two
+# workers; `make test-slow` the long checks (full fits, the reconstruct pipeline end to end);
+# CI (.ci/run) runs both. `make test-extended` runs three full-scale regression checks of one
 # to two minutes each that CI leaves out for its time limit. Each test module runs on one
 # worker (--dist loadscope), so its fixtures are built and its programs compiled once: on a
 # 2-core CPU make test took 19.2 min and make test-slow 19.3 min. No persistent XLA
@@ -28,10 +28,10 @@ demo: $(STAMP)
 RUN_PYTEST = JAXOCEAN_SMALL=1 $(PY) -m pytest -q -n 2 --dist loadscope
 
 test: $(STAMP)
-	$(RUN_PYTEST) -m "not slow and not extended" tests $(PYTEST_ARGS)
+	$(RUN_PYTEST) -m "not slow and not extended" --nbmake tests notebooks $(PYTEST_ARGS)
 
 test-slow: $(STAMP)
-	$(RUN_PYTEST) -m slow --nbmake tests notebooks $(PYTEST_ARGS)
+	$(RUN_PYTEST) -m slow tests $(PYTEST_ARGS)
 
 test-extended: $(STAMP)
 	$(RUN_PYTEST) -m extended tests $(PYTEST_ARGS)

@@ -17,7 +17,7 @@
 # **spectrum → waves → surface → image**, the Nyquist hierarchy that splits the waves
 # between the per-pixel normal and the sub-pixel roughness, and gradients through all of it.
 # Conventions (units, axes, phase sign) are in `docs/design.md`. Sizes shrink when
-# `JAXOCEAN_SMALL=1` (`make test-slow` runs this notebook that way).
+# `JAXOCEAN_SMALL=1` (`make test` runs this notebook that way).
 
 # %%
 import os
