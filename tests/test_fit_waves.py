@@ -58,7 +58,6 @@ def ortho_fit(ortho_scene):
     return fw.waves(normals, rough, c, TIMES, return_selection=True)
 
 
-@pytest.mark.slow  # the full order selection of the ortho_fit fixture
 def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
     c, truth, normals, _ = ortho_scene
     fit, selection = ortho_fit
@@ -85,7 +84,6 @@ def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
         assert np.all(np.asarray(getattr(m.abs_error, name)) <= 3 * sigma), name
 
 
-@pytest.mark.slow  # uses ortho_fit (a full order selection)
 def test_forecast_model_is_the_fit_with_its_band_and_the_window_frequency_uncertainty(ortho_scene, ortho_fit):
     from jaxocean import forecast as fc
 
@@ -246,7 +244,6 @@ def test_the_detection_sees_a_short_wave_on_a_swell_at_the_swells_rest_positions
     assert abs(om_rest - om(1.5)) < 0.05 * om(1.5)
 
 
-@pytest.mark.slow  # a refinement compiled for a perspective view
 def test_refine_from_the_spectral_start_in_perspective():
     c = persp()
     truth = few_waves()
@@ -261,7 +258,6 @@ def test_refine_from_the_spectral_start_in_perspective():
     assert float(fit.normal_error) < 1e-4
 
 
-@pytest.mark.slow  # uses ortho_fit (a full order selection)
 def test_waves_steeper_than_a_looping_crest_are_no_success(ortho_fit):
     # k h = 1 is the steepest trochoid (render accepts it); beyond it the crest loops
     k = np.array([0.5, 1.0, 2.0])
@@ -276,7 +272,6 @@ def test_waves_steeper_than_a_looping_crest_are_no_success(ortho_fit):
         _lm.maybe_throw(failed, True, 10)
 
 
-@pytest.mark.slow  # a refinement compiled for steep waves
 def test_refinement_keeps_every_wave_a_sea_surface(ortho_scene):
     # the structured LM is projected onto k h <= 1: a start steeper than a looping crest is
     # brought back to the limit, and no step goes past it
@@ -290,7 +285,6 @@ def test_refinement_keeps_every_wave_a_sea_surface(ortho_scene):
                                            normals, rough, c, TIMES))
 
 
-@pytest.mark.slow  # a full order selection
 def test_a_short_wave_the_rows_path_explains_stays_on_it():
     # one wave 5 footprints long on an orthographic view: its hits move 0.08 m (a sixth of a
     # footprint), so the data are the rows path's. The long-wave band, whose heights the
@@ -407,7 +401,6 @@ def test_exact_height_block_bad_uses_are_errors():
                           exact_heights=True)
 
 
-@pytest.mark.slow  # two float64 refinements
 def test_the_stall_test_stops_where_ten_steps_lower_the_loss_by_less_than_its_tolerance(x64):
     # the same refinement with the stall test off, then on at a tolerance that the run's own
     # history meets part-way: the stall run follows the same steps and stops at the first
@@ -494,7 +487,6 @@ def test_success_is_explaining_the_data_and_converged_is_the_step_budget(ortho_s
     assert float(one.normal_error) > fw.normal_error_bound()
 
 
-@pytest.mark.slow  # two order selections
 def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     # three waves, room for two: the count was not selected, so the fit must not claim success
     # (on the rows path, which draws this calm sea: the cap is what is tested here)
@@ -507,7 +499,6 @@ def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     assert bool(fw.waves(normals, rough, c, TIMES, n_waves=3, init=truth).success)
 
 
-@pytest.mark.slow  # a full order selection
 def test_a_converged_fit_that_does_not_explain_the_data_is_reported_failed():
     # one wave two footprints long: in the normals, but aliased by the spectral start; the
     # greedy fit converges to waves that leave ~0.1 rad -- not success, and FitError says why
@@ -784,7 +775,6 @@ def test_holdout_criterion_scores_the_held_out_frame(ortho_scene):
         fw.waves(normals[:2], rough[:2], c, TIMES[:2], criterion="holdout")
 
 
-@pytest.mark.slow  # two full fits on noisy normals
 def test_known_noise_sets_the_criterion_and_the_success_bound(ortho_scene):
     # normals with Gaussian noise sigma per component: the mean angle (~1.25 sigma) is above
     # the noise-free bound, so the fit succeeds only when told the noise
@@ -910,7 +900,6 @@ def test_non_unit_normals_are_refused(ortho_scene):
     assert fw.check_inputs(half, rough, c, TIMES)[0].shape == normals.shape
 
 
-@pytest.mark.slow  # uses ortho_fit (a full order selection)
 def test_determined_waves_are_the_separable_ones(ortho_fit):
     # three waves well apart in k: each is measured, and the fit says so
     fit, _ = ortho_fit
@@ -1111,7 +1100,6 @@ def test_a_model_that_moves_the_hits_by_half_a_footprint_is_fitted_on_the_hits_p
     assert m.true_index.size >= 33
 
 
-@pytest.mark.slow  # a full fit on each forward path
 @pytest.mark.parametrize("path", ["hits", "rows"])
 def test_the_data_choose_the_forward_path_where_its_two_paths_differ(path):
     # a 2-wave sea 7-10 m long, 4-8 cm high, seen from above at 0.5 m pixels: no hit moves by
@@ -1132,7 +1120,6 @@ def test_the_data_choose_the_forward_path_where_its_two_paths_differ(path):
         assert np.all(np.asarray(getattr(m.abs_error, name)) <= 3 * sigma), name
 
 
-@pytest.mark.slow  # ortho_fit and a second full fit without the band
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):
     c, truth, normals, rough = ortho_scene
     with_band, _ = ortho_fit
@@ -1188,7 +1175,6 @@ def sampled_sea():
     return truth, waves
 
 
-@pytest.mark.slow  # spectrum fits of several sizes (one compile each)
 def test_spectrum_fit_recovers_the_sea_state_from_its_waves(sampled_sea):
     truth, waves = sampled_sea
     fit = fit_spectrum.spectrum(waves)
@@ -1243,7 +1229,6 @@ def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea, mo
         np.testing.assert_allclose(_spectrum_fit_fields(padded), _spectrum_fit_fields(plain), rtol=1e-4)
 
 
-@pytest.mark.slow  # spectrum fits of several sizes (one compile each)
 def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     _, waves = sampled_sea
     tail = np.asarray(waves.omega) > 2.5 * 2 * np.pi / 5.0
@@ -1276,7 +1261,6 @@ def test_a_peak_that_one_beyond_the_band_explains_is_not_claimed():
     assert float(fit.spectrum.tp) < true_tp and float(fit.spectrum.hs) < true_hs
 
 
-@pytest.mark.slow  # spectrum fits of several sizes (one compile each)
 def test_only_determined_energies_show_a_peak(sampled_sea):
     # a wave fit that missed the sea below 1.2 wp and modelled 1.2-2 wp with stand-ins whose
     # energies are off (0.3x, then 2.5x: Table 2's failure): taking their energies as measured
@@ -1396,7 +1380,6 @@ def test_the_direction_std_of_a_few_waves_describes_their_scatter():
                                                                                        np.mean(np.abs(z) > 3))
 
 
-@pytest.mark.slow  # spectrum fits of several sizes (one compile each)
 def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
     truth, waves = sampled_sea
     fit = fit_spectrum.spectrum(waves)
