@@ -1190,22 +1190,20 @@ def test_spectrum_fit_recovers_the_sea_state_from_its_waves(sampled_sea):
     np.testing.assert_array_equal(keep.amplitude, waves.amplitude)
 
 
-def _spectrum_fit_fields(f):
-    return [float(f.spectrum.hs), float(f.spectrum.tp), float(f.spectrum.gamma), f.hs_std, f.tp_std, f.gamma_std,
-            f.misfit, f.roughness_misfit, f.alpha]
+def _spectrum_fit_case(waves):
+    c = cam.make_camera(height=20.0, pitch=0.9, fov=0.8, resolution=RES)
+    return c, fw.predict(waves, c, TIMES[:2])[1]
 
 
-@pytest.mark.slow  # spectrum fits compiled padded and unpadded
-def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea, monkeypatch):
+def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea):
     # the residuals take the fit's data as arguments, not as closed-over constants, padded to
     # a multiple of 16 bins and rows: a second fit of as many waves, or of a few fewer, reuses
     # every compiled program (a recompiled fit cost 3-30 s a call)
     _, waves = sampled_sea
-    c = cam.make_camera(height=20.0, pitch=0.9, fov=0.8, resolution=RES)
-    rough = fw.predict(waves, c, TIMES[:2])[1]
+    c, rough = _spectrum_fit_case(waves)
     other, other_rough = waves._replace(amplitude=waves.amplitude * 0.9), rough * 0.81
     first = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=np.ones(60, bool))
-    fewer = np.arange(60) != 7
+    assert first.spectrum.hs.dtype == jnp.result_type(float)  # fitted in float64, returned in the default
     compiled = []
 
     def count(event, duration, **kw):
@@ -1215,16 +1213,28 @@ def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea, mo
     jax.monitoring.register_event_duration_secs_listener(count)
     try:
         again = fit_spectrum.spectrum(other, camera=c, roughness=other_rough, reliable=np.ones(60, bool))
-        nearby = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=fewer)
+        fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=np.arange(60) != 7)
     finally:
         jax.monitoring.unregister_event_duration_listener(count)
     assert compiled == []
     # and the data did reach the fit: amplitudes 0.9x give Hs 0.9x
     assert float(again.spectrum.hs) == pytest.approx(0.9 * float(first.spectrum.hs), rel=1e-3)
-    # the padding changes no answer: the same fits unpadded
-    monkeypatch.setattr(fit_spectrum, "_PAD", 1)
-    for padded, reliable in ((first, np.ones(60, bool)), (nearby, fewer)):
-        plain = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=reliable)
+
+
+def _spectrum_fit_fields(f):
+    return [float(f.spectrum.hs), float(f.spectrum.tp), float(f.spectrum.gamma), f.hs_std, f.tp_std, f.gamma_std,
+            f.misfit, f.roughness_misfit, f.alpha]
+
+
+@pytest.mark.slow  # spectrum fits compiled padded and unpadded
+def test_the_spectrum_fits_padding_changes_no_answer(sampled_sea, monkeypatch):
+    _, waves = sampled_sea
+    c, rough = _spectrum_fit_case(waves)
+    for reliable in (np.ones(60, bool), np.arange(60) != 7):
+        padded = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=reliable)
+        with monkeypatch.context() as m:
+            m.setattr(fit_spectrum, "_PAD", 1)
+            plain = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=reliable)
         assert padded.success == plain.success and padded.peak_observed == plain.peak_observed
         np.testing.assert_allclose(_spectrum_fit_fields(padded), _spectrum_fit_fields(plain), rtol=1e-4)
 
