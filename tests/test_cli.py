@@ -238,6 +238,7 @@ def test_fit_lighting_bad_inputs_exit_2(tiny_scene, tmp_path, capsys):
     assert not list(tmp_path.glob("*.json"))
 
 
+@pytest.mark.slow  # the reedit command end to end (about 50 s on 2 cores)
 def test_reedit_with_new_camera_and_sun(tiny_scene, tmp_path, capsys):
     out = tmp_path / "edited"
     light = {"lighting": {"sun_azimuth": 1.0, "sun_elevation": 1.0, "sun_color": [5.0, 5.0, 4.0],
@@ -433,6 +434,7 @@ def test_fit_waves_on_a_dataset_root_names_its_scene_directories(tmp_path, capsy
             f"{tmp_path / 'data' / 'scene_00000'}\n") in capsys.readouterr().err
 
 
+@pytest.mark.slow  # the fit-waves command's order selection
 def test_fit_waves_that_finds_no_wave_exits_1_with_its_json(tiny_scene, tmp_path, capsys):
     # at a stated noise far above the waves' slopes the fit finds nothing: a failed fit
     # (exit 1, JSON written, as the help and the README say), not bad input (exit 2)
@@ -634,6 +636,7 @@ def test_render_replaces_the_previous_scene_in_its_directory(tmp_path, capsys):
     assert "removed 6 frame file(s) beyond the new 2 frame(s)" in capsys.readouterr().err
 
 
+@pytest.mark.slow  # simulate, check and two training commands
 def test_an_interrupted_simulate_is_named_unfinished_by_check_and_training(tmp_path, capsys, monkeypatch):
     from jaxocean.io import dataset
 

@@ -56,6 +56,7 @@ def test_a_flat_sea_has_zero_height_and_plane_hits():
     assert float(hm.residual) < 1e-7
 
 
+@pytest.mark.slow  # height integration compiled eager and jitted
 def test_frames_are_mapped_and_jit_gives_the_eager_value():
     camera = _view(24)
     normals = jnp.stack([render.geometry(SWELL, camera, t).normal for t in (0.0, 0.4)])

@@ -412,6 +412,7 @@ def test_a_masked_nan_pixel_is_left_out_traced_as_eagerly(x64):
 # --------------------------------------------------------------------------- re-editing
 
 
+@pytest.mark.slow  # re-rendering at a new camera and sun
 def test_reedit_applies_the_edits_and_style_transfer_carries_the_lighting(scene, singles, x64):
     waves, camera = scene["waves"], _f64(scene["camera"])
     res = singles["results"][0]
@@ -480,6 +481,7 @@ def test_reedit_scene_refuses_frames_that_are_not_the_scene_frames_in_order(tmp_
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.slow  # a float32 lighting fit compiled apart from the float64 ones
 def test_float32_fit_recovers_lighting(scene):
     """The float32 path end to end (the library's default precision): the first scene's image
     and geometry cast to float32, fitted from a float32 random start."""

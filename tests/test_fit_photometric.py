@@ -72,6 +72,7 @@ def clean_fit(scene):
     return _fit(scene)
 
 
+@pytest.mark.slow  # a full photometric fit
 def test_recovers_waves_and_lighting_from_a_perturbed_start(scene, clean_fit):
     r = clean_fit
     assert r.success, r.message
@@ -145,6 +146,7 @@ def test_a_sequence_the_model_cannot_explain_fails(scene):
     assert not flat.success and "spread about each row's median is 0" in flat.message, flat.message
 
 
+@pytest.mark.slow  # a photometric fit of 32x32 frames
 def test_a_flat_sea_does_not_explain_small_textured_frames():
     # 32 x 32 frames of a 60-wave sea: the noise estimate takes in the wave texture (0.12 of
     # the images' 0.29), and the IRLS scale is floored at it. The success test holds the
@@ -168,6 +170,7 @@ def test_a_flat_sea_does_not_explain_small_textured_frames():
     assert float(result.residual_scale) > 0.8 * float(result.signal_scale)
 
 
+@pytest.mark.slow  # float64 gradient checks through the images
 def test_residual_is_jit_consistent_and_its_loss_has_exact_gradients(scene):
     with jax.enable_x64(True):
         camera, times, images, light = scene["camera"], scene["times"], scene["images"], scene["light0"]
@@ -261,6 +264,7 @@ def test_bad_inputs_raise_clear_errors(scene):
             jax.jit(lambda images: ph.photometric(images, *args[1:]))(s["images"])
 
 
+@pytest.mark.slow  # two photometric fits
 def test_per_frame_exposure_is_recovered_where_one_exposure_cannot_explain(scene):
     # a camera on automatic exposure: each frame scaled by its own factor. One exposure for
     # the sequence cannot explain the frames; one per frame recovers the factors' ratios
@@ -338,6 +342,7 @@ def test_a_wave_the_view_does_not_resolve_is_never_determined():
     assert energy == pytest.approx(slope[:3].sum() / slope.sum())
 
 
+@pytest.mark.slow  # two photometric fits
 def test_a_wave_at_its_frame_rate_alias_is_not_determined(scene):
     # frames pi / omega apart: the second wave and its reverse twin (theta + pi, -phi) make the
     # same frames, so a fit started at the twin explains the images to the noise with that

@@ -58,6 +58,7 @@ def ortho_fit(ortho_scene):
     return fw.waves(normals, rough, c, TIMES, return_selection=True)
 
 
+@pytest.mark.slow  # a full order-selected fit (the ortho_fit fixture)
 def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
     c, truth, normals, _ = ortho_scene
     fit, selection = ortho_fit
@@ -84,6 +85,7 @@ def test_recovers_a_few_waves_and_picks_their_count(ortho_scene, ortho_fit):
         assert np.all(np.asarray(getattr(m.abs_error, name)) <= 3 * sigma), name
 
 
+@pytest.mark.slow  # uses the ortho_fit fixture
 def test_forecast_model_is_the_fit_with_its_band_and_the_window_frequency_uncertainty(ortho_scene, ortho_fit):
     from jaxocean import forecast as fc
 
@@ -244,6 +246,7 @@ def test_the_detection_sees_a_short_wave_on_a_swell_at_the_swells_rest_positions
     assert abs(om_rest - om(1.5)) < 0.05 * om(1.5)
 
 
+@pytest.mark.slow  # a refinement in perspective
 def test_refine_from_the_spectral_start_in_perspective():
     c = persp()
     truth = few_waves()
@@ -258,6 +261,7 @@ def test_refine_from_the_spectral_start_in_perspective():
     assert float(fit.normal_error) < 1e-4
 
 
+@pytest.mark.slow  # uses the ortho_fit fixture
 def test_waves_steeper_than_a_looping_crest_are_no_success(ortho_fit):
     # k h = 1 is the steepest trochoid (render accepts it); beyond it the crest loops
     k = np.array([0.5, 1.0, 2.0])
@@ -285,6 +289,7 @@ def test_refinement_keeps_every_wave_a_sea_surface(ortho_scene):
                                            normals, rough, c, TIMES))
 
 
+@pytest.mark.slow  # a full fit in perspective
 def test_a_short_wave_the_rows_path_explains_stays_on_it():
     # one wave 5 footprints long on an orthographic view: its hits move 0.08 m (a sixth of a
     # footprint), so the data are the rows path's. The long-wave band, whose heights the
@@ -401,6 +406,7 @@ def test_exact_height_block_bad_uses_are_errors():
                           exact_heights=True)
 
 
+@pytest.mark.slow  # float64 refinements
 def test_the_stall_test_stops_where_ten_steps_lower_the_loss_by_less_than_its_tolerance(x64):
     # the same refinement with the stall test off, then on at a tolerance that the run's own
     # history meets part-way: the stall run follows the same steps and stops at the first
@@ -470,6 +476,7 @@ def test_a_fit_that_fails_says_so(ortho_scene):
     assert info.value.result is not None and not bool(info.value.result.success)
 
 
+@pytest.mark.slow  # full fits
 def test_success_is_explaining_the_data_and_converged_is_the_step_budget(ortho_scene):
     # one step of final refinement and no tolerance it can meet: not converged; but the
     # selection's trials already explain these noise-free data far within the bound -- a
@@ -487,6 +494,7 @@ def test_success_is_explaining_the_data_and_converged_is_the_step_budget(ortho_s
     assert float(one.normal_error) > fw.normal_error_bound()
 
 
+@pytest.mark.slow  # a full fit
 def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     # three waves, room for two: the count was not selected, so the fit must not claim success
     # (on the rows path, which draws this calm sea: the cap is what is tested here)
@@ -499,6 +507,7 @@ def test_a_fit_stopped_by_max_waves_is_reported_failed(ortho_scene):
     assert bool(fw.waves(normals, rough, c, TIMES, n_waves=3, init=truth).success)
 
 
+@pytest.mark.slow  # a full fit
 def test_a_converged_fit_that_does_not_explain_the_data_is_reported_failed():
     # one wave two footprints long: in the normals, but aliased by the spectral start; the
     # greedy fit converges to waves that leave ~0.1 rad -- not success, and FitError says why
@@ -775,6 +784,7 @@ def test_holdout_criterion_scores_the_held_out_frame(ortho_scene):
         fw.waves(normals[:2], rough[:2], c, TIMES[:2], criterion="holdout")
 
 
+@pytest.mark.slow  # full fits
 def test_known_noise_sets_the_criterion_and_the_success_bound(ortho_scene):
     # normals with Gaussian noise sigma per component: the mean angle (~1.25 sigma) is above
     # the noise-free bound, so the fit succeeds only when told the noise
@@ -900,6 +910,7 @@ def test_non_unit_normals_are_refused(ortho_scene):
     assert fw.check_inputs(half, rough, c, TIMES)[0].shape == normals.shape
 
 
+@pytest.mark.slow  # uses the ortho_fit fixture
 def test_determined_waves_are_the_separable_ones(ortho_fit):
     # three waves well apart in k: each is measured, and the fit says so
     fit, _ = ortho_fit
@@ -1100,6 +1111,7 @@ def test_a_model_that_moves_the_hits_by_half_a_footprint_is_fitted_on_the_hits_p
     assert m.true_index.size >= 33
 
 
+@pytest.mark.slow  # full fits on both paths
 @pytest.mark.parametrize("path", ["hits", "rows"])
 def test_the_data_choose_the_forward_path_where_its_two_paths_differ(path):
     # a 2-wave sea 7-10 m long, 4-8 cm high, seen from above at 0.5 m pixels: no hit moves by
@@ -1120,6 +1132,7 @@ def test_the_data_choose_the_forward_path_where_its_two_paths_differ(path):
         assert np.all(np.asarray(getattr(m.abs_error, name)) <= 3 * sigma), name
 
 
+@pytest.mark.slow  # two full fits
 def test_a_sea_of_separable_waves_is_fitted_as_without_the_band(ortho_scene, ortho_fit):
     c, truth, normals, rough = ortho_scene
     with_band, _ = ortho_fit
@@ -1175,6 +1188,7 @@ def sampled_sea():
     return truth, waves
 
 
+@pytest.mark.slow  # spectrum fits compiled
 def test_spectrum_fit_recovers_the_sea_state_from_its_waves(sampled_sea):
     truth, waves = sampled_sea
     fit = fit_spectrum.spectrum(waves)
@@ -1195,6 +1209,7 @@ def _spectrum_fit_case(waves):
     return c, fw.predict(waves, c, TIMES[:2])[1]
 
 
+@pytest.mark.slow  # spectrum fits compiled
 def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea):
     # the residuals take the fit's data as arguments, not as closed-over constants, padded to
     # a multiple of 16 bins and rows: a second fit of as many waves, or of a few fewer, reuses
@@ -1239,6 +1254,7 @@ def test_the_spectrum_fits_padding_changes_no_answer(sampled_sea, monkeypatch):
         np.testing.assert_allclose(_spectrum_fit_fields(padded), _spectrum_fit_fields(plain), rtol=1e-4)
 
 
+@pytest.mark.slow  # spectrum fits compiled
 def test_spectrum_fit_of_the_tail_only_flags_the_unseen_peak(sampled_sea):
     _, waves = sampled_sea
     tail = np.asarray(waves.omega) > 2.5 * 2 * np.pi / 5.0
@@ -1390,6 +1406,7 @@ def test_the_direction_std_of_a_few_waves_describes_their_scatter():
                                                                                        np.mean(np.abs(z) > 3))
 
 
+@pytest.mark.slow  # spectrum fits compiled
 def test_spectrum_success_means_the_spectrum_explains_the_waves(sampled_sea):
     truth, waves = sampled_sea
     fit = fit_spectrum.spectrum(waves)

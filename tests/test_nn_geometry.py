@@ -32,6 +32,7 @@ def tiny_dataset(tmp_path_factory):
     return root
 
 
+@pytest.mark.slow  # both model variants compiled
 @pytest.mark.parametrize("head", geo.NORMAL_HEADS)
 def test_zero_network_output_is_a_flat_sea_at_the_floor(head, key):
     model = geo.init(key, TINY._replace(normal_head=head))
@@ -258,6 +259,7 @@ def test_image_loss_is_zero_for_the_true_geometry(tiny_dataset):
     assert float(gt._image_loss(flat, fd)) > 1e-4
 
 
+@pytest.mark.slow  # three training runs
 def test_training_resumes_to_the_uninterrupted_result(tiny_dataset, tmp_path):
     full = gt.train(tiny_dataset, tmp_path / "full", TINY_TRAIN, progress=False)
     with pytest.raises(CheckpointError, match="other settings"):
@@ -274,6 +276,7 @@ def test_training_resumes_to_the_uninterrupted_result(tiny_dataset, tmp_path):
     assert model.config == TINY
 
 
+@pytest.mark.slow  # two training runs
 def test_an_epoch_longer_than_the_train_split_trains_as_the_split_allows(tiny_dataset, tmp_path, capsys):
     # 20 train frames hold 2 batches of 8: asking for 50 steps an epoch takes the same 2 steps,
     # and the cosine decay spans the 4 steps taken (it spanned 100 and never decayed; the
@@ -331,6 +334,7 @@ def test_sharded_step_equals_the_single_device_step(tiny_dataset, tmp_path):
     assert run.returncode == 0, run.stderr[-3000:]
 
 
+@pytest.mark.slow  # a subprocess with two host devices
 def test_predict_spreads_frames_over_devices_and_gives_the_single_device_maps(key, tmp_path):
     """Two host devices: 5 frames in batches of 2 (the last padded to the device count) give
     the maps of one device, in that process and in a one-device process, to float32
@@ -522,6 +526,7 @@ def _ratios_to_flat(model):
     return ratios
 
 
+@pytest.mark.slow  # the shipped model on 128^2 frames
 @pytest.mark.skipif(not geo.PRETRAINED_PATH.exists(), reason="the pretrained model is not built yet")
 def test_the_shipped_model_loads_and_beats_flat():
     # measured 0.52x flat's 1 - cos on the linear frames and 0.62x through the round trip

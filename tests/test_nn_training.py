@@ -133,6 +133,7 @@ def test_a_crop_longer_than_one_side_takes_that_whole_side():
     np.testing.assert_array_equal(window, frames[:, :, x0:x0 + 16])
 
 
+@pytest.mark.slow  # several training runs started
 def test_datasets_too_small_to_train_on_say_what_they_lack(tmp_path):
     config = gt.TrainConfig(model=geo.GeometryConfig(widths=(4, 8), roughness_widths=(4, 8)), losses="image+gan",
                             epochs=1, steps_per_epoch=1, batch_size=1, crop=8, val_frames=1,

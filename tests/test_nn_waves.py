@@ -93,6 +93,7 @@ def test_loss_is_invariant_to_permuting_wave_slots():
     assert float(loss(flat, *args)) == pytest.approx(1.0)
 
 
+@pytest.mark.slow  # trains a network
 def test_tiny_network_overfits_one_sequence():
     normals, rough = _scene()
     # geometry loss alone (self-supervised); 8 slots for the 2 waves (4 can settle on one)
@@ -141,6 +142,7 @@ def test_bad_inputs_name_the_problem(tiny_model):
         fit_waves_fn(normals, rough, CAMERA, TIMES, init="spectrum")
 
 
+@pytest.mark.slow  # the network compiled on a saved and a loaded model
 def test_save_load_round_trip_and_errors(tiny_model, tmp_path):
     path = wn.save(tmp_path / "m.npz", tiny_model, {"note": "x"})
     back = wn.load(path)
@@ -160,6 +162,7 @@ def _swell4(camera, times):
     return waves, _scene(waves, camera, times)
 
 
+@pytest.mark.slow  # the shipped model and its linear solve compiled
 def test_shipped_model_loads_and_predicts_physical_waves():
     model = wn.load()
     T = model.config.frames
@@ -288,6 +291,7 @@ def test_apply_jits_with_the_model_as_an_argument(tiny_model):
     assert jax.tree.leaves(TINY) == []
 
 
+@pytest.mark.slow  # the anchored network compiled
 def test_anchored_slots_move_their_periodogram_peak_by_a_bounded_step():
     config = TINY._replace(anchors=True)
     model = wn.init(jax.random.key(2), config)
@@ -358,6 +362,7 @@ def test_train_records_the_device_count_in_its_resume_signature(tmp_path, monkey
     assert seen["devices"] == jax.local_device_count()
 
 
+@pytest.mark.slow  # the network differentiated in float64
 def test_direction_gradient_is_finite_where_the_direction_outputs_vanish(tiny_model):
     # theta = atan2 of two outputs, kept off the origin: at (0, 0) the guard never fired (it
     # compared sqrt(r^2 + 1e-12) >= 1e-6 with 1e-6) and the gradient of every param was NaN

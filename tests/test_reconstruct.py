@@ -45,6 +45,7 @@ def test_direction_conventions():
     assert rc.direction_deg(-math.pi / 2, compass=False) == pytest.approx(270.0)
 
 
+@pytest.mark.slow  # loads and rectifies a rendered sequence
 def test_scene_sequence_keeps_the_scene_camera(tmp_path):
     files, scene_json, camera, times = _scene(tmp_path)
     seq, rep = rc.load_sequence(files, scene_json, width=32, response="bruneton")
@@ -143,6 +144,7 @@ def test_camera_height_only_without_poses(tmp_path):
         rc.load_sequence([], bare, width=32)
 
 
+@pytest.mark.slow  # rectifies the real clip's frames
 @pytest.mark.skipif(not CLIP.exists(), reason="the real clip is not in this checkout")
 def test_sea_view_of_real_footage_lies_inside_every_frame():
     camera_file = cf.read_camera_file(CLIP / "camera.json")
@@ -404,6 +406,7 @@ def test_the_geometry_spectrum_gives_the_sea_state_where_no_wave_was_confirmed(t
     assert sea["geometry_spectrum"]["success"]  # reported beside, as evidence
 
 
+@pytest.mark.slow  # the sea stage run twice
 def test_waves_that_explain_the_geometry_need_the_images_to_confirm_them(tmp_path, monkeypatch):
     # a wave fit that succeeds on the geometry: the stage succeeds when the images carry
     # no space-time evidence either way (too few frames), and fails, saying why, when they
@@ -465,6 +468,7 @@ def test_unconfirmed_waves_give_no_headline_sea_state(tmp_path):
     assert sea["hs_m"] == pytest.approx(sea["waves_hs_m"]) and sea["source"] == "the fitted waves"
 
 
+@pytest.mark.slow  # the sea stage end to end
 def test_the_sea_stage_hands_the_determined_mask_to_the_spectrum_fit(tmp_path, monkeypatch):
     # only the waves the fit measured can show the spectral peak (fit.spectrum's determined)
     files, scene_json, camera, times = _scene(tmp_path)
@@ -734,6 +738,7 @@ def test_stage_one_names_a_frame_outside_the_working_view(tmp_path):
     assert rep.details["usable_sea_fraction"] > 0.5 and rep.details["usable_sea_fraction_min"] == 0.0
 
 
+@pytest.mark.slow  # the forecast stage end to end
 def test_the_forecast_of_waves_no_stage_confirmed_is_not_a_success():
     # the forecast stage drew the waves of a failed wave fit (stage 5 not succeeding) and
     # reported success: its flag said the forecast rested on waves that explain the data

@@ -179,6 +179,7 @@ def _grad_setup():
     return waves, c, light
 
 
+@pytest.mark.slow  # float64 finite differences through render
 def test_render_gradients_wrt_waves_lighting_and_camera(x64):
     waves, c, light = _grad_setup()
     assert (~np.asarray(cam.intersect_sea(c).mask)).any()  # horizon inside the image

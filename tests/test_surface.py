@@ -162,6 +162,7 @@ def test_on_rows_equals_per_point_path_with_per_row_weights(n_cols):
         surface.on_rows(waves, origin, step[:3], n_cols, 0.0)
 
 
+@pytest.mark.slow  # on_grid and normal compiled vmapped and per sea
 def test_vmap_over_batches_of_seas():
     batch = jax.tree.map(lambda *a: jnp.stack(a), *[random_waves(s, 6) for s in range(3)])
     x = jnp.linspace(0, 5, 8)
@@ -274,6 +275,7 @@ def _close(got, want):
     np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-10 * float(jnp.max(jnp.abs(want))))
 
 
+@pytest.mark.slow  # float64 autodiff of both products, both modes
 def test_on_grid_custom_derivatives_equal_autodiff_of_the_plain_product(x64):
     """on_grid's hand-written tangent rule (forward mode, and transposed, reverse mode) equals
     plain autodiff of the straightforward product to 1e-10, wrt waves, grid and times."""
@@ -303,7 +305,7 @@ def test_on_grid_second_derivatives_equal_autodiff_of_the_plain_product(x64):
         _close(h_fast, h_plain)
 
 
-@pytest.mark.parametrize("with_displacement", [True, False])
+@pytest.mark.parametrize("with_displacement", [pytest.param(True, marks=pytest.mark.slow), False])  # True: 14 s
 def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64, with_displacement):
     """on_rows' hand-written tangent rule (forward mode, and transposed, reverse mode) equals
     plain autodiff of the same tables and product to 1e-10, wrt waves, row origins and steps,
@@ -340,6 +342,7 @@ def test_on_rows_custom_derivatives_equal_autodiff_of_the_plain_product(x64, wit
     check_grads(jax.jit(fast), args, order=1, modes=("fwd", "rev"), eps=1e-6, atol=1e-5, rtol=1e-5)
 
 
+@pytest.mark.slow  # hypothesis examples, each compiled
 @given(
     kh=st.lists(st.floats(0.0, 1.0), min_size=3, max_size=3),
     omega=st.lists(st.floats(0.3, 8.0), min_size=3, max_size=3),
