@@ -3,7 +3,8 @@
 * Warnings are errors (pyproject's ``filterwarnings``); only jaxopt's own deprecation
   warning is filtered.
 * ``key`` gives a fresh PRNG key per test; ``x64`` switches 64-bit floats on for one test
-  (gradient checks run there).
+  (gradient checks run there); ``compilations()`` is a context manager listing the XLA
+  programs compiled inside it.
 * The command line's persistent XLA compilation cache is off: every worker compiles its own
   programs (hermetic runs).
 * hypothesis: a small deterministic profile so `make test` stays fast and reproducible.
@@ -13,6 +14,7 @@
   XLA then aborts or segfaults inside the next compilation.
 """
 
+import contextlib
 import gc
 import os
 
@@ -42,6 +44,25 @@ def key():
 def x64():
     with jax.enable_x64(True):
         yield
+
+
+@pytest.fixture
+def compilations():
+    @contextlib.contextmanager
+    def record():
+        names = []
+
+        def listen(event, duration, **kw):
+            if event.endswith("backend_compile_duration"):
+                names.append(kw.get("fun_name"))
+
+        jax.monitoring.register_event_duration_secs_listener(listen)
+        try:
+            yield names
+        finally:
+            jax.monitoring.unregister_event_duration_listener(listen)
+
+    return record
 
 
 @pytest.fixture(autouse=True, scope="module")

@@ -1210,7 +1210,7 @@ def _spectrum_fit_case(waves):
 
 
 @pytest.mark.slow  # spectrum fits compiled
-def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea):
+def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea, compilations):
     # the residuals take the fit's data as arguments, not as closed-over constants, padded to
     # a multiple of 16 bins and rows: a second fit of as many waves, or of a few fewer, reuses
     # every compiled program (a recompiled fit cost 3-30 s a call)
@@ -1219,18 +1219,9 @@ def test_a_second_spectrum_fit_of_a_nearby_size_compiles_nothing(sampled_sea):
     other, other_rough = waves._replace(amplitude=waves.amplitude * 0.9), rough * 0.81
     first = fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=np.ones(60, bool))
     assert first.spectrum.hs.dtype == jnp.result_type(float)  # fitted in float64, returned in the default
-    compiled = []
-
-    def count(event, duration, **kw):
-        if event.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(count)
-    try:
+    with compilations() as compiled:
         again = fit_spectrum.spectrum(other, camera=c, roughness=other_rough, reliable=np.ones(60, bool))
         fit_spectrum.spectrum(waves, camera=c, roughness=rough, reliable=np.arange(60) != 7)
-    finally:
-        jax.monitoring.unregister_event_duration_listener(count)
     assert compiled == []
     # and the data did reach the fit: amplitudes 0.9x give Hs 0.9x
     assert float(again.spectrum.hs) == pytest.approx(0.9 * float(first.spectrum.hs), rel=1e-3)

@@ -176,24 +176,15 @@ def test_the_commands_refuse_counts_below_one(tmp_path, capsys, command, option)
     assert "expected a positive" in capsys.readouterr().err
 
 
-def test_loading_the_shipped_models_compiles_nothing():
+def test_loading_the_shipped_models_compiles_nothing(compilations):
     # the parameter structure a checkpoint fills is evaluated abstractly: drawing it with the
     # initialisers compiled one program per parameter shape (7.8 s for the geometry model on
     # 2 cores) whose values were then replaced by the file's
     from jaxocean.nn import waves as wave_net
 
     jax.clear_caches()  # nothing compiled by an earlier test may hide a compilation here
-    compiled = []
-
-    def count(event, duration, **kw):
-        if event.endswith("backend_compile_duration"):
-            compiled.append(kw.get("fun_name"))
-
-    jax.monitoring.register_event_duration_secs_listener(count)
-    try:
+    with compilations() as compiled:
         geometry_model, wave_model = geo.load(), wave_net.load()
-    finally:
-        jax.monitoring.unregister_event_duration_listener(count)
     assert compiled == []
     # and the files' values were read: finite, and not the initialisers' zero biases alone
     for model in (geometry_model, wave_model):
