@@ -24,7 +24,7 @@ demo: $(STAMP)
 # `make test-extended` runs three full-scale regression checks of one to two minutes each
 # that CI leaves out for its time limit. Each test module runs on one worker (--dist
 # loadscope), so its fixtures are built and its programs compiled once: on a 2-core CPU
-# make test took 8.2 min and make test-slow 24.5 min. No persistent XLA
+# make test took 7.5 min and make test-slow 22.4 min. No persistent XLA
 # cache is shared between the workers: it is the one state a worker crash inside XLA could
 # come from, and it saved no time measurable here.
 RUN_PYTEST = JAXOCEAN_SMALL=1 $(PY) -m pytest -q -n 2 --dist loadscope
